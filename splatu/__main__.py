@@ -1,0 +1,3 @@
+from splatu.cli import entrypoint
+
+entrypoint()

@@ -1,0 +1,65 @@
+"""The `splatu` command line: tyro subcommands over dataclass configs, nerfstudio style.
+
+Each subcommand is a `Command`: a description, a function that builds its default config
+(it sees the raw arguments, so `train --preset quality` can change the defaults that
+`--help` shows), and the function that runs it. User errors (`SplatuError`) print one line
+and exit 2; `--debug` or SPLATU_DEBUG=1 shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import tyro
+
+from splatu.errors import SplatuError
+
+
+@dataclass(frozen=True)
+class Command:
+    description: str
+    default_config: Callable[[Sequence[str]], Any]
+    run: Callable[[Any], None]
+
+
+def _commands() -> dict[str, Command]:
+    """Every subcommand, imported here so that one list is the whole CLI."""
+    from splatu.commands import COMMANDS
+
+    return COMMANDS
+
+
+def main(argv: Sequence[str]) -> None:
+    commands = _commands()
+    sub_argv = argv[1:] if argv and argv[0] in commands else []
+    defaults = {name: cmd.default_config(sub_argv) for name, cmd in commands.items()}
+    descriptions = {name: cmd.description for name, cmd in commands.items()}
+    config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
+    config = tyro.cli(
+        config_type,
+        args=list(argv),
+        prog="splatu",
+        description="3D Gaussian Splatting on the CPU with view-dependent uncertainty.",
+    )
+    name = next(n for n, d in defaults.items() if type(d) is type(config))
+    commands[name].run(config)
+
+
+def entrypoint(argv: Sequence[str] | None = None) -> None:
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args or os.environ.get("SPLATU_DEBUG", "") not in ("", "0")
+    args = [a for a in args if a != "--debug"]
+    try:
+        main(args)
+    except SplatuError as err:
+        if debug:
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        sys.exit(130)

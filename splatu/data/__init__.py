@@ -1,0 +1,1 @@
+"""Scenes: cameras, images and initial points, from disk or built in."""

@@ -1,0 +1,49 @@
+"""The scene object every loader returns and the trainer consumes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from splatu.camera import Camera
+
+
+@dataclass
+class Views:
+    """One split: cameras with their images, all of one size.
+
+    images are float32 in [0, 1], (N, H, W, 3). The optional tensors are per image:
+    `masks` marks valid pixels (e.g. a blender alpha); `depths` and `observed` exist only
+    where ground truth is known (the built-in scene): `observed` marks pixels whose surface
+    point is seen, unoccluded, by at least one training camera.
+    """
+
+    cameras: list[Camera]
+    images: Tensor
+    names: list[str]
+    masks: Tensor | None = None
+    depths: Tensor | None = None
+    observed: Tensor | None = None
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+@dataclass
+class Scene:
+    """Train and eval views in normalised world coordinates, plus initial points.
+
+    World coordinates were normalised as x_norm = (x_orig - center) * scale (nerfstudio
+    style); `center` and `scale` record that so exports can be mapped back.
+    """
+
+    name: str
+    source: str
+    train: Views
+    eval: Views
+    points: Tensor  # (M, 3), may be empty
+    point_colors: Tensor | None = None  # (M, 3) in [0, 1]
+    center: Tensor = field(default_factory=lambda: torch.zeros(3))
+    scale: float = 1.0

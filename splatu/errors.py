@@ -1,0 +1,26 @@
+"""User-facing errors: one line saying what is wrong, where, and how to fix it.
+
+Anything the user can fix (a bad path, a corrupt file, a bad option) raises `SplatuError`;
+the CLI prints it on one line and exits 2. Everything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class SplatuError(Exception):
+    """A problem with the user's input, reported without a traceback."""
+
+    def __init__(self, what: str, where: str | Path, fix: str) -> None:
+        self.what = what
+        self.where = str(where)
+        self.fix = fix
+        super().__init__(f"{what}, {self.where}, {fix}")
+
+
+def require_file(path: Path, what: str, fix: str) -> Path:
+    """Return `path` if it is an existing file; otherwise raise a one-line SplatuError."""
+    if not path.is_file():
+        raise SplatuError(f"{what} not found", f"in {path}", fix)
+    return path

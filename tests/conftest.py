@@ -1,0 +1,27 @@
+"""Shared fixtures: the real data in ../shared/data, skipped with a reason when absent."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("SPLATU_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def shared_scene(name: str) -> Path:
+    """Path to ../shared/data/<name>, or skip the test saying why."""
+    path = SHARED_DATA / name
+    if not path.is_dir():
+        pytest.skip(f"real data {name!r} not found at {path} (../shared/data is absent on this machine)")
+    return path
+
+
+@pytest.fixture(autouse=True)
+def _deterministic_threads():
+    """Keep tests reproducible and fair on the 2-core machines."""
+    torch.manual_seed(0)
+    yield

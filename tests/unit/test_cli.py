@@ -1,0 +1,77 @@
+import subprocess
+import sys
+
+import pytest
+
+from splatu.cli import entrypoint
+from splatu.data.splits import contiguous_split, every_n_split, list_split
+from splatu.errors import SplatuError
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "splatu", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_help_lists_subcommands():
+    out = run_cli("--help")
+    assert out.returncode == 0
+    for name in ("train", "render-uncertainty", "eval-ause"):
+        assert name in out.stdout
+
+
+def test_user_error_is_one_line_without_traceback(capsys, monkeypatch):
+    from splatu import cli
+
+    def boom(argv):
+        raise SplatuError("thing broke", "in /some/file", "do the fix")
+
+    monkeypatch.setattr(cli, "main", boom)
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "error: thing broke, in /some/file, do the fix"
+    assert "Traceback" not in err
+
+
+def test_debug_flag_shows_the_exception(monkeypatch):
+    from splatu import cli
+
+    def boom(argv):
+        raise SplatuError("thing broke", "here", "fix")
+
+    monkeypatch.setattr(cli, "main", boom)
+    with pytest.raises(SplatuError):
+        entrypoint(["train", "--debug"])
+
+
+def test_train_missing_path_is_one_clear_line():
+    out = run_cli("train", "--data", "/nonexistent")
+    assert out.returncode != 0
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_contiguous_split_is_a_seeded_block():
+    train, ev = contiguous_split(20, 5, seed=3)
+    assert len(ev) == 5 and ev == list(range(ev[0], ev[0] + 5))
+    assert sorted(train + ev) == list(range(20))
+    assert contiguous_split(20, 5, seed=3) == (train, ev)
+    starts = {contiguous_split(100, 5, seed=s)[1][0] for s in range(10)}
+    assert len(starts) > 1
+
+
+def test_every_n_split_matches_nerfstudio_rule():
+    train, ev = every_n_split(17, 8)
+    assert ev == [0, 8, 16]
+    assert 8 not in train and len(train) == 14
+
+
+def test_split_errors_are_user_errors():
+    with pytest.raises(SplatuError):
+        contiguous_split(5, 5, 0)
+    with pytest.raises(SplatuError):
+        list_split(["a", "b"], ["c"], "eval.txt")
+    with pytest.raises(SplatuError):
+        list_split(["a", "b"], ["a", "b"], "eval.txt")
