@@ -35,6 +35,9 @@ class Views:
 class Scene:
     """Train and eval views in normalised world coordinates, plus initial points.
 
+    `eval` is the primary held-out split (for the built-in scene: the contiguous block that
+    makes an unseen angle).
+
     World coordinates were normalised as x_norm = (x_orig - center) * scale (nerfstudio
     style); `center` and `scale` record that so exports can be mapped back.
     """
@@ -47,3 +50,5 @@ class Scene:
     point_colors: Tensor | None = None  # (M, 3) in [0, 1]
     center: Tensor = field(default_factory=lambda: torch.zeros(3))
     scale: float = 1.0
+    extra_eval: dict[str, Views] = field(default_factory=dict)
+    """More held-out sets, e.g. "interp": every 8th frame of the training path (built-in scene)."""
