@@ -35,8 +35,9 @@ def _commands() -> dict[str, Command]:
 
 def main(argv: Sequence[str]) -> None:
     commands = _commands()
-    sub_argv = argv[1:] if argv and argv[0] in commands else []
-    defaults = {name: cmd.default_config(sub_argv) for name, cmd in commands.items()}
+    chosen = argv[0] if argv and argv[0] in commands else None
+    # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
+    defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}
     descriptions = {name: cmd.description for name, cmd in commands.items()}
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
     config = tyro.cli(

@@ -6,12 +6,19 @@ options but exits with one clear line instead of pretending to work.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from splatu.cli import Command
+from splatu.data.process_images import ProcessImagesConfig
+from splatu.data.process_images import run as run_process_images
 from splatu.errors import SplatuError
+from splatu.eval_ause import EvalAuseConfig
+from splatu.eval_ause import run as run_eval_ause
+from splatu.render_uncertainty import RenderUncertaintyConfig
+from splatu.render_uncertainty import run as run_render_uncertainty
+from splatu.train_config import default_config as train_default_config
+from splatu.trainer import run_command as run_train
 
 
 def _unbuilt(name: str) -> Any:
@@ -21,28 +28,12 @@ def _unbuilt(name: str) -> Any:
     return run
 
 
-@dataclass
-class _TrainStub:
-    data: str = "poster"
-    """Scene: `poster` (built-in stand-in) or a path to a nerfstudio/COLMAP/blender scene."""
-
-
-@dataclass
-class _LoadStub:
-    load: Path = Path("outputs/poster/splatu/latest")
-    """A training run directory."""
-
-
-@dataclass
-class _RenderStub(_LoadStub):
-    pass
-
-
 COMMANDS: dict[str, Command] = {
-    "train": Command("Train a 3DGS model with view-dependent uncertainty.", lambda argv: _TrainStub(),
-                     _unbuilt("train")),
+    "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),
     "render-uncertainty": Command("Render RGB, depth and uncertainty maps of a trained run.",
-                                  lambda argv: _RenderStub(), _unbuilt("render-uncertainty")),
+                                  lambda argv: RenderUncertaintyConfig(), run_render_uncertainty),
     "eval-ause": Command("Score uncertainty maps with sparsification curves and AUSE.",
-                         lambda argv: _LoadStub(), _unbuilt("eval-ause")),
+                         lambda argv: EvalAuseConfig(), run_eval_ause),
+    "process-images": Command("Run structure from motion (pycolmap, CPU) on a folder of photos.",
+                              lambda argv: ProcessImagesConfig(images=Path("images")), run_process_images),
 }

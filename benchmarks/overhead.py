@@ -1,0 +1,116 @@
+"""Cost of the uncertainty loss: time per training step with it on ÷ off, same run, same scene.
+
+    .venv/bin/python benchmarks/overhead.py            # built-in poster stand-in, fast preset
+
+One model is first trained for `warmup` steps (so it has a realistic, densified set of
+Gaussians), then measured steps alternate on/off on that same state, each pair on the same
+camera at full resolution; refinement is switched off during measurement so the number of
+Gaussians stays fixed. The ratio of the median step times is the overhead (target ≤ 1.05);
+because step times on a shared machine are noisy, the script also times the uncertainty loss's
+forward + backward alone and reports (median off + that) / median off.
+Writes benchmarks/results/overhead.json.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import tyro
+
+from splatu import trainer
+from splatu.data.config import DataConfig
+from splatu.data.resolve import load_scene
+from splatu.densify import DensityController
+from splatu.losses import uncertainty_loss
+from splatu.train_config import TrainConfig, preset_config
+
+RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+
+
+@dataclass
+class Args:
+    data: str = "poster"
+    """Scene to measure on."""
+    preset: str = "fast"
+    """Preset whose settings (Gaussian budget, SH degrees, loss) are measured."""
+    warmup: int = 300
+    """Training steps before measuring, so the model is densified as in a real run."""
+    pairs: int = 40
+    """Measured (on, off) step pairs."""
+
+
+def measure(args: Args) -> dict:
+    config = dataclasses.replace(preset_config(args.preset), data=DataConfig(data=args.data), progress=False)
+    scene = load_scene(config.data)
+    state = trainer.fresh_state(config, scene)
+    images = trainer.TrainImages(scene.train)
+    for _ in range(args.warmup):
+        trainer.train_step(state, config, images)
+        state.step += 1
+
+    frozen = dataclasses.replace(config.densify, warmup_length=10**9)  # no refinement while measuring
+    state.density = DensityController(frozen, state.scene_extent, state.generator)
+    full_res = dataclasses.replace(config, resolution_levels=0, densify=frozen)
+    variants = {"on": dataclasses.replace(full_res, uncertainty=dataclasses.replace(config.uncertainty, off=False)),
+                "off": dataclasses.replace(full_res, uncertainty=dataclasses.replace(config.uncertainty, off=True))}
+    times: dict[str, list[float]] = {"on": [], "off": []}
+    for i in range(args.pairs):
+        order = ("on", "off") if i % 2 == 0 else ("off", "on")  # alternate who goes first
+        step = state.step
+        for name in order:
+            state.step = step  # same camera, same schedule for both members of the pair
+            started = time.perf_counter()
+            trainer.train_step(state, variants[name], images)
+            times[name].append(time.perf_counter() - started)
+        state.step = step + 1
+    median = {name: statistics.median(values) for name, values in times.items()}
+    loss_seconds = statistics.median(isolated_loss_seconds(state, variants["on"], images, repeats=5 * args.pairs))
+    return {
+        "scene": scene.name, "preset": args.preset, "gaussians": len(state.model), "warmup_steps": args.warmup,
+        "pairs": args.pairs, "threads": torch.get_num_threads(),
+        "median_step_seconds_on": median["on"], "median_step_seconds_off": median["off"],
+        "ratio_on_over_off": median["on"] / median["off"],
+        "median_uncertainty_loss_seconds": loss_seconds,
+        "isolated_ratio": (median["off"] + loss_seconds) / median["off"],
+        "step_seconds_on": times["on"], "step_seconds_off": times["off"],
+    }
+
+
+def isolated_loss_seconds(state: trainer.TrainState, config: TrainConfig, images: trainer.TrainImages,
+                          repeats: int) -> list[float]:
+    """Forward + backward of the uncertainty loss alone on one render: the whole extra work of a step.
+
+    Step times on a shared machine are noisy; this cost is small and stable, so (off + it) / off
+    estimates the overhead independently of the interleaved ratio.
+    """
+    camera, _ = images.get(0, 0)
+    with torch.no_grad():
+        raster = state.model.render(camera, config.model.sh_degree, torch.zeros(3)).raster
+    seconds = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        uncertainty_loss(state.model, camera.center(), raster, config.uncertainty, state.generator).backward()
+        seconds.append(time.perf_counter() - started)
+    state.optimizers.zero_grad()
+    return seconds
+
+
+def main(args: Args) -> None:
+    result = measure(args)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "overhead.json").write_text(json.dumps(result, indent=2))
+    print(f"{'scene':<10}{'gaussians':>10}{'pairs':>7}{'median on (s)':>15}{'median off (s)':>16}{'on/off':>8}"
+          f"{'L_u fwd+bwd (ms)':>18}{'(off+L_u)/off':>15}")
+    print(f"{result['scene']:<10}{result['gaussians']:>10}{result['pairs']:>7}{result['median_step_seconds_on']:>15.4f}"
+          f"{result['median_step_seconds_off']:>16.4f}{result['ratio_on_over_off']:>8.3f}"
+          f"{1000 * result['median_uncertainty_loss_seconds']:>18.2f}{result['isolated_ratio']:>15.4f}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

@@ -1,0 +1,225 @@
+"""Benchmark `splatu.rasterizer.rasterize` against a straightforward dense per-tile torch rasterizer.
+
+    python benchmarks/rasterizer.py [--quick] [--json PATH] [--compile]
+
+Scenes (fixed seeds) look like trained ones: footprint radii spread log-uniformly over ~1–30 px
+(2D std 1/3–10 px) and opacities over (0, 1). Each (case, implementation) runs in its own
+subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock medians of the runs.
+`contributing_pairs` counts pixel–Gaussian pairs with α ≥ 1/255 reached before termination, as
+the 3DGS rules define them (our rasterizer matches a brute-force reference on this count).
+`speedup_vs_reference` = (reference forward + backward) / (ours forward + backward).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+REPO = Path(__file__).resolve().parents[1]
+TILE = 16
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    gaussians: int
+    width: int
+    height: int
+    seed: int
+
+
+CASES = [
+    Case("20k Gaussians at 256x256", 20_000, 256, 256, seed=0),
+    Case("100k Gaussians at 512x384", 100_000, 512, 384, seed=1),
+]
+QUICK_CASE = Case("3k Gaussians at 128x96", 3_000, 128, 96, seed=2)
+"""--quick runs this smaller case only, so that ours plus the slow baseline finish in under a minute."""
+
+
+def make_scene(case: Case) -> tuple[Tensor, ...]:
+    """means, quats, log-scales, opacities, colours, world_to_camera, K for one case (float32)."""
+    g = torch.Generator().manual_seed(case.seed)
+    n, width, height = case.gaussians, case.width, case.height
+    fx = 0.8 * width
+    K = torch.tensor([[fx, 0.0, width / 2], [0.0, fx, height / 2], [0.0, 0.0, 1.0]])
+    z = 2.0 + 4.0 * torch.rand(n, generator=g)
+    x = (2 * torch.rand(n, generator=g) - 1) * 0.55 * width / fx * z
+    y = (2 * torch.rand(n, generator=g) - 1) * 0.55 * height / fx * z
+    std_px = torch.exp(torch.empty(n).uniform_(math.log(1 / 3), math.log(10), generator=g))
+    log_scales = torch.log(std_px * z / fx)[:, None] + torch.empty(n, 3).uniform_(-0.3, 0.3, generator=g)
+    quats = torch.randn(n, 4, generator=g)
+    opacities = torch.empty(n).uniform_(0.005, 0.995, generator=g)
+    colours = torch.rand(n, 3, generator=g)
+    return torch.stack([x, y, z], -1), quats, log_scales, opacities, colours, torch.eye(4), K
+
+
+def loss_of(image: Tensor, alpha: Tensor) -> Tensor:
+    """A fixed loss touching every output pixel, so the backward does its full work."""
+    return image.square().sum() + alpha.sum()
+
+
+# ---------------------------------------------------------------------------------------------
+# The baseline: a straightforward dense per-tile rasterizer, plain autograd, loop over tiles.
+# ---------------------------------------------------------------------------------------------
+
+
+def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_camera, K, width, height):
+    """Project, bin Gaussians to the 16×16 tiles their 3σ box touches, composite each tile densely."""
+    from splatu.rasterizer.projection import project_gaussians
+
+    proj = project_gaussians(means, quats, log_scales, world_to_camera, K, width, height, 0.01, 1e10, True)
+    ids = torch.nonzero(proj.visible).squeeze(1)
+    ids = ids[torch.sort(proj.depths.detach()[ids], stable=True).indices]
+    mean2d, radius = proj.means2d.detach()[ids], proj.radii[ids].float()
+    tiles_x, tiles_y = math.ceil(width / TILE), math.ceil(height / TILE)
+    x_lo = ((mean2d[:, 0] - radius) / TILE).floor().clamp(0, tiles_x)
+    x_hi = ((mean2d[:, 0] + radius) / TILE).floor().clamp(-1, tiles_x - 1)
+    y_lo = ((mean2d[:, 1] - radius) / TILE).floor().clamp(0, tiles_y)
+    y_hi = ((mean2d[:, 1] + radius) / TILE).floor().clamp(-1, tiles_y - 1)
+    local_y, local_x = torch.meshgrid(torch.arange(TILE), torch.arange(TILE), indexing="ij")
+    image = torch.zeros(tiles_y * TILE, tiles_x * TILE, 3)
+    alpha_map = torch.zeros(tiles_y * TILE, tiles_x * TILE)
+    rows = []
+    for ty in range(tiles_y):
+        row_image, row_alpha = [], []
+        for tx in range(tiles_x):
+            hit = ids[(x_lo <= tx) & (x_hi >= tx) & (y_lo <= ty) & (y_hi >= ty)]
+            px = (tx * TILE + local_x + 0.5).reshape(-1)
+            py = (ty * TILE + local_y + 0.5).reshape(-1)
+            dx = px[None, :] - proj.means2d[hit, 0:1]
+            dy = py[None, :] - proj.means2d[hit, 1:2]
+            a, b, c = proj.conics[hit].unbind(-1)
+            sigma = 0.5 * (a[:, None] * dx * dx + c[:, None] * dy * dy) + b[:, None] * dx * dy
+            alpha = torch.clamp(opacities[hit, None] * torch.exp(-sigma), max=0.99)
+            alpha = torch.where((sigma >= 0) & (alpha >= 1 / 255), alpha, torch.zeros_like(alpha))
+            t_incl = torch.cumprod(1 - alpha, dim=0)
+            t_excl = torch.cat([torch.ones_like(t_incl[:1]), t_incl[:-1]], dim=0)
+            weight = torch.where(t_incl >= 1e-4, t_excl * alpha, torch.zeros_like(alpha))
+            row_image.append((weight[:, :, None] * colours[hit, None, :]).sum(0).reshape(TILE, TILE, 3))
+            row_alpha.append(weight.sum(0).reshape(TILE, TILE))
+        rows.append((torch.cat(row_image, dim=1), torch.cat(row_alpha, dim=1)))
+    image = torch.cat([r[0] for r in rows], dim=0)[:height, :width]
+    alpha_map = torch.cat([r[1] for r in rows], dim=0)[:height, :width]
+    return image, alpha_map
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def time_runs(case: Case, implementation: str, runs: int) -> dict:
+    """Median forward/backward wall times of `runs` renders after one warm-up (runs=0: the one render itself),
+    and this process's peak RSS."""
+    from splatu.rasterizer import rasterize
+
+    scene = make_scene(case)
+    forward_ms, backward_ms, pairs = [], [], 0
+    for run in range(runs + 1):
+        leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(scene)]
+        start = time.perf_counter()
+        if implementation == "ours":
+            out = rasterize(*leaves, case.width, case.height, log_scales=True)
+            image, alpha, pairs = out.image, out.alpha, out.num_contributing_pairs
+        else:
+            image, alpha = reference_rasterize(*leaves, case.width, case.height)
+        middle = time.perf_counter()
+        loss_of(image, alpha).backward()
+        end = time.perf_counter()
+        if run > 0 or runs == 0:
+            forward_ms.append(1e3 * (middle - start))
+            backward_ms.append(1e3 * (end - middle))
+    return {
+        "ms_forward": statistics.median(forward_ms),
+        "ms_backward": statistics.median(backward_ms),
+        "contributing_pairs": pairs,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def run_worker(case_index: int, implementation: str, runs: int, compile_kernels: bool, threads: int) -> dict:
+    """Measure one (case, implementation) in a fresh subprocess; returns its JSON result (case -1: quick)."""
+    cmd = [sys.executable, __file__, "--worker", implementation, "--case", str(case_index), "--runs", str(runs),
+           "--threads", str(threads)]
+    if compile_kernels:
+        cmd.append("--compile")
+    done = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=REPO)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="only a 3k-Gaussian 128x96 case, one run each (< 60 s)")
+    parser.add_argument("--reference-all", action="store_true",
+                        help="also time the baseline on the 100k case (slow, several GB); default: 20k case only")
+    parser.add_argument("--json", type=Path, default=REPO / "benchmarks" / "results" / "rasterizer.json",
+                        help="where to write the results")
+    parser.add_argument("--compile", action="store_true", help="run our kernels through torch.compile")
+    parser.add_argument("--runs", type=int, default=3, help="timed runs per measurement (after one warm-up)")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="torch threads in each measurement (0: torch's default); 1 is steadier on a busy machine")
+    parser.add_argument("--worker", choices=["ours", "reference"], help=argparse.SUPPRESS)
+    parser.add_argument("--case", type=int, default=0, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+
+    if args.worker:
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        if args.compile:
+            from splatu.rasterizer.kernels import set_compile
+
+            set_compile(True)
+        start = time.perf_counter()
+        result = time_runs(QUICK_CASE if args.case < 0 else CASES[args.case], args.worker, args.runs)
+        result["seconds_total"] = time.perf_counter() - start
+        print(json.dumps(result))
+        return
+
+    cases = [(-1, QUICK_CASE)] if args.quick else list(enumerate(CASES))
+    runs = 0 if args.quick else args.runs
+    results = []
+    for index, case in cases:
+        ours = run_worker(index, "ours", runs, args.compile, args.threads)
+        ours_total = ours["ms_forward"] + ours["ms_backward"]
+        reference = None
+        if index <= 0 or args.reference_all:
+            reference = run_worker(index, "reference", 0 if args.quick else 1, False, args.threads)
+        results.append({
+            "name": case.name,
+            "gaussians": case.gaussians,
+            "width": case.width,
+            "height": case.height,
+            "ms_forward": round(ours["ms_forward"], 1),
+            "ms_backward": round(ours["ms_backward"], 1),
+            "contributing_pairs": ours["contributing_pairs"],
+            "ns_per_pair": round(1e6 * ours_total / max(ours["contributing_pairs"], 1), 1),
+            "speedup_vs_reference": None if reference is None else round(
+                (reference["ms_forward"] + reference["ms_backward"]) / ours_total, 2),
+            "peak_rss_mb": round(ours["peak_rss_mb"], 1),
+            "reference_ms_forward_plus_backward": None if reference is None else round(
+                reference["ms_forward"] + reference["ms_backward"], 1),
+            "reference_peak_rss_mb": None if reference is None else round(reference["peak_rss_mb"], 1),
+            "kernels": "torch.compile" if args.compile else "eager",
+            "threads": args.threads or torch.get_num_threads(),
+            "first_call_seconds": round(ours["seconds_total"] - (runs * ours_total) / 1e3, 1),
+        })
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"cases": results}, indent=2) + "\n")
+    keys = ["ms_forward", "ms_backward", "contributing_pairs", "ns_per_pair", "speedup_vs_reference", "peak_rss_mb"]
+    print(f"{'case':<28}" + "".join(f"{k:>22}" for k in keys))
+    for r in results:
+        print(f"{r['name']:<28}" + "".join(f"{r[k]!s:>22}" for k in keys))
+    print(f"kernels: {results[0]['kernels']}; written to {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,69 @@
+"""The ensemble baseline: per-pixel std of RGB across members that differ only in seed (REFERENCE §5).
+
+The std is the population std over members (ddof 0), averaged over the RGB channels. The
+density-aware variant adds (1 − mean accumulated alpha)², so empty space, where members agree
+on "nothing", still reads as uncertain.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from splatu.baselines import UncertaintyRender
+from splatu.camera import Camera
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel
+
+ENSEMBLE_FILE = "ensemble.json"
+
+
+@dataclass(frozen=True)
+class EnsembleRecord:
+    """What `splatu train --ensemble N` wrote: member run dirs and the total wall time."""
+
+    members: list[Path]
+    wall_seconds: float | None
+
+
+def read_ensemble(run_dir: Path) -> EnsembleRecord:
+    """Parse <run>/ensemble.json; members are resolved relative to the run directory."""
+    path = run_dir / ENSEMBLE_FILE
+    if not path.is_file():
+        raise SplatuError("not an ensemble run (no ensemble.json)", f"in {run_dir}",
+                          "train one with `splatu train --method ensemble` or pick another --method")
+    try:
+        record = json.loads(path.read_text())
+        members = [run_dir / m for m in record["members"]]
+    except (json.JSONDecodeError, KeyError, TypeError) as err:
+        raise SplatuError(f"ensemble.json is malformed ({type(err).__name__})", f"in {path}",
+                          "retrain the ensemble or fix its members list") from None
+    if len(members) < 2:
+        raise SplatuError(f"an ensemble needs at least 2 members, ensemble.json lists {len(members)}", f"in {path}",
+                          "train with --ensemble 2 or more")
+    wall = record.get("wall_seconds")
+    return EnsembleRecord(members, float(wall) if wall is not None else None)
+
+
+@dataclass
+class EnsembleSource:
+    """Mean render of the members, with their per-pixel RGB std as the uncertainty."""
+
+    members: list[GaussianModel]
+    sh_degree: int
+    background: Tensor
+    density_aware: bool = False
+
+    def render(self, camera: Camera) -> UncertaintyRender:
+        outs = [m.render(camera, self.sh_degree, self.background) for m in self.members]
+        rgbs = torch.stack([o.rgb for o in outs])
+        alpha = torch.stack([o.alpha for o in outs]).mean(dim=0)
+        uncertainty = rgbs.std(dim=0, correction=0).mean(dim=-1)
+        if self.density_aware:
+            uncertainty = uncertainty + (1.0 - alpha).square()
+        depth = torch.stack([o.depth for o in outs]).mean(dim=0)
+        return UncertaintyRender(rgbs.mean(dim=0), depth, alpha, uncertainty)

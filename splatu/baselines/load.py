@@ -1,0 +1,99 @@
+"""Build any uncertainty method from a run directory (a single run or an ensemble run)."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from splatu.baselines import UncertaintyMethod, UncertaintySource
+from splatu.baselines.ensemble import EnsembleSource, read_ensemble
+from splatu.baselines.fisher import fisher_diagonal, fisher_feature
+from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource
+from splatu.baselines.visibility import visibility_counts, visibility_feature
+from splatu.checkpoint import load_run
+from splatu.data.scene import Scene
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel
+from splatu.train_config import TrainConfig
+
+
+@dataclass
+class LoadedRun:
+    """A run's config and its model(s): one, or every member of an ensemble."""
+
+    run_dir: Path
+    config: TrainConfig
+    models: list[GaussianModel]
+    train_seconds: float | None
+    """Training time as the run recorded it (an ensemble: the wall time of all members)."""
+
+
+@dataclass
+class BuiltMethod:
+    source: UncertaintySource
+    setup_seconds: float
+    """Post-training cost of the method (visibility counting, Fisher accumulation); 0 for the others."""
+
+
+def _summary_seconds(run_dir: Path) -> float | None:
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text()).get("train_seconds")
+
+
+def load_any_run(run_dir: Path) -> LoadedRun:
+    """A single run via `load_run`, or every member listed in an ensemble run's ensemble.json."""
+    run_dir = Path(run_dir)
+    if (run_dir / "ensemble.json").is_file():
+        record = read_ensemble(run_dir)
+        loaded = [load_run(member) for member in record.members]
+        return LoadedRun(run_dir, loaded[0][0], [model for _, model in loaded], record.wall_seconds)
+    config, model = load_run(run_dir)
+    return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir))
+
+
+def eval_background(config: TrainConfig) -> torch.Tensor:
+    """The background the trainer evaluates on: white for white-background runs, else black."""
+    return torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
+
+
+def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
+    """Refuse a method the run cannot provide, before any scene is loaded."""
+    if method != "ensemble" and len(run.models) > 1:
+        raise SplatuError(f"--method {method} needs a single run, this is an ensemble", f"in {run.run_dir}",
+                          "pass one member (members/<k>) or use --method ensemble")
+    if method == "ensemble" and len(run.models) < 2:
+        raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
+                          "train one with `splatu train --method ensemble --ensemble 10`")
+
+
+def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, density_aware: bool = False,
+                 fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
+    """The renderer of `method` for this run; visibility and Fisher look at the scene's training views."""
+    check_method(method, run)
+    degree = run.config.model.sh_degree
+    background = eval_background(run.config)
+    model = run.models[0]
+    started = time.perf_counter()
+    if method == "ours":
+        source: UncertaintySource = OursSource(model, degree, background)
+    elif method == "ensemble":
+        source = EnsembleSource(run.models, degree, background, density_aware)
+    elif method == "visibility":
+        counts = visibility_counts(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
+        source = FeatureSource(model, degree, background, visibility_feature(counts))
+    elif method == "fisher":
+        generator = torch.Generator().manual_seed(seed)
+        information = fisher_diagonal(model, scene.train.cameras, degree, fisher_probes, generator)
+        source = FeatureSource(model, degree, background, fisher_feature(information))
+    elif method == "random":
+        source = RandomSource(model, degree, background, seed)
+    else:
+        raise SplatuError(f"unknown uncertainty method {method!r}", "in --method",
+                          "use ours, ensemble, visibility, fisher or random")
+    return BuiltMethod(source, time.perf_counter() - started)

@@ -1,0 +1,131 @@
+"""Checkpoints: atomic writes, exact-resume state, and `load_run` for rendering and evaluation.
+
+A checkpoint is written to a temporary file in the same directory and moved into place with
+os.replace, so a crash mid-write leaves the previous checkpoint untouched. It holds the model,
+the optimizer and density-controller state, the step, every RNG state and the config, which is
+what an exact resume needs. Only the newest `KEEP_CHECKPOINTS` are kept: a 3DGS checkpoint with
+Adam moments is tens of MB.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import random
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel
+from splatu.train_config import TrainConfig, from_dict
+
+CHECKPOINT_DIR = "checkpoints"
+FORMAT = "splatu-checkpoint-v1"
+KEEP_CHECKPOINTS = 2
+
+
+def checkpoint_path(run_dir: Path, step: int) -> Path:
+    return run_dir / CHECKPOINT_DIR / f"step-{step:07d}.pt"
+
+
+def atomic_torch_save(obj: Any, path: Path) -> None:
+    """torch.save to a temporary sibling, fsync, then rename over `path` in one step."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            torch.save(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def save_checkpoint(run_dir: Path, step: int, state: dict[str, Any]) -> Path:
+    """Write the checkpoint for `step` (completed steps) atomically; prune older ones."""
+    path = checkpoint_path(run_dir, step)
+    atomic_torch_save({"format": FORMAT, "step": step, **state}, path)
+    for old in list_checkpoints(run_dir)[:-KEEP_CHECKPOINTS]:
+        old.unlink(missing_ok=True)
+    return path
+
+
+def list_checkpoints(run_dir: Path) -> list[Path]:
+    """Checkpoints of a run, oldest first."""
+    return sorted((run_dir / CHECKPOINT_DIR).glob("step-*.pt"))
+
+
+def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
+    """The checkpoint file named, or the newest one of a run directory."""
+    target = Path(run_dir_or_checkpoint).expanduser()
+    if target.is_file():
+        return target
+    if not target.is_dir():
+        raise SplatuError("run directory or checkpoint not found", f"at {target}",
+                          "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
+    found = list_checkpoints(target)
+    if not found:
+        raise SplatuError("no checkpoint in this run directory", f"in {target / CHECKPOINT_DIR}",
+                          "train it first (splatu train) or point to a run that saved checkpoints")
+    return found[-1]
+
+
+def run_dir_of(checkpoint: Path) -> Path:
+    """The run directory a checkpoint file belongs to."""
+    parent = checkpoint.resolve().parent
+    return parent.parent if parent.name == CHECKPOINT_DIR else parent
+
+
+def read_checkpoint(path: Path) -> dict[str, Any]:
+    """Load a checkpoint dict, or raise a one-line error for a corrupt or foreign file."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
+        raise SplatuError(f"corrupt or unreadable checkpoint ({type(err).__name__})", f"in {path}",
+                          "resume from an older checkpoint in the same folder or retrain") from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise SplatuError("not a splatu checkpoint", f"in {path}", "pass a checkpoint written by `splatu train`")
+    return state
+
+
+def capture_rng(generator: torch.Generator) -> dict[str, Any]:
+    """Every RNG state that training draws from, as tensors and plain values (weights_only-safe)."""
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "generator": generator.get_state(),
+        "python": random.getstate(),
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                  "has_gauss": int(has_gauss), "cached": float(cached)},
+    }
+
+
+def restore_rng(state: dict[str, Any], generator: torch.Generator) -> None:
+    torch.set_rng_state(state["torch"])
+    generator.set_state(state["generator"])
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
+
+
+def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianModel:
+    model = GaussianModel.empty_like_config(int(state["num_gaussians"]), config.model)
+    model.load_state_dict(state["model"])
+    return model
+
+
+def load_run(run_dir: Path) -> tuple[TrainConfig, GaussianModel]:
+    """The config and trained model of a run (its newest checkpoint), for rendering and evaluation."""
+    run_dir = Path(run_dir)
+    if (run_dir / "ensemble.json").is_file():
+        raise SplatuError("this is an ensemble run; it has one model per member", f"in {run_dir}",
+                          "load each run listed in its ensemble.json")
+    state = read_checkpoint(resolve_checkpoint(run_dir))
+    config = from_dict(state["config"], str(run_dir))
+    return config, model_from_state(state, config)

@@ -1,0 +1,122 @@
+"""From a parsed scene file to a Scene: choose the split, normalise, decode the pixels.
+
+Shared by every format, so splits, normalisation, size checks and the image cache behave
+the same whatever the input was.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from splatu.data.config import DataConfig
+from splatu.data.frames import Frame, RawScene
+from splatu.data.images import ImageCache, PixelRecipe, load_pixels
+from splatu.data.normalize import normalization, normalize_camera, normalize_points
+from splatu.data.scene import Scene, Views
+from splatu.data.splits import contiguous_split, every_n_split, list_split
+from splatu.errors import SplatuError
+
+DEFAULT_EVAL_FRACTION = 0.22
+"""eval_block=0 holds out this fraction of frames (the paper held out 50 of 226 poster frames)."""
+
+
+def _read_eval_list(path: Path | None) -> list[str]:
+    if path is None:
+        raise SplatuError("eval split `list` needs a list file", "in --eval-list",
+                          "pass --eval-list FILE with one image name per line")
+    if not path.is_file():
+        raise SplatuError("eval list file not found", f"in {path}", "pass an existing --eval-list file")
+    return [line.strip().removeprefix("./") for line in path.read_text().splitlines() if line.strip()]
+
+
+def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], dict[str, list[int]], bool]:
+    """(train, eval, extra eval sets, whether the split is the file's own) as frame indices."""
+    n_frames = len(raw.frames)
+    if n_frames < 2:
+        raise SplatuError(f"too few images ({n_frames}): training and evaluation need at least 2",
+                          f"in {raw.source}", "add more images to the scene")
+    extras: dict[str, list[int]] = {}
+    own = cfg.eval_split == "auto" and "train" in raw.file_splits and "eval" in raw.file_splits
+    if own:
+        train, held_out = raw.file_splits["train"], raw.file_splits["eval"]
+        extras = {k: v for k, v in raw.file_splits.items() if k not in ("train", "eval")}
+    elif cfg.eval_split in ("auto", "contiguous"):
+        block = cfg.eval_block or max(1, round(DEFAULT_EVAL_FRACTION * n_frames))
+        train, held_out = contiguous_split(n_frames, block, cfg.split_seed)
+    elif cfg.eval_split == "every-n":
+        train, held_out = every_n_split(n_frames, cfg.eval_every)
+    else:
+        names = [f.name for f in raw.frames]
+        train, held_out = list_split(names, _read_eval_list(cfg.eval_list), str(cfg.eval_list))
+    for split, indices in (("train", train), ("eval", held_out)):
+        if not indices:
+            raise SplatuError(f"the {split} split is empty", f"in {raw.source}",
+                              "choose another --eval-split or fix the scene's split lists")
+    return train, held_out, extras, own
+
+
+def _stack(recipes: list[PixelRecipe | None], cache: ImageCache) -> list[np.ndarray | None]:
+    return [None if r is None else load_pixels(r, cache) for r in recipes]
+
+
+def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: ImageCache,
+                keep_observed: bool) -> Views:
+    """Decode one split's frames (all one size, else a one-line error naming the odd file).
+
+    masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
+    depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
+    truth that only some frames of the split have is left out (None) rather than padded.
+    """
+    first = frames[0].camera
+    for frame in frames:
+        if (frame.camera.width, frame.camera.height) != (first.width, first.height):
+            raise SplatuError(
+                f"image size {frame.camera.width}x{frame.camera.height} differs from {first.width}x{first.height} "
+                f"of {frames[0].name!r} in the same split", f"in {frame.image.path}",
+                "give all images of a split the same size (or per-frame intrinsics w, h that match)")
+    pixels = _stack([f.image for f in frames], cache)
+    images = np.stack([p[..., :3] for p in pixels]).astype(np.float32)
+    alphas = [p[..., 3] if p.shape[-1] == 4 else None for p in pixels]
+    file_masks = _stack([f.mask for f in frames], cache)
+    masks = None
+    if any(a is not None for a in alphas) or any(m is not None for m in file_masks):
+        ones = np.ones(images.shape[1:3], np.float32)
+        masks = torch.from_numpy(np.stack([
+            (ones if a is None else a) * (ones if m is None else m) for a, m in zip(alphas, file_masks, strict=True)
+        ]))
+    depths = _stack([f.depth for f in frames], cache)
+    observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
+    return Views(
+        cameras=[normalize_camera(f.camera, center, scale).to(dtype=torch.float32) for f in frames],
+        images=torch.from_numpy(images),
+        names=[f.name for f in frames],
+        masks=masks,
+        depths=torch.from_numpy(np.stack(depths) * np.float32(scale)) if all(d is not None for d in depths) else None,
+        observed=(torch.from_numpy(np.stack(observed) > 0.5) if all(o is not None for o in observed) else None),
+    )
+
+
+def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
+    """Split, normalise (cameras of all frames define centre and scale) and decode a parsed scene."""
+    train, held_out, extras, own = choose_split(raw, cfg)
+    centers = torch.stack([f.camera.center() for f in raw.frames])
+    center, scale = normalization(centers)
+    points = torch.as_tensor(np.asarray(raw.points, dtype=np.float64)).reshape(-1, 3)
+
+    def views(indices: list[int]) -> Views:
+        return build_views([raw.frames[i] for i in indices], center, scale, cache, keep_observed=own)
+
+    return Scene(
+        name=raw.name,
+        source=raw.source,
+        train=views(train),
+        eval=views(held_out),
+        points=normalize_points(points, center, scale).to(torch.float32),
+        point_colors=None if raw.point_colors is None else torch.as_tensor(raw.point_colors, dtype=torch.float32),
+        center=center.to(torch.float32),
+        scale=scale,
+        extra_eval={name: views(indices) for name, indices in extras.items()},
+    )

@@ -1,0 +1,71 @@
+"""What a loader returns before splitting: every frame's camera and pixel recipes, plus points.
+
+Loaders only parse their format; splitting, normalisation and decoding are shared
+(splatu/data/assemble.py), so every format behaves the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from splatu.camera import Camera
+from splatu.data.images import PixelRecipe
+from splatu.errors import SplatuError
+
+OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+"""Flips camera y and z: OpenGL/Blender axes (y up, looking along -z) to OpenCV (y down, +z forward)."""
+
+
+@dataclass
+class Frame:
+    """One view: its undistorted pinhole camera at the target size (scene's own world units)."""
+
+    name: str
+    camera: Camera
+    image: PixelRecipe
+    mask: PixelRecipe | None = None
+    depth: PixelRecipe | None = None
+    observed: PixelRecipe | None = None
+
+
+@dataclass
+class RawScene:
+    """A parsed scene file: all frames in order, initial points, and the file's own splits."""
+
+    name: str
+    source: str
+    frames: list[Frame]
+    points: np.ndarray  # (M, 3) float, may be empty
+    point_colors: np.ndarray | None = None  # (M, 3) in [0, 1]
+    file_splits: dict[str, list[int]] = field(default_factory=dict)
+    """Frame indices the file itself assigns: "train", "eval", and extra eval sets by name."""
+
+
+def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
+    """A finite 4x4 rigid transform from a JSON value (3x4 or 4x4), or a one-line error naming `where`."""
+    try:
+        matrix = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        matrix = np.zeros((0,))
+    if matrix.shape == (3, 4):
+        matrix = np.vstack([matrix, [0.0, 0.0, 0.0, 1.0]])
+    if matrix.shape != (4, 4):
+        raise SplatuError("pose is not a 3x4 or 4x4 matrix", where, fix)
+    if not np.isfinite(matrix).all():
+        raise SplatuError("pose has non-finite values (NaN or Inf)", where, fix)
+    rotation = matrix[:3, :3]
+    if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) <= 0:
+        raise SplatuError("pose rotation is not a rotation matrix", where, fix)
+    return matrix
+
+
+def world_to_camera_from_opengl(camera_to_world_gl: np.ndarray) -> np.ndarray:
+    """OpenCV world-to-camera from an OpenGL camera-to-world matrix (nerfstudio, Blender)."""
+    camera_to_world_cv = camera_to_world_gl @ OPENGL_TO_OPENCV
+    rotation = camera_to_world_cv[:3, :3]
+    world_to_camera = np.eye(4)
+    world_to_camera[:3, :3] = rotation.T
+    world_to_camera[:3, 3] = -rotation.T @ camera_to_world_cv[:3, 3]
+    return world_to_camera

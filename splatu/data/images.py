@@ -1,0 +1,279 @@
+"""Turn one file on disk into the pixels a view needs: decode, undistort, resize, cache.
+
+Every image goes through the same steps in float32: decode -> composite RGBA on the
+background (before any resampling, because compositing does not commute with averaging) ->
+undistort to the pinhole K the loader chose -> resize to the target size (area averaging for
+colour, nearest for masks and depths, which must not blend across edges) -> quantise back to
+the source's bit depth. The result is cached on disk as .npy, keyed by everything that
+changes it, so a second run skips decoding and remapping.
+
+K matrices here use splatu's (and COLMAP's) pixel convention, pixel centres at +0.5; OpenCV
+puts them at integers, so K is shifted by 0.5 px on the way into and out of OpenCV.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from splatu.errors import SplatuError
+
+PixelKind = Literal["color", "mask", "depth"]
+CACHE_VERSION = 1
+"""Bump when the pipeline changes, so stale cache entries are never read."""
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """Lens distortion as OpenCV parameterises it."""
+
+    model: Literal["OPENCV", "OPENCV_FISHEYE"]
+    coeffs: tuple[float, ...]
+    """OPENCV: (k1, k2, p1, p2[, k3]); OPENCV_FISHEYE: (k1, k2, k3, k4)."""
+
+    def is_identity(self) -> bool:
+        return not any(self.coeffs)
+
+
+@dataclass(frozen=True)
+class PixelRecipe:
+    """How to make one per-view array from one file; also the cache key."""
+
+    path: Path
+    kind: PixelKind
+    width: int
+    """Width of the camera the file's intrinsics describe (full resolution)."""
+    height: int
+    """Height of the camera the file's intrinsics describe."""
+    target_width: int
+    target_height: int
+    K: tuple[float, ...] = ()
+    """Distorted intrinsics at full resolution, row-major 3x3; empty when there is no distortion."""
+    distortion: Distortion | None = None
+    K_undistorted: tuple[float, ...] = ()
+    """Pinhole intrinsics after undistortion at full resolution, row-major 3x3."""
+    source_downscale: int = 1
+    """The file is a pre-downscaled copy (images_N) at 1/N of (width, height)."""
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Colour that RGBA images are composited on."""
+    depth_scale: float = 1.0
+    """Depth images (not .npy): stored integers times this give depth in scene units."""
+
+
+def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """K for an image resized by (sx, sy), in the pixel-centre-at-0.5 convention (as Camera.scaled)."""
+    K = np.array(K, dtype=np.float64).reshape(3, 3).copy()
+    K[0] *= sx
+    K[1] *= sy
+    return K
+
+
+def _to_opencv(K: np.ndarray) -> np.ndarray:
+    K = K.copy()
+    K[0, 2] -= 0.5
+    K[1, 2] -= 0.5
+    return K
+
+
+def _from_opencv(K: np.ndarray) -> np.ndarray:
+    K = K.copy()
+    K[0, 2] += 0.5
+    K[1, 2] += 0.5
+    return K
+
+
+def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: int, height: int) -> np.ndarray:
+    """The pinhole K to undistort to: OpenCV's optimal matrix with alpha=0 (fisheye: balance=0).
+
+    alpha=0 keeps only valid pixels, so undistorted images have no black borders; the price is
+    a slightly narrower field of view than the distorted image.
+    """
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    if distortion is None or distortion.is_identity():
+        return K.copy()
+    D = np.array(distortion.coeffs, dtype=np.float64)
+    if distortion.model == "OPENCV_FISHEYE":
+        new_K = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+            _to_opencv(K), D.reshape(4, 1), (width, height), np.eye(3), balance=0.0)
+    else:
+        new_K, _ = cv2.getOptimalNewCameraMatrix(_to_opencv(K), D, (width, height), 0.0, (width, height))
+    new_K = _from_opencv(np.asarray(new_K, dtype=np.float64))
+    if not np.isfinite(new_K).all() or new_K[0, 0] <= 0 or new_K[1, 1] <= 0:
+        raise SplatuError(f"OpenCV found no valid undistorted camera for distortion {distortion.coeffs}",
+                          f"for a {width}x{height} camera", "check the distortion coefficients and intrinsics")
+    return new_K
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order."""
+    if not path.is_file():
+        raise SplatuError("image not found", f"in {path}", "check the file path in the scene description")
+    pixels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise SplatuError("cannot decode image (corrupt or unsupported format)", f"in {path}",
+                          "replace the file with a valid PNG/JPEG or remove its frame")
+    if pixels.ndim == 3 and pixels.shape[2] == 4:
+        return cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGBA)
+    if pixels.ndim == 3 and pixels.shape[2] == 3:
+        return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+    return pixels
+
+
+def _read_depth(recipe: PixelRecipe) -> np.ndarray:
+    """A depth map from .npy (float, scene units) or an integer image times depth_scale."""
+    fix = "write depth as a finite float32 .npy of shape (H, W) or a 16-bit PNG"
+    if recipe.path.suffix != ".npy":
+        depth = read_image(recipe.path).astype(np.float32) * recipe.depth_scale
+    elif not recipe.path.is_file():
+        raise SplatuError("depth map not found", f"in {recipe.path}", "fix depth_file_path or remove it")
+    else:
+        try:
+            depth = np.load(recipe.path)
+        except (OSError, ValueError) as err:
+            raise SplatuError(f"cannot read depth map ({err})", f"in {recipe.path}", fix) from None
+    if depth.ndim != 2 or not np.isfinite(depth).all():
+        raise SplatuError("depth map must be a finite (H, W) array", f"in {recipe.path}", fix)
+    return depth.astype(np.float32)
+
+
+def _read_source(recipe: PixelRecipe) -> tuple[np.ndarray, np.dtype]:
+    """The file as float32 (H, W[, C]) plus the dtype to quantise back to."""
+    if recipe.kind == "depth":
+        return _read_depth(recipe), np.dtype(np.float32)
+    pixels = read_image(recipe.path)
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise SplatuError(f"unsupported image bit depth {pixels.dtype}", f"in {recipe.path}",
+                          "save the image as 8- or 16-bit PNG/JPEG")
+    dtype = pixels.dtype
+    values = pixels.astype(np.float32) / float(np.iinfo(dtype).max)
+    if recipe.kind == "mask":
+        return (values[..., 0] if values.ndim == 3 else values), dtype
+    if values.ndim == 2:
+        values = np.repeat(values[..., None], 3, axis=2)
+    if values.shape[2] == 4:
+        alpha = values[..., 3:]
+        rgb = values[..., :3] * alpha + np.asarray(recipe.background, dtype=np.float32) * (1.0 - alpha)
+        values = np.concatenate([rgb, alpha], axis=2)
+    return values, dtype
+
+
+def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
+    expected_w = recipe.width / recipe.source_downscale
+    expected_h = recipe.height / recipe.source_downscale
+    if abs(width - expected_w) >= 1 or abs(height - expected_h) >= 1:
+        noun = {"color": "image", "mask": "mask", "depth": "depth map"}[recipe.kind]
+        raise SplatuError(f"{noun} is {width}x{height} but its camera says {round(expected_w)}x"
+                          f"{round(expected_h)}", f"in {recipe.path}",
+                          "make all images match the intrinsics (w, h) or fix the camera size")
+
+
+def _undistort(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:
+    distortion = recipe.distortion
+    if distortion is None or distortion.is_identity():
+        return values
+    height, width = values.shape[:2]
+    sx, sy = width / recipe.width, height / recipe.height
+    K_src = _to_opencv(scale_intrinsics(np.array(recipe.K), sx, sy))
+    K_dst = _to_opencv(scale_intrinsics(np.array(recipe.K_undistorted), sx, sy))
+    D = np.array(distortion.coeffs, dtype=np.float64)
+    if distortion.model == "OPENCV_FISHEYE":
+        map_x, map_y = cv2.fisheye.initUndistortRectifyMap(K_src, D.reshape(4, 1), np.eye(3), K_dst,
+                                                           (width, height), cv2.CV_32FC1)
+    else:
+        map_x, map_y = cv2.initUndistortRectifyMap(K_src, D, None, K_dst, (width, height), cv2.CV_32FC1)
+    interpolation = cv2.INTER_LINEAR if recipe.kind == "color" else cv2.INTER_NEAREST
+    return cv2.remap(values, map_x, map_y, interpolation, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _resize(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:
+    height, width = values.shape[:2]
+    size = (recipe.target_width, recipe.target_height)
+    if size == (width, height):
+        return values
+    if recipe.kind != "color":
+        interpolation = cv2.INTER_NEAREST
+    elif recipe.target_width < width:
+        interpolation = cv2.INTER_AREA
+    else:
+        interpolation = cv2.INTER_LINEAR
+    return cv2.resize(values, size, interpolation=interpolation)
+
+
+def _quantise(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    if dtype == np.float32:
+        return values.astype(np.float32)
+    top = float(np.iinfo(dtype).max)
+    return np.clip(np.round(values * top), 0, top).astype(dtype)
+
+
+def compute_pixels(recipe: PixelRecipe) -> np.ndarray:
+    """Decode, composite, undistort and resize one file; returned at its storage dtype."""
+    values, dtype = _read_source(recipe)
+    _check_size(recipe, *values.shape[:2])
+    return _quantise(_resize(_undistort(values, recipe), recipe), dtype)
+
+
+def as_float(stored: np.ndarray) -> np.ndarray:
+    """A stored array as float32, integer images mapped to [0, 1]."""
+    if stored.dtype == np.float32:
+        return stored
+    return stored.astype(np.float32) / float(np.iinfo(stored.dtype).max)
+
+
+def default_cache_dir() -> Path:
+    """$SPLATU_CACHE, else ~/.cache/splatu."""
+    env = os.environ.get("SPLATU_CACHE", "")
+    return Path(env) if env else Path.home() / ".cache" / "splatu"
+
+
+@dataclass(frozen=True)
+class ImageCache:
+    """Processed per-view arrays on disk, one .npy each, keyed by a hash of their recipe."""
+
+    directory: Path
+
+    def key(self, recipe: PixelRecipe) -> str:
+        """Hash of the source file's identity (path, mtime, size) and every processing setting."""
+        stat = recipe.path.stat()
+        parts = {
+            "version": CACHE_VERSION,
+            "path": str(recipe.path.resolve()),
+            "mtime_ns": stat.st_mtime_ns,
+            "size": stat.st_size,
+            "recipe": [recipe.kind, recipe.width, recipe.height, recipe.target_width, recipe.target_height,
+                       list(recipe.K), recipe.distortion and [recipe.distortion.model, list(recipe.distortion.coeffs)],
+                       list(recipe.K_undistorted), recipe.source_downscale, list(recipe.background),
+                       recipe.depth_scale],
+        }
+        return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:32]
+
+    def load(self, recipe: PixelRecipe) -> np.ndarray:
+        """The processed array (stored dtype), from the cache when present, else computed and stored."""
+        if not recipe.path.is_file():
+            return compute_pixels(recipe)  # raises the one-line "not found" error
+        entry = self.directory / "pixels" / f"{self.key(recipe)}.npy"
+        if entry.is_file():
+            try:
+                return np.load(entry)
+            except (OSError, ValueError):
+                entry.unlink(missing_ok=True)  # a torn write from an interrupted run: recompute it
+        pixels = compute_pixels(recipe)
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        partial = entry.with_suffix(f".{os.getpid()}.tmp")
+        with partial.open("wb") as handle:
+            np.save(handle, pixels)
+        partial.replace(entry)
+        return pixels
+
+
+def load_pixels(recipe: PixelRecipe, cache: ImageCache | None) -> np.ndarray:
+    """One processed array as float32; through the disk cache when one is given."""
+    stored = cache.load(recipe) if cache is not None else compute_pixels(recipe)
+    return as_float(stored)

@@ -1,0 +1,219 @@
+"""nerfstudio / instant-ngp `transforms.json`: parse it into frames, and write it.
+
+Intrinsics (fl_x, fl_y, cx, cy, w, h) and distortion may be global or per frame; poses are
+OpenGL camera-to-world. Images with distortion are undistorted to OpenCV's alpha=0 pinhole K
+(see splatu/data/images.py). Frames are sorted by file path, as nerfstudio does, so
+contiguous eval blocks follow the capture order of numbered video frames.
+
+`applied_transform` is accepted and not applied: nerfstudio writes `ply_file_path` points in
+the same frame as the poses, and the transform only maps both back to the original COLMAP
+frame.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import numpy as np
+import torch
+
+from splatu.camera import Camera
+from splatu.data.frames import OPENGL_TO_OPENCV, Frame, RawScene, checked_matrix, world_to_camera_from_opengl
+from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
+from splatu.data.ply import read_ply_points
+from splatu.errors import SplatuError
+
+DISTORTION_KEYS = {"OPENCV": ("k1", "k2", "p1", "p2", "k3"), "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4")}
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
+RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
+"""Radial-only models: their k1, k2 are OpenCV's with p1 = p2 = 0."""
+
+SPLIT_KEYS = {"train": "train_filenames", "eval": "val_filenames", "interp": "test_filenames"}
+"""The file's explicit split lists (nerfstudio keys) and the Scene split each one fills."""
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    """A JSON object from a file, or a one-line error."""
+    try:
+        content = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise SplatuError(f"cannot parse JSON ({err})", f"in {path}", "fix or regenerate the file") from None
+    if not isinstance(content, dict):
+        raise SplatuError("expected a JSON object at the top level", f"in {path}", "fix or regenerate the file")
+    return content
+
+
+def frame_name(file_path: str) -> str:
+    """How a frame is named in splits and lists: its file path, normalised (no leading ./)."""
+    return PurePosixPath(file_path).as_posix().removeprefix("./")
+
+
+def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: str) -> float | None:
+    value = frame.get(key, top.get(key))
+    if value is None:
+        return None
+    if not isinstance(value, int | float) or not np.isfinite(value):
+        raise SplatuError(f"intrinsic {key} must be a finite number (got {value!r})", where, "fix the value")
+    return float(value)
+
+
+def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> tuple[np.ndarray, int, int]:
+    values = {key: _number(frame, top, key, where) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h")}
+    missing = [key for key in ("fl_x", "w", "h") if values[key] is None]
+    if missing:
+        raise SplatuError(f"missing intrinsics {', '.join(missing)}", where,
+                          "give fl_x, fl_y, cx, cy, w, h at the top level or per frame")
+    width, height = round(values["w"]), round(values["h"])
+    fx = values["fl_x"]
+    fy = values["fl_y"] if values["fl_y"] is not None else fx
+    cx = values["cx"] if values["cx"] is not None else width / 2
+    cy = values["cy"] if values["cy"] is not None else height / 2
+    if fx <= 0 or fy <= 0 or width <= 0 or height <= 0:
+        raise SplatuError("focal lengths and image size must be positive", where, "fix fl_x, fl_y, w, h")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width, height
+
+
+def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
+    model = str(frame.get("camera_model", top.get("camera_model", "OPENCV")))
+    if model in PINHOLE_MODELS:
+        return None
+    if model in RADIAL_MODELS:
+        model = "OPENCV"
+    if model not in DISTORTION_KEYS:
+        raise SplatuError(f"unknown camera model {model!r}", where,
+                          f"use one of {', '.join((*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS))}")
+    coeffs = tuple(_number(frame, top, key, where) or 0.0 for key in DISTORTION_KEYS[model])
+    distortion = Distortion(model, coeffs)  # type: ignore[arg-type]
+    return None if distortion.is_identity() else distortion
+
+
+def _source_path(root: Path, file_path: str, downscale: int) -> tuple[Path, int]:
+    """The pre-downscaled copy (images_N/...) when it exists, else the original file."""
+    original = root / file_path
+    relative = PurePosixPath(frame_name(file_path))
+    if downscale > 1 and len(relative.parts) >= 2:
+        folder = relative.parent
+        copy = root / folder.parent / f"{folder.name}_{downscale}" / relative.name
+        if copy.is_file():
+            return copy, downscale
+    return original, 1
+
+
+def _extra(color: PixelRecipe, root: Path, file_path: object, kind: PixelKind,
+           depth_unit: object = None) -> PixelRecipe | None:
+    """A per-frame mask or depth map, warped exactly like the frame's image (but never pre-downscaled).
+
+    Depth in .npy files is taken as is; depth images are integers times depth_unit_scale_factor
+    (nerfstudio's convention, default 1e-3: millimetres).
+    """
+    if file_path is None:
+        return None
+    path = root / str(file_path)
+    depth_scale = 1.0 if kind != "depth" or path.suffix == ".npy" else float(depth_unit or 1e-3)  # type: ignore[arg-type]
+    return replace(color, path=path, kind=kind, source_downscale=1, depth_scale=depth_scale)
+
+
+def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
+    """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution."""
+    json_path = path / "transforms.json" if path.is_dir() else path
+    root = json_path.parent
+    top = read_json(json_path)
+    frames_json = top.get("frames")
+    if not isinstance(frames_json, list) or not frames_json:
+        raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
+    frames_json = sorted(frames_json, key=lambda f: str(f.get("file_path", "")) if isinstance(f, dict) else "")
+    frames: list[Frame] = []
+    undistorted_cache: dict[tuple, np.ndarray] = {}
+    for index, frame in enumerate(frames_json):
+        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
+            raise SplatuError(f"frame {index} has no file_path", f"in {json_path}", "give every frame a file_path")
+        name = frame_name(frame["file_path"])
+        where = f"in frame {name!r} of {json_path}"
+        c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
+        K, width, height = _intrinsics(frame, top, where)
+        distortion = _distortion(frame, top, where)
+        key = (K.tobytes(), width, height, distortion)
+        if key not in undistorted_cache:
+            undistorted_cache[key] = undistorted_intrinsics(K, distortion, width, height)
+        K_new = undistorted_cache[key]
+        camera = Camera(
+            K=torch.tensor(K_new, dtype=torch.float64),
+            world_to_camera=torch.tensor(world_to_camera_from_opengl(c2w), dtype=torch.float64),
+            width=width, height=height, name=name,
+        ).scaled(1.0 / downscale)
+        source, source_downscale = _source_path(root, frame["file_path"], downscale)
+
+        color = PixelRecipe(
+            path=source, kind="color", width=width, height=height,
+            target_width=camera.width, target_height=camera.height,
+            K=tuple(K.ravel()) if distortion else (), distortion=distortion,
+            K_undistorted=tuple(K_new.ravel()) if distortion else (),
+            source_downscale=source_downscale, background=background,
+        )
+        frames.append(Frame(
+            name=name,
+            camera=camera,
+            image=color,
+            mask=_extra(color, root, frame.get("mask_path"), "mask"),
+            depth=_extra(color, root, frame.get("depth_file_path"), "depth", top.get("depth_unit_scale_factor")),
+            observed=_extra(color, root, frame.get("observed_mask_path"), "mask"),
+        ))
+    points, colors = np.zeros((0, 3), np.float32), None
+    if top.get("ply_file_path"):
+        points, colors = read_ply_points(root / str(top["ply_file_path"]))
+    return RawScene(name=root.name, source=str(json_path), frames=frames, points=points, point_colors=colors,
+                    file_splits=_file_splits(top, [f.name for f in frames], json_path))
+
+
+def _file_splits(top: Mapping[str, Any], names: list[str], json_path: Path) -> dict[str, list[int]]:
+    """The file's own train/val/test lists as frame indices; empty when it has no train and val lists."""
+    if not all(isinstance(top.get(SPLIT_KEYS[s]), list) for s in ("train", "eval")):
+        return {}
+    index = {name: i for i, name in enumerate(names)}
+    splits: dict[str, list[int]] = {}
+    for split, key in SPLIT_KEYS.items():
+        listed = [frame_name(str(n)) for n in top.get(key) or []]
+        unknown = [n for n in listed if n not in index]
+        if unknown:
+            raise SplatuError(f"{key} names a frame that is not in frames ({unknown[0]!r})", f"in {json_path}",
+                              "list file paths exactly as the frames give them")
+        if listed or split in ("train", "eval"):  # an empty train or eval list is an error later, not ignored
+            splits[split] = [index[n] for n in listed]
+    return splits
+
+
+def write_transforms(
+    path: Path,
+    cameras: Sequence[Camera],
+    file_paths: Sequence[str],
+    *,
+    frame_extras: Sequence[Mapping[str, Any]] | None = None,
+    top_extras: Mapping[str, Any] | None = None,
+) -> None:
+    """Write pinhole cameras as a nerfstudio transforms.json with per-frame intrinsics.
+
+    `file_paths` are relative to the json's folder. `frame_extras` adds keys per frame
+    (mask_path, depth_file_path, observed_mask_path, ...); `top_extras` adds top-level keys
+    (ply_file_path, train_filenames, val_filenames, test_filenames, camera_model, k1, ...).
+    """
+    if len(cameras) != len(file_paths) or (frame_extras is not None and len(frame_extras) != len(cameras)):
+        raise ValueError("cameras, file_paths and frame_extras must have the same length")
+    frames = []
+    for i, (camera, file_path) in enumerate(zip(cameras, file_paths, strict=True)):
+        K = camera.K.detach().to(torch.float64).cpu().numpy()
+        c2w_cv = np.linalg.inv(camera.world_to_camera.detach().to(torch.float64).cpu().numpy())
+        frame: dict[str, Any] = {
+            "file_path": file_path,
+            "transform_matrix": (c2w_cv @ OPENGL_TO_OPENCV).tolist(),  # the flip is its own inverse
+            "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+            "w": camera.width, "h": camera.height,
+        }
+        if frame_extras is not None:
+            frame.update(frame_extras[i])
+        frames.append(frame)
+    content: dict[str, Any] = {"camera_model": "OPENCV", **(top_extras or {}), "frames": frames}
+    path.write_text(json.dumps(content, indent=2))

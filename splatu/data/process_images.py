@@ -1,0 +1,137 @@
+"""`splatu process-images`: a folder of photos to a COLMAP model the loader reads.
+
+Runs pycolmap's SIFT extraction, matching and incremental mapping on the CPU, then writes
+the largest model to <output>/sparse/0 and links <output>/images to the photos, which is the
+layout `--data <output>` detects as COLMAP.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import pycolmap
+import tyro
+from rich.console import Console
+
+from splatu.errors import SplatuError
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+
+
+@dataclass
+class ProcessImagesConfig:
+    images: tyro.conf.Positional[Path]
+    """Folder of photos of one static scene."""
+    output: Path | None = None
+    """Scene folder to write (sparse/0, images link, database.db); None: the parent of a folder named images."""
+    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
+    """exhaustive: all pairs (best for < ~200 photos); sequential: neighbours in file order (video frames)."""
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
+    """COLMAP camera model to estimate; all of these are ones the COLMAP loader undistorts."""
+    single_camera: bool = True
+    """All photos share one camera (one phone or video); False estimates intrinsics per photo."""
+    max_image_size: int = 1600
+    """Photos are downscaled to at most this many pixels on their longer side for feature extraction."""
+    overwrite: bool = False
+    """Replace an existing database.db and sparse/0 in the output folder."""
+    colmap_log: bool = False
+    """Also show COLMAP's own (verbose) log lines."""
+
+
+def default_output(images: Path) -> Path:
+    """scene/images -> scene; any other folder -> <folder>-colmap beside it."""
+    return images.parent if images.name == "images" else images.with_name(f"{images.name}-colmap")
+
+
+def _photos(images: Path) -> list[str]:
+    if not images.is_dir():
+        raise SplatuError("photo folder not found", f"in {images}", "pass a folder of JPEG/PNG photos")
+    names = sorted(p.name for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if len(names) < 2:
+        raise SplatuError(f"too few photos ({len(names)}): structure from motion needs at least 2",
+                          f"in {images}", "add overlapping photos of the scene")
+    return names
+
+
+def _stage(console: Console, label: str, work: Callable[[], object]) -> object:
+    """Run one pipeline stage under a spinner and report how long it took."""
+    start = time.perf_counter()
+    with console.status(f"{label}..."):
+        result = work()
+    console.print(f"[green]done[/green] {label} ({time.perf_counter() - start:.1f} s)")
+    return result
+
+
+def _link_images(images: Path, output: Path) -> None:
+    link = output / "images"
+    if link.exists() and link.resolve() == images.resolve():
+        return
+    if link.exists() or link.is_symlink():
+        raise SplatuError("the output already has a different images folder", f"in {link}",
+                          "choose another --output or remove that folder")
+    link.symlink_to(images.resolve(), target_is_directory=True)
+
+
+def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
+    """Run SfM on cfg.images and return the scene folder holding sparse/0."""
+    console = console or Console(stderr=True)
+    names = _photos(cfg.images)
+    output = cfg.output or default_output(cfg.images)
+    database, sparse = output / "database.db", output / "sparse" / "0"
+    if (database.exists() or sparse.exists()) and not cfg.overwrite:
+        raise SplatuError("a COLMAP database or model already exists", f"in {output}",
+                          "pass --overwrite or choose another --output")
+    output.mkdir(parents=True, exist_ok=True)
+    database.unlink(missing_ok=True)
+    if sparse.exists():
+        shutil.rmtree(sparse)
+    pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.WARNING
+    console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = cfg.camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = cfg.max_image_size
+    extraction.use_gpu = False
+    mode = pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE
+    _stage(console, "extracting SIFT features", lambda: pycolmap.extract_features(
+        database, cfg.images, image_names=names, camera_mode=mode, reader_options=reader,
+        extraction_options=extraction, device=pycolmap.Device.cpu))
+    match = pycolmap.match_exhaustive if cfg.matcher == "exhaustive" else pycolmap.match_sequential
+    _stage(console, f"matching features ({cfg.matcher})", lambda: match(database, device=pycolmap.Device.cpu))
+
+    models_dir = output / "sparse" / "models"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    registered = [0]
+
+    def count(n_images: int) -> Callable[[], None]:
+        def report() -> None:
+            registered[0] += n_images
+            console.print(f"  registered {registered[0]}/{len(names)} photos", highlight=False)
+
+        return report
+
+    models = _stage(console, "incremental mapping", lambda: pycolmap.incremental_mapping(
+        database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
+    shutil.rmtree(models_dir)
+    if not models:
+        raise SplatuError("COLMAP could not reconstruct the scene (no model)", f"from {cfg.images}",
+                          "take more overlapping photos, or try --matcher exhaustive")
+    best = max(models.values(), key=lambda r: r.num_reg_images())  # type: ignore[union-attr]
+    sparse.mkdir(parents=True, exist_ok=True)
+    best.write(sparse)
+    _link_images(cfg.images, output)
+    console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
+                  f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}")
+    console.print(f"train on it with: splatu train --data {output}")
+    return output
+
+
+def run(cfg: ProcessImagesConfig) -> None:
+    """The `splatu process-images` entry point."""
+    process_images(cfg)

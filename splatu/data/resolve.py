@@ -1,0 +1,90 @@
+"""`--data NAME`: find the scene, detect its format, and load it as a Scene.
+
+`poster` means nerfstudio's real poster capture when the user has it (data/nerfstudio/poster
+or $SPLATU_DATA/poster), else the built-in stand-in; anything else is a path, loaded by
+format detection: nerfstudio transforms.json, NeRF-synthetic transforms_{train,val,test}.json,
+or a COLMAP model (sparse/0, bin or txt).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from splatu.data.assemble import assemble
+from splatu.data.blender import is_blender, load_blender
+from splatu.data.colmap import find_sparse_dir, load_colmap
+from splatu.data.config import DataConfig
+from splatu.data.frames import RawScene
+from splatu.data.images import ImageCache, default_cache_dir
+from splatu.data.nerfstudio import load_nerfstudio
+from splatu.data.poster import build_poster_standin
+from splatu.data.scene import Scene
+from splatu.errors import SplatuError
+
+POSTER = "poster"
+
+
+def real_poster_candidates() -> list[Path]:
+    """Where the real poster capture may live, in order."""
+    places = [Path("data/nerfstudio/poster")]
+    if os.environ.get("SPLATU_DATA"):
+        places.append(Path(os.environ["SPLATU_DATA"]) / "poster")
+    return places
+
+
+def read_scene_files(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
+    """Parse a scene folder or file by its format, without decoding any image."""
+    if not path.exists():
+        raise SplatuError("scene not found", f"in {path}",
+                          "pass --data poster or the path of a nerfstudio, COLMAP or NeRF-synthetic scene")
+    if path.is_file():
+        if path.name.startswith("transforms_") and is_blender(path.parent):
+            return load_blender(path.parent, downscale, background)
+        if path.suffix == ".json":
+            return load_nerfstudio(path, downscale, background)
+    elif (path / "transforms.json").is_file():
+        return load_nerfstudio(path, downscale, background)
+    elif is_blender(path):
+        return load_blender(path, downscale, background)
+    elif (sparse := find_sparse_dir(path)) is not None:
+        return load_colmap(path, sparse, downscale)
+    elif find_sparse_dir(path.parent.parent) == path or find_sparse_dir(path.parent) == path:
+        root = path.parent.parent if path.parent.name == "sparse" else path.parent
+        return load_colmap(root, path, downscale)
+    raise SplatuError("unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0",
+                      f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
+
+
+def scene_path(cfg: DataConfig) -> Path:
+    """The folder or file `--data` names; for `poster`, the real capture or the generated stand-in."""
+    if cfg.data != POSTER:
+        return Path(cfg.data).expanduser()
+    for place in real_poster_candidates():
+        if (place / "transforms.json").is_file():
+            return place
+    return standin_path(cfg)
+
+
+def load_scene(cfg: DataConfig) -> Scene:
+    """The scene `cfg` names, split, normalised and decoded (through the on-disk image cache)."""
+    downscale = 1 if cfg.downscale is None else cfg.downscale
+    if downscale < 1:
+        raise SplatuError(f"downscale must be a positive integer (got {downscale})", "in --downscale",
+                          "pass --downscale 1, 2, 4 or 8")
+    raw = read_scene_files(scene_path(cfg), downscale, cfg.background)
+    if cfg.data == POSTER:
+        raw.name = POSTER  # the real capture or the stand-in: either way, runs are filed under "poster"
+    return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
+
+
+
+def standin_path(cfg: DataConfig) -> Path:
+    """Build (first time) or reuse the cached poster stand-in, saying so in one line."""
+    path = build_poster_standin(cfg.poster, cfg.cache_dir or default_cache_dir())
+    places = " or ".join(str(p) for p in real_poster_candidates())
+    print(f"--data poster: the real capture is not in {places}; using the built-in stand-in at {path} "
+          "(put nerfstudio's poster capture in data/nerfstudio/poster or $SPLATU_DATA/poster to use it)",
+          file=sys.stderr)
+    return path

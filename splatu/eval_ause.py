@@ -1,0 +1,112 @@
+"""`splatu eval-ause`: score uncertainty maps with sparsification curves, AUSE and AUROC.
+
+Every method is scored through the same maps layout (`splatu.maps`): `--maps DIR` reads one
+directly; `--load RUN` first renders the run's eval views into that layout with the chosen
+`--method`, then scores it, so a run and a foreign tool's maps are judged identically.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from splatu import ause as A
+from splatu.baselines import UncertaintyMethod
+from splatu.errors import SplatuError
+from splatu.figures import plot_sparsification
+from splatu.maps import MapEntry, entry_names, read_entry
+
+
+@dataclass
+class EvalAuseConfig:
+    """Options of `splatu eval-ause`."""
+
+    load: Path | None = None
+    """A training run directory: render its eval views with --method, then score them."""
+    maps: Path | None = None
+    """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
+    method: UncertaintyMethod = "ours"
+    """With --load: which uncertainty to score (ours, ensemble, visibility, fisher, random)."""
+    density_aware: bool = False
+    """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
+    metric: A.Metric = "mae"
+    """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
+    output: Path | None = None
+    """Where to write the JSON (default: ause_<method>.json in the run, or ause.json in the maps dir)."""
+
+
+def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
+    """Per-image scores and the mean over images, plus the mean curves for the plot."""
+    metrics: tuple[A.Metric, ...] = tuple(dict.fromkeys(("mae", "rmse", metric)))
+    per_image = {e.name: A.score_image(e.rgb, e.gt, e.uncertainty, e.mask, e.unobserved, metrics) for e in entries}
+    ours, random = [], []
+    for e in entries:
+        keep = np.ones(e.uncertainty.shape, bool) if e.mask is None else e.mask
+        errors = A.pixel_errors(e.rgb, e.gt, metric)[keep]
+        noise = np.random.default_rng((A.RANDOM_STREAM, A.RANDOM_SEEDS[0])).random(errors.size)
+        ours.append(A.sparsification_curves(errors, e.uncertainty[keep], metric))
+        random.append(A.sparsification_curves(errors, noise, metric, tie_seed=A.RANDOM_SEEDS[0]))
+    mean_curves = {
+        name: A.Curves(np.mean([c.oracle / max(c.oracle[0], 1e-12) for c in curves], axis=0),
+                       np.mean([c.sparsification / max(c.oracle[0], 1e-12) for c in curves], axis=0))
+        for name, curves in (("uncertainty", ours), ("random", random))
+    }
+    report = {"mean": A.mean_scores(per_image), "per_image": per_image, "caption": A.CAPTION,
+              "metric": metric, "images": len(entries)}
+    return report, mean_curves
+
+
+def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncertainty",
+                  output: Path | None = None) -> dict[str, Any]:
+    """Score a maps directory, write the JSON and the curve plot beside it, and return the report."""
+    entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
+    report, curves = score_entries(entries, metric)
+    report["method"] = label
+    output = output or maps_dir / "ause.json"
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(report, indent=2))
+    curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
+    plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
+    return report
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.4f}"
+
+
+def print_report(report: dict[str, Any], metric: A.Metric) -> None:
+    """A rich table: one row per image and the mean, ours beside random and start-normalised."""
+    columns = (f"ause_{metric}", f"random_ause_{metric}", f"oracle_ause_{metric}", f"ause_{metric}_start_norm",
+               f"random_ause_{metric}_start_norm", "auroc_unobserved")
+    headers = ("AUSE", "random", "oracle", "AUSE start-norm", "random start-norm", "AUROC unobserved")
+    table = Table(title=f"AUSE-{metric.upper()} of {report['method']} ({report['caption']})")
+    table.add_column("image", overflow="fold")
+    for header in headers:
+        table.add_column(header, justify="right")
+    for name, scores in report["per_image"].items():
+        table.add_row(name, *(_fmt(scores[c]) for c in columns))
+    table.add_row("[bold]mean[/bold]", *(f"[bold]{_fmt(report['mean'][c])}[/bold]" for c in columns))
+    Console().print(table)
+
+
+def run(config: EvalAuseConfig) -> None:
+    if (config.load is None) == (config.maps is None):
+        raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
+                          "use --load RUN_DIR to evaluate a run or --maps DIR for precomputed maps")
+    if config.maps is not None:
+        report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
+        output = config.output or config.maps / "ause.json"
+    else:
+        from splatu.render_uncertainty import render_eval_maps
+
+        maps_dir = render_eval_maps(config.load, config.method, config.density_aware)
+        output = config.output or config.load / f"ause_{config.method}.json"
+        report = evaluate_maps(maps_dir, config.metric, config.method, output)
+    print_report(report, config.metric)
+    Console().print(f"wrote {output} and {output.with_suffix('.png')}")

@@ -1,0 +1,177 @@
+"""Training losses and image metrics: L1, SSIM, PSNR, and the view-dependent uncertainty loss.
+
+The uncertainty loss reads only `u_sh` (directions and visibility come in detached), so it can be
+added to the photometric loss in the same step without moving geometry, opacity or colour; and
+the photometric loss never reaches `u_sh`, because training renders without the uncertainty channel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from splatu.errors import SplatuError
+from splatu.sh import eval_sh, safe_normalize
+
+if TYPE_CHECKING:
+    from splatu.model import GaussianModel
+    from splatu.rasterizer import RasterOutput
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01**2
+SSIM_C2 = 0.03**2
+PSNR_MSE_FLOOR = 1e-10
+"""PSNR of a perfect match is reported as 100 dB instead of +inf."""
+MIN_VISIBLE_WEIGHT = 1.0 / 255.0
+"""The rasterizer skips α < 1/255, so a smaller blend weight means the Gaussian is not seen in this view."""
+
+
+def _check_pair(pred: Tensor, gt: Tensor) -> None:
+    if pred.shape != gt.shape:
+        raise ValueError(f"prediction {tuple(pred.shape)} and target {tuple(gt.shape)} differ in shape")
+
+
+def l1(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Mean absolute error over all channels, or over the pixels where `mask` (H, W) is true."""
+    _check_pair(pred, gt)
+    error = (pred - gt).abs()
+    if mask is None:
+        return error.mean()
+    return error[mask.bool()].mean()
+
+
+def _gaussian_kernel(dtype: torch.dtype, device: torch.device) -> Tensor:
+    x = torch.arange(SSIM_WINDOW, dtype=dtype, device=device) - SSIM_WINDOW // 2
+    g = torch.exp(-(x * x) / (2 * SSIM_SIGMA**2))
+    return g / g.sum()
+
+
+def ssim_map(pred: Tensor, gt: Tensor) -> Tensor:
+    """Per-pixel SSIM (H, W, C) of images (H, W, C) in [0, 1], as in the original 3DGS.
+
+    11×11 Gaussian window (σ = 1.5), zero padding so the map keeps the image size and works at any
+    resolution; the 3DGS training loss and its reported metric use the same form. The window is separable,
+    so the five local moments are blurred in one batch of two 1D convolutions (22 taps instead of 121).
+    """
+    _check_pair(pred, gt)
+    c = pred.shape[-1]
+    x = pred.permute(2, 0, 1)
+    y = gt.permute(2, 0, 1)
+    moments = torch.cat([x, y, x * x, y * y, x * y], dim=0).unsqueeze(0)  # (1, 5C, H, W)
+    g = _gaussian_kernel(pred.dtype, pred.device)
+    channels = 5 * c
+    half = SSIM_WINDOW // 2
+    blurred = F.conv2d(moments, g.view(1, 1, 1, -1).expand(channels, 1, 1, SSIM_WINDOW), padding=(0, half),
+                       groups=channels)
+    blurred = F.conv2d(blurred, g.view(1, 1, -1, 1).expand(channels, 1, SSIM_WINDOW, 1), padding=(half, 0),
+                       groups=channels)
+    mu_x, mu_y, xx, yy, xy = blurred[0].split(c, dim=0)
+    var_x = xx - mu_x * mu_x
+    var_y = yy - mu_y * mu_y
+    cov = xy - mu_x * mu_y
+    numerator = (2 * mu_x * mu_y + SSIM_C1) * (2 * cov + SSIM_C2)
+    denominator = (mu_x * mu_x + mu_y * mu_y + SSIM_C1) * (var_x + var_y + SSIM_C2)
+    return (numerator / denominator).permute(1, 2, 0)
+
+
+def ssim(pred: Tensor, gt: Tensor) -> Tensor:
+    """Mean SSIM of two images (H, W, 3) in [0, 1]; 1 means identical."""
+    return ssim_map(pred, gt).mean()
+
+
+def photometric_loss(pred: Tensor, gt: Tensor, ssim_lambda: float = 0.2) -> Tensor:
+    """The 3DGS image loss: (1 − λ)·L1 + λ·(1 − SSIM), λ = 0.2."""
+    return (1.0 - ssim_lambda) * l1(pred, gt) + ssim_lambda * (1.0 - ssim(pred, gt))
+
+
+def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+    """PSNR in dB for images in [0, 1], over all pixels or the pixels where `mask` (H, W) is true."""
+    _check_pair(pred, gt)
+    squared = (pred.detach() - gt.detach()) ** 2
+    if mask is not None:
+        if not mask.any():
+            raise ValueError("psnr mask selects no pixels")
+        squared = squared[mask.bool()]
+    mse = float(squared.mean())
+    if not math.isfinite(mse):
+        raise ValueError("psnr of a non-finite image")
+    return -10.0 * math.log10(max(mse, PSNR_MSE_FLOOR))
+
+
+@dataclass
+class UncertaintyLossConfig:
+    off: bool = False
+    """Train the plain model (no uncertainty loss), for comparison."""
+    kind: Literal["antipodal", "mean", "weighted"] = "antipodal"
+    """antipodal: the paper's default u(−d) term; mean: ū over random directions (paper's variant);
+    weighted: the first term weighted by each Gaussian's max blend weight, no threshold (paper's future work)."""
+    lam: float = 0.3
+    """λ in (1−λ)·u(d) + λ·(1−u(−d)); must be < 0.5 so Gaussians seen from opposite sides stay certain."""
+    threshold: float = 0.05
+    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean)."""
+    num_dirs: int = 16
+    """Number of random unit directions that estimate ū (kind = mean)."""
+    weight: float = 1.0
+    """Scale of the uncertainty loss in the total loss."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise a one-line SplatuError for settings the loss cannot use."""
+        if not 0.0 <= self.lam < 0.5:
+            raise SplatuError(f"uncertainty λ = {self.lam} is not in [0, 0.5)", "--uncertainty.lam",
+                              "use λ < 0.5 (the paper's condition), e.g. 0.3")
+        if not 0.0 <= self.threshold <= 1.0:
+            raise SplatuError(f"uncertainty threshold = {self.threshold} is not a blend weight in [0, 1]",
+                              "--uncertainty.threshold", "use e.g. 0.05")
+        if self.num_dirs < 1:
+            raise SplatuError(f"uncertainty num_dirs = {self.num_dirs} is below 1", "--uncertainty.num-dirs",
+                              "use e.g. 16")
+        if not (math.isfinite(self.weight) and self.weight >= 0.0):
+            raise SplatuError(f"uncertainty weight = {self.weight} is not a finite non-negative number",
+                              "--uncertainty.weight", "use e.g. 1.0")
+
+
+def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: RasterOutput, cfg: UncertaintyLossConfig,
+                     generator: torch.Generator | None = None) -> Tensor:
+    """L_u for one training view (REFERENCE §1), already scaled by `cfg.weight`.
+
+    antipodal: mean over supervised i of (1−λ)·u_i(d) + λ·(1 − u_i(−d)).
+    mean:      u_i(−d) replaced by ū_i, the mean of u_i over `num_dirs` random unit directions (shared by all
+               Gaussians in this step, drawn from `generator`).
+    weighted:  over every Gaussian seen in this view (max weight ≥ 1/255), (1−λ)·w_i·u_i(d) + λ·(1 − u_i(−d))
+               with w_i = its max blend weight in [0, 1] (contrib_max: bounded, and unlike the summed weight it
+               does not grow with the Gaussian's screen size). A faint Gaussian is pulled towards certain only
+               faintly, so it stays uncertain; no hard threshold.
+    d = normalize(mean − camera centre) is detached, so only `u_sh` receives gradient. With nothing supervised
+    the result is 0 but still connected to `u_sh`, so callers can add it unconditionally.
+    """
+    cfg.validate()
+    weights = raster.contrib_max.detach()
+    cutoff = MIN_VISIBLE_WEIGHT if cfg.kind == "weighted" else cfg.threshold
+    selected = torch.nonzero(weights >= cutoff).squeeze(-1)
+    if selected.numel() == 0:
+        return model.u_sh.sum() * 0.0
+    u_sh = model.u_sh[selected]
+    degree = model.cfg.u_sh_degree
+    dirs = safe_normalize(model.means.detach()[selected] - camera_center.detach().to(model.means))
+
+    def u(directions: Tensor) -> Tensor:
+        return torch.sigmoid(eval_sh(u_sh, directions, degree)).squeeze(-1)
+
+    seen = u(dirs)
+    if cfg.kind == "mean":
+        random_dirs = torch.randn(cfg.num_dirs, 3, generator=generator).to(u_sh)
+        other = torch.sigmoid(eval_sh(u_sh.unsqueeze(1), safe_normalize(random_dirs), degree)).squeeze(-1).mean(1)
+    else:
+        other = u(-dirs)
+    first = seen * weights[selected] if cfg.kind == "weighted" else seen
+    loss = ((1.0 - cfg.lam) * first + cfg.lam * (1.0 - other)).mean()
+    return cfg.weight * loss

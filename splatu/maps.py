@@ -1,0 +1,142 @@
+"""The maps directory: one layout in which any method's uncertainty can be scored the same way.
+
+    DIR/rgb/NAME.png           the method's render
+    DIR/gt/NAME.png            the ground-truth image
+    DIR/uncertainty/NAME.npy   float (H, W) uncertainty, finite
+    DIR/mask/NAME.png          optional: non-zero = pixel is scored
+    DIR/unobserved/NAME.png    optional: non-zero = no training camera saw this pixel (AUROC)
+
+`render-uncertainty` writes it; `eval-ause --maps DIR` reads it. PNGs are written 16-bit so
+the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just as well.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from splatu.errors import SplatuError, require_file
+
+FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
+
+
+@dataclass(frozen=True)
+class MapEntry:
+    """One scored view: render, ground truth and uncertainty of the same size."""
+
+    name: str
+    rgb: np.ndarray  # (H, W, 3) float in [0, 1]
+    gt: np.ndarray  # (H, W, 3) float in [0, 1]
+    uncertainty: np.ndarray  # (H, W) float
+    mask: np.ndarray | None = None  # (H, W) bool, True = scored
+    unobserved: np.ndarray | None = None  # (H, W) bool, True = never seen in training
+
+
+def safe_name(name: str) -> str:
+    """A view name usable as a file stem: path separators and the extension removed."""
+    stem = name.replace("\\", "/").strip("/").replace("/", "_")
+    return stem.rsplit(".", 1)[0] if "." in stem else stem
+
+
+def _read_png(path: Path) -> np.ndarray:
+    image = cv2.imread(str(require_file(path, "image", "write it or remove the view from every folder")),
+                       cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise SplatuError("image could not be decoded", f"in {path}", "re-export it as an 8- or 16-bit PNG")
+    scale = 65535.0 if image.dtype == np.uint16 else 255.0
+    image = image.astype(np.float64) / scale
+    if image.ndim == 3 and image.shape[2] >= 3:  # OpenCV stores BGR(A)
+        image = np.concatenate([image[..., 2::-1], image[..., 3:]], axis=-1)
+    return image
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    image = _read_png(path)
+    if image.ndim != 3 or image.shape[2] < 3:
+        raise SplatuError(f"expected a colour image, got shape {image.shape}", f"in {path}", "save it as RGB")
+    return image[..., :3]
+
+
+def _read_binary(path: Path, shape: tuple[int, ...]) -> np.ndarray:
+    image = _read_png(path)
+    binary = (image if image.ndim == 2 else image.max(axis=-1)) > 0
+    if binary.shape != shape:
+        raise SplatuError(f"mask is {binary.shape[1]}x{binary.shape[0]} but the render is {shape[1]}x{shape[0]}",
+                          f"in {path}", "write masks at the render's size")
+    return binary
+
+
+def read_entry(root: Path, name: str) -> MapEntry:
+    """Load one view of a maps directory, checking every size and value."""
+    rgb = _read_rgb(root / "rgb" / f"{name}.png")
+    gt_path = root / "gt" / f"{name}.png"
+    gt = _read_rgb(gt_path)
+    if gt.shape != rgb.shape:
+        raise SplatuError(f"ground truth is {gt.shape[1]}x{gt.shape[0]} "
+                          f"but the render is {rgb.shape[1]}x{rgb.shape[0]}", f"in {gt_path}",
+                          "write both at the same resolution")
+    u_path = root / "uncertainty" / f"{name}.npy"
+    try:
+        uncertainty = np.load(require_file(u_path, "uncertainty map", "write it with numpy.save"), allow_pickle=False)
+    except ValueError as err:
+        raise SplatuError(f"uncertainty map is not a readable .npy ({err})", f"in {u_path}",
+                          "write it with numpy.save(path, float_array)") from None
+    if uncertainty.shape != rgb.shape[:2] or not np.issubdtype(uncertainty.dtype, np.number):
+        raise SplatuError(f"uncertainty map has shape {uncertainty.shape} {uncertainty.dtype}, "
+                          f"expected a float {rgb.shape[0]}x{rgb.shape[1]} array", f"in {u_path}",
+                          "save one float value per pixel of the render")
+    uncertainty = uncertainty.astype(np.float64)
+    if not np.isfinite(uncertainty).all():
+        raise SplatuError("uncertainty map contains NaN or Inf", f"in {u_path}", "write finite values only")
+    optional = {folder: root / folder / f"{name}.png" for folder in ("mask", "unobserved")}
+    present = {folder: _read_binary(path, rgb.shape[:2]) for folder, path in optional.items() if path.is_file()}
+    if "mask" in present and not present["mask"].any():
+        raise SplatuError("mask selects no pixels", f"in {optional['mask']}",
+                          "mark the pixels to score with non-zero values, or remove the mask")
+    return MapEntry(name, rgb, gt, uncertainty, present.get("mask"), present.get("unobserved"))
+
+
+def entry_names(root: Path) -> list[str]:
+    """The views of a maps directory, checking that rgb/, gt/ and uncertainty/ name the same ones."""
+    if not root.is_dir():
+        raise SplatuError("maps directory not found", f"in {root}", "pass a directory written by render-uncertainty")
+    stems = {}
+    for folder, suffix in (("rgb", ".png"), ("gt", ".png"), ("uncertainty", ".npy")):
+        if not (root / folder).is_dir():
+            raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}",
+                              "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy")
+        stems[folder] = {p.stem for p in (root / folder).glob(f"*{suffix}")}
+    if not stems["uncertainty"]:
+        raise SplatuError("maps directory has no uncertainty maps", f"in {root / 'uncertainty'}",
+                          "write one NAME.npy per view")
+    for folder in ("rgb", "gt"):
+        missing = stems["uncertainty"] - stems[folder]
+        if missing:
+            raise SplatuError(f"{len(missing)} uncertainty maps have no {folder}/ image (e.g. {sorted(missing)[0]!r})",
+                              f"in {root / folder}", f"write {folder}/NAME.png for every uncertainty/NAME.npy")
+    return sorted(stems["uncertainty"])
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    quantised = np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(np.uint16)
+    if quantised.ndim == 3:
+        quantised = quantised[..., ::-1]
+    if not cv2.imwrite(str(path), quantised):
+        raise SplatuError("could not write image", f"in {path}", "check the output directory is writable")
+
+
+def write_entry(root: Path, entry: MapEntry) -> None:
+    """Write one view in the maps layout, creating the folders it needs."""
+    for folder in FOLDERS:
+        if folder in ("rgb", "gt", "uncertainty") or getattr(entry, folder) is not None:
+            (root / folder).mkdir(parents=True, exist_ok=True)
+    _write_png(root / "rgb" / f"{entry.name}.png", entry.rgb)
+    _write_png(root / "gt" / f"{entry.name}.png", entry.gt)
+    np.save(root / "uncertainty" / f"{entry.name}.npy", entry.uncertainty.astype(np.float32))
+    for folder in ("mask", "unobserved"):
+        binary = getattr(entry, folder)
+        if binary is not None:
+            _write_png(root / folder / f"{entry.name}.png", binary.astype(np.float64))

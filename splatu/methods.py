@@ -1,0 +1,52 @@
+"""The method registry, in the manner of nerfstudio's: a method is a named config change.
+
+Adding a method is one entry here: a function TrainConfig -> TrainConfig plus a description.
+The trainer never branches on the method name; it only uses it to name the output folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from splatu.errors import SplatuError
+
+if TYPE_CHECKING:
+    from splatu.train_config import TrainConfig
+
+PAPER_ENSEMBLE_SIZE = 10
+
+
+@dataclass(frozen=True)
+class Method:
+    description: str
+    configure: Callable[[TrainConfig], TrainConfig]
+
+
+def _splatu(config: TrainConfig) -> TrainConfig:
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=False))
+
+
+def _splatfacto(config: TrainConfig) -> TrainConfig:
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=True))
+
+
+def _ensemble(config: TrainConfig) -> TrainConfig:
+    """Plain 3DGS members; the paper's baseline uses 10 unless --ensemble says otherwise."""
+    members = config.ensemble if config.ensemble > 1 else PAPER_ENSEMBLE_SIZE
+    return dataclasses.replace(_splatfacto(config), ensemble=members)
+
+
+METHODS: dict[str, Method] = {
+    "splatu": Method("3DGS with the view-dependent SH uncertainty trained in the same step (the paper).", _splatu),
+    "splatfacto": Method("Plain splatfacto-style 3DGS, no uncertainty loss.", _splatfacto),
+    "ensemble": Method("N plain 3DGS members differing only in seed; uncertainty = std across members.", _ensemble),
+}
+
+
+def get_method(name: str) -> Method:
+    if name not in METHODS:
+        raise SplatuError(f"unknown method {name!r}", "in --method", f"use one of {', '.join(METHODS)}")
+    return METHODS[name]

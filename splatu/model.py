@@ -1,0 +1,286 @@
+"""The Gaussian model: 3DGS parameters plus `u_sh`, the view-dependent uncertainty SH.
+
+Every per-Gaussian quantity is a row of one of the `PARAM_NAMES` parameters, so density
+control and checkpoints only ever edit rows of these seven tensors (see `splatu.optim`).
+Uncertainty seen along unit direction d is u(d) = sigmoid(Σ_k u_sh[k]·Y_k(d)) (REFERENCE §1).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import Tensor
+
+from splatu.camera import Camera
+from splatu.errors import SplatuError
+from splatu.rasterizer import RasterOutput, rasterize
+from splatu.sh import C0, MAX_SH_DEGREE, eval_sh, num_sh_bases, rgb_to_sh
+
+NEIGHBOURS = 3
+"""Initial scale is the mean distance to this many nearest neighbours (3DGS / splatfacto)."""
+
+
+@dataclass
+class ModelConfig:
+    sh_degree: int = 3
+    """Colour SH degree (0-3)."""
+    sh_degree_interval: int = 1000
+    """Raise the active colour SH degree by one every this many steps."""
+    u_sh_degree: int = 1
+    """Uncertainty SH degree (0-3): 1 is the cheapest that can tell a direction from its opposite."""
+    u_init_logit: float = 2.0
+    """Initial uncertainty logit: u starts at sigmoid(2) ≈ 0.88 everywhere (unseen means uncertain)."""
+    init_opacity: float = 0.1
+    """Opacity of every Gaussian at initialisation."""
+    random_init_points: int = 50000
+    """Number of random points when the scene has no initial points."""
+    random_init_extent: float = 10.0
+    """Side of the random-init cube centred at the origin, in scene units (splatfacto: 10 for scenes normalised
+    to [-1, 1]); scale it with the scene."""
+
+    def validate(self) -> None:
+        """Raise a one-line SplatuError for options no model can be built from."""
+        for name in ("sh_degree", "u_sh_degree"):
+            value = getattr(self, name)
+            if not 0 <= value <= MAX_SH_DEGREE:
+                raise SplatuError(f"{name} = {value} is out of range", f"--model.{name.replace('_', '-')}",
+                                  f"use a degree from 0 to {MAX_SH_DEGREE}")
+        if not 0.0 < self.init_opacity < 1.0:
+            raise SplatuError(f"init_opacity = {self.init_opacity} is not in (0, 1)", "--model.init-opacity",
+                              "use e.g. 0.1")
+        if self.random_init_points < 1 or not self.random_init_extent > 0:
+            raise SplatuError("random initialisation needs at least one point in a cube of positive side",
+                              "--model.random-init-points / --model.random-init-extent", "use e.g. 50000 and 10")
+
+
+@dataclass
+class ModelRender:
+    """One rendered view: images split back out of the rasterizer's feature channels."""
+
+    rgb: Tensor  # (H, W, 3)
+    alpha: Tensor  # (H, W)
+    depth: Tensor  # (H, W)
+    uncertainty: Tensor | None  # (H, W), only when rendered with_uncertainty
+    extra: Tensor | None  # (H, W, F), only when extra_features were given
+    raster: RasterOutput
+
+
+class GaussianModel(torch.nn.Module):
+    """3D Gaussians with colour SH and uncertainty SH, all stored as trainable rows."""
+
+    PARAM_NAMES: ClassVar[tuple[str, ...]] = (
+        "means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest", "u_sh",
+    )
+
+    def __init__(self, means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor, sh_dc: Tensor,
+                 sh_rest: Tensor, u_sh: Tensor, cfg: ModelConfig) -> None:
+        super().__init__()
+        cfg.validate()
+        n = means.shape[0]
+        expected = {
+            "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh_dc": (n, 1, 3),
+            "sh_rest": (n, num_sh_bases(cfg.sh_degree) - 1, 3), "u_sh": (n, num_sh_bases(cfg.u_sh_degree), 1),
+        }
+        given = {"means": means, "quats": quats, "log_scales": log_scales, "opacity_logits": opacity_logits,
+                 "sh_dc": sh_dc, "sh_rest": sh_rest, "u_sh": u_sh}
+        for name, shape in expected.items():
+            if tuple(given[name].shape) != shape:
+                raise ValueError(f"{name} has shape {tuple(given[name].shape)}, expected {shape}")
+        self.cfg = cfg
+        self.means = torch.nn.Parameter(means.float().contiguous())
+        self.quats = torch.nn.Parameter(quats.float().contiguous())
+        self.log_scales = torch.nn.Parameter(log_scales.float().contiguous())
+        self.opacity_logits = torch.nn.Parameter(opacity_logits.float().contiguous())
+        self.sh_dc = torch.nn.Parameter(sh_dc.float().contiguous())
+        self.sh_rest = torch.nn.Parameter(sh_rest.float().contiguous())
+        self.u_sh = torch.nn.Parameter(u_sh.float().contiguous())
+
+    @classmethod
+    def from_points(cls, points: Tensor, colors: Tensor | None, cfg: ModelConfig,
+                    generator: torch.Generator) -> GaussianModel:
+        """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation."""
+        cfg.validate()
+        points = points.detach().to(torch.float32, copy=True).reshape(-1, 3)  # never alias the scene's points
+        if points.shape[0] == 0:
+            points = (torch.rand(cfg.random_init_points, 3, generator=generator) - 0.5) * cfg.random_init_extent
+            colors = torch.rand(cfg.random_init_points, 3, generator=generator)
+        if not torch.isfinite(points).all():
+            raise SplatuError("initial points contain NaN or Inf", "in the scene's point cloud",
+                              "fix or remove the non-finite points (or drop the point cloud to use random init)")
+        n = points.shape[0]
+        if colors is None:
+            colors = torch.full((n, 3), 0.5)
+        colors = colors.detach().float().reshape(-1, 3)
+        if colors.shape[0] != n:
+            raise SplatuError(f"{colors.shape[0]} point colours for {n} points", "in the scene's point cloud",
+                              "give one colour per point")
+        log_scales = torch.log(mean_neighbour_distance(points, NEIGHBOURS)).unsqueeze(-1).repeat(1, 3)
+        quats = torch.zeros(n, 4)
+        quats[:, 0] = 1.0
+        opacity_logits = torch.full((n,), math.log(cfg.init_opacity / (1.0 - cfg.init_opacity)))
+        sh_dc = rgb_to_sh(colors.clamp(0.0, 1.0)).unsqueeze(1)
+        sh_rest = torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3)
+        return cls(points, quats, log_scales, opacity_logits, sh_dc, sh_rest, initial_u_sh(n, cfg), cfg)
+
+    @classmethod
+    def empty_like_config(cls, n: int, cfg: ModelConfig) -> GaussianModel:
+        """A model of `n` zero rows with the shapes `cfg` implies, to load a checkpoint into."""
+        cfg.validate()
+        return cls(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3), torch.zeros(n), torch.zeros(n, 1, 3),
+                   torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3),
+                   torch.zeros(n, num_sh_bases(cfg.u_sh_degree), 1), cfg)
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    def view_dirs(self, camera: Camera) -> Tensor:
+        """(N, 3) mean − camera centre, unnormalised (eval_sh normalises; zero stays safe)."""
+        return self.means - camera.center().to(self.means)
+
+    def uncertainty(self, dirs: Tensor) -> Tensor:
+        """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length."""
+        return torch.sigmoid(eval_sh(self.u_sh, dirs, self.cfg.u_sh_degree)).squeeze(-1)
+
+    def colors(self, dirs: Tensor, sh_degree: int) -> Tensor:
+        """(N, 3) colour seen along `dirs`: max(SH(d) + 0.5, 0), the 3DGS convention."""
+        coeffs = torch.cat([self.sh_dc, self.sh_rest], dim=1)
+        return torch.clamp_min(eval_sh(coeffs, dirs, min(sh_degree, self.cfg.sh_degree)) + 0.5, 0.0)
+
+    def render(self, camera: Camera, sh_degree: int, background: Tensor, *, with_uncertainty: bool = False,
+               extra_features: Tensor | None = None) -> ModelRender:
+        """Render a view in ONE rasterizer call; uncertainty and extras ride along as feature channels.
+
+        Pixels that see nothing get uncertainty 1 and extra value 1 (their background), so empty space reads
+        as uncertain / unseen.
+        """
+        dirs = self.view_dirs(camera)
+        channels = [self.colors(dirs, sh_degree)]
+        backgrounds = [background.to(self.means).reshape(3)]
+        if with_uncertainty:
+            channels.append(self.uncertainty(dirs).unsqueeze(-1))
+            backgrounds.append(self.means.new_ones(1))
+        if extra_features is not None:
+            if extra_features.shape[0] != len(self):
+                raise ValueError(f"extra_features has {extra_features.shape[0]} rows for {len(self)} Gaussians")
+            channels.append(extra_features.to(self.means))
+            backgrounds.append(self.means.new_ones(extra_features.shape[1]))
+        raster = rasterize(
+            self.means, self.quats, self.log_scales, torch.sigmoid(self.opacity_logits), torch.cat(channels, dim=-1),
+            camera.world_to_camera.to(self.means), camera.K.to(self.means), camera.width, camera.height,
+            near=camera.near, far=camera.far, background=torch.cat(backgrounds), log_scales=True,
+        )
+        image = raster.image
+        uncertainty = image[..., 3] if with_uncertainty else None
+        extra = image[..., 3 + int(with_uncertainty):] if extra_features is not None else None
+        return ModelRender(image[..., :3], raster.alpha, raster.depth, uncertainty, extra, raster)
+
+
+def initial_u_sh(n: int, cfg: ModelConfig) -> Tensor:
+    """(n, Ku, 1) uncertainty SH that is sigmoid(u_init_logit) in every direction."""
+    u_sh = torch.zeros(n, num_sh_bases(cfg.u_sh_degree), 1)
+    u_sh[:, 0, 0] = cfg.u_init_logit / C0
+    return u_sh
+
+
+def mean_neighbour_distance(points: Tensor, k: int, max_pairs: int = 4_000_000) -> Tensor:
+    """(N,) mean Euclidean distance of each point to its k nearest other points, exact.
+
+    A uniform grid whose cell is about the typical k-th neighbour distance (estimated on a sample) gives each
+    point candidates in its 27 surrounding cells; an answer is exact when its k-th distance is within one cell.
+    The points where it is not are retried with a cell twice as large, and brute force finishes the last few
+    (far outliers). Memory stays O(max_pairs). Coincident points are floored at a tiny positive distance and a
+    lone point gets 1, so log-scales stay finite.
+    """
+    n = points.shape[0]
+    if n <= 1:
+        return points.new_ones(n)
+    k = min(k, n - 1)
+    extent = float((points.max(0).values - points.min(0).values).max())
+    result = torch.zeros(n)
+    pending = torch.arange(n)
+    if n * n <= max_pairs:  # small clouds: one brute-force pass is cheaper than building a grid
+        return _brute_knn_mean(points, pending, k, max_pairs).clamp_min(max(extent, 1.0) * 1e-7)
+    cell = _typical_kth_distance(points, k)
+    for _ in range(4):
+        if pending.numel() == 0 or not 0 < cell < extent:
+            break
+        mean, kth = _grid_knn_mean(points, pending, k, cell, max_pairs)
+        exact = kth <= cell
+        result[pending[exact]] = mean[exact]
+        pending = pending[~exact]
+        cell *= 2.0
+    if pending.numel() > 0:
+        result[pending] = _brute_knn_mean(points, pending, k, max_pairs)
+    return result.clamp_min(max(extent, 1.0) * 1e-7)
+
+
+def _typical_kth_distance(points: Tensor, k: int, sample: int = 256) -> float:
+    """90th percentile of the exact k-th neighbour distance over a fixed sample of points."""
+    n = points.shape[0]
+    idx = torch.linspace(0, n - 1, min(sample, n)).long()
+    d = torch.cdist(points[idx], points)
+    d[torch.arange(idx.numel()), idx] = math.inf
+    kth = d.topk(k, dim=1, largest=False).values[:, -1]
+    return float(torch.quantile(kth, 0.9))
+
+
+def _brute_knn_mean(points: Tensor, queries: Tensor, k: int, max_pairs: int) -> Tensor:
+    out = torch.empty(queries.numel())
+    chunk = max(1, max_pairs // points.shape[0])
+    for start in range(0, queries.numel(), chunk):
+        q = queries[start:start + chunk]
+        d = (points[q].unsqueeze(1) - points.unsqueeze(0)).norm(dim=-1)
+        d[torch.arange(q.numel()), q] = math.inf
+        out[start:start + chunk] = d.topk(k, dim=1, largest=False).values.mean(-1)
+    return out
+
+
+def _grid_knn_mean(points: Tensor, queries: Tensor, k: int, cell: float, max_pairs: int) -> tuple[Tensor, Tensor]:
+    """For `queries` (indices): mean k-NN distance and k-th distance among the points in the 27 cells around
+    each query (k-th is inf when there are fewer than k candidates)."""
+    ijk = torch.floor((points - points.min(0).values) / cell).long() + 1  # +1: neighbours never go below 0
+    dims = ijk.max(0).values + 2
+    key = ijk[:, 0] + dims[0] * (ijk[:, 1] + dims[1] * ijk[:, 2])
+    key_sorted, order = torch.sort(key)
+    cell_keys, cell_counts = torch.unique_consecutive(key_sorted, return_counts=True)
+    cell_starts = torch.cumsum(cell_counts, 0) - cell_counts
+    steps = torch.tensor([-1, 0, 1])
+    offsets = torch.cartesian_prod(steps, steps, steps)
+    offset_keys = offsets[:, 0] + dims[0] * (offsets[:, 1] + dims[1] * offsets[:, 2])
+    neighbour_keys = key[queries].unsqueeze(1) + offset_keys.unsqueeze(0)  # (Q, 27)
+    slot = torch.searchsorted(cell_keys, neighbour_keys).clamp_max(cell_keys.numel() - 1)
+    present = cell_keys[slot] == neighbour_keys
+    starts = torch.where(present, cell_starts[slot], 0)
+    counts = torch.where(present, cell_counts[slot], 0)
+    per_query = counts.sum(1)
+
+    q_total = queries.numel()
+    mean = torch.zeros(q_total)
+    kth = torch.full((q_total,), math.inf)
+    q_start = 0
+    while q_start < q_total:
+        budget = torch.cumsum(per_query[q_start:], 0)
+        q_end = min(q_total, q_start + max(1, int(torch.searchsorted(budget, torch.tensor(max_pairs), right=True))))
+        c = counts[q_start:q_end].reshape(-1)
+        s = starts[q_start:q_end].reshape(-1)
+        slot_of_pair = torch.arange(q_end - q_start).repeat_interleave(27).repeat_interleave(c)
+        first = torch.cumsum(c, 0) - c
+        within = torch.arange(int(c.sum())) - first.repeat_interleave(c)
+        cand = order[s.repeat_interleave(c) + within]
+        query = queries[q_start:q_end][slot_of_pair]
+        dist = (points[query] - points[cand]).norm(dim=-1).double()
+        # One sort orders pairs by query, then by distance: fraction in [0, 0.5], self last at 0.75.
+        fraction = torch.where(cand == query, 0.75, 0.5 * dist / dist.max().clamp_min(1e-300))
+        sorted_pairs = torch.argsort(slot_of_pair.double() + fraction)
+        dist = dist[sorted_pairs].float()
+        seg_len = per_query[q_start:q_end]
+        seg_first = torch.cumsum(seg_len, 0) - seg_len
+        rows = torch.nonzero(seg_len > k).squeeze(-1)  # more than k: the query itself is among its candidates
+        nearest = dist[seg_first[rows].unsqueeze(1) + torch.arange(k)]  # (R, k), ascending
+        mean[q_start + rows] = nearest.mean(-1)
+        kth[q_start + rows] = nearest[:, -1]
+        q_start = q_end
+    return mean, kth

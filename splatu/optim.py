@@ -1,0 +1,136 @@
+"""Adam per parameter group, and the one place that edits parameter rows and Adam state together.
+
+Density control adds and removes Gaussians; if a parameter row and its Adam moments ever went out
+of step, a Gaussian would be updated with another one's momentum. `replace_rows` keeps them aligned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from splatu.model import GaussianModel
+
+ADAM_EPS = 1e-15
+"""splatfacto's Adam epsilon: the gradients of far-away Gaussians are tiny, a larger eps would freeze them."""
+
+
+@dataclass
+class OptimConfig:
+    means_lr: float = 1.6e-4
+    """Initial learning rate of the means, times the scene extent."""
+    means_lr_final: float = 1.6e-6
+    """Final learning rate of the means (exponential decay over training), times the scene extent."""
+    sh_dc_lr: float = 2.5e-3
+    """Learning rate of the colour SH DC term."""
+    sh_rest_lr: float = 2.5e-3 / 20
+    """Learning rate of the higher colour SH coefficients."""
+    opacity_lr: float = 0.05
+    """Learning rate of the opacity logits."""
+    scales_lr: float = 0.005
+    """Learning rate of the log-scales."""
+    quats_lr: float = 0.001
+    """Learning rate of the quaternions."""
+    u_sh_lr: float = 1e-2
+    """Learning rate of the uncertainty SH (ours): 4× the colour DC rate, because each Gaussian is supervised
+    only in the views that see it and short CPU schedules must still move u from its initial 0.88."""
+
+
+def _learning_rates(cfg: OptimConfig, scene_extent: float) -> dict[str, float]:
+    return {
+        "means": cfg.means_lr * scene_extent, "quats": cfg.quats_lr, "log_scales": cfg.scales_lr,
+        "opacity_logits": cfg.opacity_lr, "sh_dc": cfg.sh_dc_lr, "sh_rest": cfg.sh_rest_lr, "u_sh": cfg.u_sh_lr,
+    }
+
+
+class Optimizers:
+    """One Adam per parameter of a GaussianModel; the means' learning rate decays exponentially.
+
+    Adam is the fused kernel: on the CPU it is ~6× faster than the default loop (measured: 0.018 s vs 0.108 s
+    for a 20000×15×3 parameter) with the same update rule.
+    """
+
+    def __init__(self, model: GaussianModel, cfg: OptimConfig, scene_extent: float, max_steps: int) -> None:
+        if not (math.isfinite(scene_extent) and scene_extent > 0):
+            raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
+        self.cfg = cfg
+        self.scene_extent = scene_extent
+        self.max_steps = max(1, max_steps)
+        self.optimizers: dict[str, torch.optim.Adam] = {
+            name: torch.optim.Adam([getattr(model, name)], lr=lr, eps=ADAM_EPS, fused=True)
+            for name, lr in _learning_rates(cfg, scene_extent).items()
+        }
+
+    def means_lr(self, step: int) -> float:
+        """Log-linear interpolation from means_lr to means_lr_final over max_steps (then held)."""
+        t = min(max(step / self.max_steps, 0.0), 1.0)
+        log_lr = (1 - t) * math.log(self.cfg.means_lr) + t * math.log(self.cfg.means_lr_final)
+        return math.exp(log_lr) * self.scene_extent
+
+    def zero_grad(self) -> None:
+        for optimizer in self.optimizers.values():
+            optimizer.zero_grad(set_to_none=True)
+
+    def step(self, step: int) -> None:
+        """Set the means' learning rate for `step`, then take one Adam step on every group."""
+        self.optimizers["means"].param_groups[0]["lr"] = self.means_lr(step)
+        for optimizer in self.optimizers.values():
+            optimizer.step()
+
+    def replace_rows(self, model: GaussianModel, keep: Tensor | None, append: dict[str, Tensor] | None) -> None:
+        """Keep the rows where `keep` (N,) is true, then append new rows; Adam moments follow the same edit.
+
+        `append` maps every name in PARAM_NAMES to its new rows (all with the same row count). New rows start
+        with zero Adam moments, as a freshly created parameter would.
+        """
+        n = len(model)
+        if keep is not None and (keep.dtype != torch.bool or keep.shape != (n,)):
+            raise ValueError(f"keep must be a bool mask of shape ({n},), got {keep.dtype} {tuple(keep.shape)}")
+        if append is not None:
+            if set(append) != set(GaussianModel.PARAM_NAMES):
+                raise ValueError(f"append needs exactly {GaussianModel.PARAM_NAMES}, got {sorted(append)}")
+            counts = {rows.shape[0] for rows in append.values()}
+            if len(counts) != 1:
+                raise ValueError(f"appended rows differ in count across parameters: {counts}")
+        for name in GaussianModel.PARAM_NAMES:
+            old = getattr(model, name)
+            optimizer = self.optimizers[name]
+            state = optimizer.state.pop(old, {})
+            extra = None if append is None else append[name].detach().to(old)
+            new = torch.nn.Parameter(self._edit(old.detach(), keep, extra))
+            for key in ("exp_avg", "exp_avg_sq"):
+                if key in state:
+                    zeros = None if extra is None else torch.zeros_like(extra)
+                    state[key] = self._edit(state[key], keep, zeros)
+            if state:
+                optimizer.state[new] = state
+            optimizer.param_groups[0]["params"] = [new]
+            setattr(model, name, new)
+
+    @staticmethod
+    def _edit(rows: Tensor, keep: Tensor | None, extra: Tensor | None) -> Tensor:
+        kept = rows if keep is None else rows[keep]
+        return kept.contiguous() if extra is None else torch.cat([kept, extra], dim=0)
+
+    def reset_state(self, name: str, rows: Tensor) -> None:
+        """Zero the Adam moments of `rows` (bool mask or indices) of parameter `name`."""
+        optimizer = self.optimizers[name]
+        state = optimizer.state.get(optimizer.param_groups[0]["params"][0], {})
+        for key in ("exp_avg", "exp_avg_sq"):
+            if key in state:
+                state[key][rows] = 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {name: optimizer.state_dict() for name, optimizer in self.optimizers.items()}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        """Restore every group's Adam state; the model must already hold the checkpoint's rows."""
+        missing = set(self.optimizers) - set(d)
+        if missing:
+            raise ValueError(f"optimizer state lacks groups {sorted(missing)}")
+        for name, optimizer in self.optimizers.items():
+            optimizer.load_state_dict(d[name])

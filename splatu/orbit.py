@@ -1,0 +1,104 @@
+"""An orbit of cameras around a capture, reaching directions the capture never saw (e.g. below).
+
+The scene's frame is inferred from the training cameras alone, so it works for any loader:
+`up` is the mean of the cameras' up vectors (phone and drone captures are held upright), the
+centre is the point closest to every optical axis (what the capture looks at), and the radius
+is the median camera distance to it. The orbit's elevation swings from +max to −max and back
+as it circles once, so half of it looks from below the centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from splatu.camera import Camera
+from splatu.errors import SplatuError
+
+
+@dataclass(frozen=True)
+class OrbitFrame:
+    """One orbit camera and its elevation above the capture's horizontal plane, in degrees."""
+
+    camera: Camera
+    elevation_degrees: float
+
+
+@dataclass(frozen=True)
+class CaptureFrame:
+    """Where a capture looks from: centre, up direction, radius, and azimuth-zero direction."""
+
+    center: Tensor
+    up: Tensor
+    radius: float
+    forward_axis: Tensor  # unit, perpendicular to up: azimuth 0 points from the centre towards it
+
+
+def _unit(v: Tensor) -> Tensor:
+    return v / v.norm().clamp_min(1e-12)
+
+
+def capture_frame(cameras: list[Camera]) -> CaptureFrame:
+    """Centre, up and radius of a set of (training) cameras, in float64."""
+    if len(cameras) < 2:
+        raise SplatuError(f"an orbit needs at least 2 training cameras, got {len(cameras)}", "in the scene",
+                          "use --views eval or train instead")
+    rotations = torch.stack([c.world_to_camera[:3, :3].double() for c in cameras])
+    centres = torch.stack([c.center().double() for c in cameras])
+    forwards = rotations[:, 2, :]  # camera +z in world
+    up = _unit(-rotations[:, 1, :].mean(dim=0))  # camera −y (OpenCV down is +y) in world
+    # least-squares point nearest to all optical axes: sum_i (I - f f^T)(c - o_i) = 0
+    projectors = torch.eye(3, dtype=torch.float64) - forwards[:, :, None] * forwards[:, None, :]
+    lhs = projectors.sum(dim=0)
+    rhs = (projectors @ centres[:, :, None]).sum(dim=0)[:, 0]
+    center = torch.linalg.lstsq(lhs, rhs[:, None]).solution[:, 0]
+    if not torch.isfinite(center).all():
+        center = centres.mean(dim=0)
+    offsets = centres - center
+    radius = float(offsets.norm(dim=1).median())
+    mean_offset = offsets.mean(dim=0)
+    horizontal = mean_offset - (mean_offset @ up) * up
+    if horizontal.norm() < 1e-9 * max(radius, 1e-12):  # cameras all around: any horizontal axis will do
+        seed = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+        horizontal = seed - (seed @ up) * up if abs(float(seed @ up)) < 0.9 else torch.tensor([0.0, 1.0, 0.0]).double()
+    return CaptureFrame(center, up, radius, _unit(horizontal))
+
+
+def look_at(position: Tensor, target: Tensor, up: Tensor) -> Tensor:
+    """World-to-camera 4x4 in OpenCV axes (+x right, +y down, +z towards `target`)."""
+    forward = _unit(target - position)
+    right = _unit(torch.linalg.cross(forward, up))
+    down = torch.linalg.cross(forward, right)
+    rotation = torch.stack([right, down, forward])
+    world_to_camera = torch.eye(4, dtype=torch.float64)
+    world_to_camera[:3, :3] = rotation
+    world_to_camera[:3, 3] = -rotation @ position
+    return world_to_camera
+
+
+def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float,
+                  radius_scale: float = 1.0) -> list[OrbitFrame]:
+    """`frames` cameras circling the capture once; elevation = max·cos(azimuth), so half look from below."""
+    if frames < 2:
+        raise SplatuError(f"an orbit needs at least 2 frames, got {frames}", "in --orbit-frames", "pass 2 or more")
+    if not 0.0 <= max_elevation_degrees <= 85.0:
+        raise SplatuError(f"orbit elevation must be in [0, 85] degrees, got {max_elevation_degrees}",
+                          "in --orbit-elevation", "pass e.g. 60 (looking straight down or up is degenerate)")
+    frame = capture_frame(cameras)
+    side = torch.linalg.cross(frame.up, frame.forward_axis)
+    template = cameras[0]
+    dtype = template.world_to_camera.dtype
+    result = []
+    for k in range(frames):
+        azimuth = 2.0 * math.pi * k / frames
+        elevation = math.radians(max_elevation_degrees) * math.cos(azimuth)
+        horizontal = math.cos(azimuth) * frame.forward_axis + math.sin(azimuth) * side
+        direction = math.cos(elevation) * horizontal + math.sin(elevation) * frame.up
+        position = frame.center + frame.radius * radius_scale * direction
+        camera = replace(template, world_to_camera=look_at(position, frame.center, frame.up).to(dtype),
+                         name=f"orbit_{k:03d}")
+        result.append(OrbitFrame(camera, math.degrees(elevation)))
+    return result

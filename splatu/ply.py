@@ -1,0 +1,160 @@
+"""Standard 3DGS PLY export/import, plus `u_0..u_{Ku-1}` for the uncertainty SH.
+
+The layout is the one 3DGS viewers read: x y z, nx ny nz (zeros), f_dc_0..2, f_rest_* channel-major
+(all red coefficients, then green, then blue), opacity (logit), scale_0..2 (log), rot_0..3 (wxyz);
+every property a little-endian float32. Viewers ignore the extra `u_*` properties.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel, ModelConfig, initial_u_sh
+from splatu.sh import MAX_SH_DEGREE
+
+FORMAT_LINE = "format binary_little_endian 1.0"
+PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
+
+
+def property_names(sh_rest_count: int, u_count: int) -> list[str]:
+    """Vertex properties in file order for `sh_rest_count` colour-SH rest coefficients and `u_count` u_sh."""
+    names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    names += [f"f_rest_{i}" for i in range(3 * sh_rest_count)]
+    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    names += [f"u_{i}" for i in range(u_count)]
+    return names
+
+
+def save_ply(model: GaussianModel, path: Path) -> None:
+    """Write the model as a binary little-endian 3DGS PLY, atomically (temporary file, then rename)."""
+    path = Path(path)
+    with torch.no_grad():
+        n = len(model)
+        rest = model.sh_rest.detach().float()
+        columns = [
+            model.means.detach().float(),
+            torch.zeros(n, 3),
+            model.sh_dc.detach().float().reshape(n, 3),
+            rest.transpose(1, 2).reshape(n, -1),  # channel-major: f_rest_{c·(K−1)+k}
+            model.opacity_logits.detach().float().reshape(n, 1),
+            model.log_scales.detach().float(),
+            model.quats.detach().float(),
+            model.u_sh.detach().float().reshape(n, -1),
+        ]
+        data = torch.cat(columns, dim=1).cpu().numpy().astype("<f4")
+    if not np.isfinite(data).all():
+        raise SplatuError("the model has NaN or Inf parameters", f"while writing {path}",
+                          "export from an earlier, finite checkpoint")
+    names = property_names(rest.shape[1], model.u_sh.shape[1])
+    header = ["ply", FORMAT_LINE, f"element vertex {n}", *(f"property float {name}" for name in names), "end_header"]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(np.ascontiguousarray(data).tobytes())
+    os.replace(tmp, path)
+
+
+def _read_header(f, path: Path) -> tuple[int, list[tuple[str, str]]]:
+    """Vertex count and (name, dtype) of each vertex property; anything unsupported is a SplatuError."""
+    first = f.readline()
+    if first.strip() != b"ply":
+        raise SplatuError("not a PLY file (no 'ply' magic)", f"in {path}", "pass a 3DGS .ply file")
+    count, properties, in_vertex, fmt = -1, [], False, None
+    for _ in range(10_000):
+        line = f.readline()
+        if not line:
+            raise SplatuError("PLY header has no end_header", f"in {path}", "the file is truncated; re-export it")
+        words = line.decode("ascii", errors="replace").split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            break
+        if words[0] == "format":
+            fmt = " ".join(words)
+        elif words[0] == "element":
+            in_vertex = words[1] == "vertex"
+            if in_vertex:
+                count = int(words[2])
+            elif count >= 0:
+                raise SplatuError(f"PLY has an element {words[1]!r} besides vertices", f"in {path}",
+                                  "export the Gaussians alone as a 3DGS PLY")
+        elif words[0] == "property" and in_vertex:
+            if words[1] not in PLY_TYPES:
+                raise SplatuError(f"PLY property {words[-1]} has unsupported type {words[1]}", f"in {path}",
+                                  "store every vertex property as float")
+            properties.append((words[-1], PLY_TYPES[words[1]]))
+    else:
+        raise SplatuError("PLY header is too long", f"in {path}", "pass a 3DGS .ply file")
+    if fmt != FORMAT_LINE:
+        raise SplatuError(f"PLY format is {fmt!r}, not binary little endian", f"in {path}",
+                          "export the PLY as binary_little_endian 1.0 (the 3DGS format)")
+    if count < 0:
+        raise SplatuError("PLY has no vertex element", f"in {path}", "pass a 3DGS .ply file")
+    return count, properties
+
+
+def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
+    """Read a 3DGS PLY written by `save_ply` (or any 3DGS trainer) back into a model.
+
+    The colour and uncertainty SH degrees come from the file (they override `cfg`); a PLY without `u_*`
+    properties (a plain 3DGS export) gets the initial uncertainty of `cfg` everywhere.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SplatuError("PLY file not found", f"at {path}", "check the path")
+    with open(path, "rb") as f:
+        count, properties = _read_header(f, path)
+        dtype = np.dtype([(name, kind) for name, kind in properties])
+        payload = f.read()
+    if len(payload) < count * dtype.itemsize:
+        raise SplatuError(f"PLY data holds {len(payload)} bytes for {count} vertices of {dtype.itemsize} bytes",
+                          f"in {path}", "the file is truncated; re-export it")
+    vertices = np.frombuffer(payload, dtype=dtype, count=count)
+    names = set(dtype.names or ())
+    rest_count = sum(1 for name in names if name.startswith("f_rest_"))
+    u_count = sum(1 for name in names if name.startswith("u_") and name[2:].isdigit())
+    if rest_count % 3:
+        raise SplatuError(f"PLY has {rest_count} f_rest properties, not a multiple of 3", f"in {path}",
+                          "export all three colour channels")
+    u_degree = _degree_for(u_count, "u_", path) if u_count else cfg.u_sh_degree
+    cfg = replace(cfg, sh_degree=_degree_for(rest_count // 3 + 1, "f_rest", path), u_sh_degree=u_degree)
+    required = property_names(rest_count // 3, u_count)
+    missing = [name for name in required if name not in names and name not in ("nx", "ny", "nz")]
+    if missing:
+        raise SplatuError(f"PLY lacks properties {missing[:4]}", f"in {path}", "pass a 3DGS .ply file")
+
+    def columns(*keys: str) -> torch.Tensor:
+        return torch.from_numpy(np.stack([vertices[k].astype(np.float32) for k in keys], axis=1)).reshape(count, -1)
+
+    rest = columns(*(f"f_rest_{i}" for i in range(rest_count))) if rest_count else torch.zeros(count, 0)
+    tensors = {
+        "means": columns("x", "y", "z"),
+        "quats": columns("rot_0", "rot_1", "rot_2", "rot_3"),
+        "log_scales": columns("scale_0", "scale_1", "scale_2"),
+        "opacity_logits": columns("opacity").reshape(count),
+        "sh_dc": columns("f_dc_0", "f_dc_1", "f_dc_2").reshape(count, 1, 3),
+        "sh_rest": rest.reshape(count, 3, rest_count // 3).transpose(1, 2).contiguous(),
+        "u_sh": columns(*(f"u_{i}" for i in range(u_count))).reshape(count, u_count, 1) if u_count
+        else initial_u_sh(count, cfg),
+    }
+    for name, tensor in tensors.items():
+        if not torch.isfinite(tensor).all():
+            raise SplatuError(f"PLY property group {name} holds NaN or Inf", f"in {path}",
+                              "re-export from a finite model")
+    return GaussianModel(**tensors, cfg=cfg)
+
+
+def _degree_for(coefficients: int, what: str, path: Path) -> int:
+    """SH degree whose basis has exactly `coefficients` terms."""
+    for degree in range(MAX_SH_DEGREE + 1):
+        if (degree + 1) ** 2 == coefficients:
+            return degree
+    raise SplatuError(f"PLY {what} properties give {coefficients} SH coefficients, not (d+1)² for d ≤ 3",
+                      f"in {path}", "export a 3DGS PLY with SH degree 0-3")

@@ -1,0 +1,117 @@
+"""The custom autograd Function around the block compositor, and its no-grad fast path.
+
+Projection stays outside (plain autograd); this Function takes the projected quantities, so the
+caller's `means2d` is a true input and its signed gradient is visible through `retain_grad`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from splatu.rasterizer.composite import (
+    ChunkState,
+    GaussianGrads,
+    GaussianParams,
+    PixelAccumulators,
+    backward_chunk,
+    chunk_bounds,
+    forward_chunk,
+)
+from splatu.rasterizer.footprint import BlockEntries
+
+
+def _run_forward(
+    g: GaussianParams, entries: BlockEntries, width: int, max_elements: int, keep_state: bool
+) -> tuple[PixelAccumulators, list[ChunkState]]:
+    n, channels_ext = g.features_ext.shape
+    dtype, device = g.means2d.dtype, g.means2d.device
+    acc = PixelAccumulators(
+        image_ext=torch.zeros(entries.block_width, entries.num_blocks, channels_ext, dtype=dtype, device=device),
+        contrib_sum=torch.zeros(n, dtype=dtype, device=device),
+        contrib_max=torch.zeros(n, dtype=dtype, device=device),
+    )
+    states = []
+    for start, end in chunk_bounds(entries, max_elements):
+        state = forward_chunk(entries, start, end, g, width, acc)
+        if keep_state:
+            states.append(state)
+    return acc, states
+
+
+def to_image(block_layout: Tensor, width: int, height: int) -> Tensor:
+    """(B, num_blocks, ...) → (H, W, ...)."""
+    return block_layout.transpose(0, 1).reshape(height, -1, *block_layout.shape[2:])[:, :width]
+
+
+def to_blocks(image: Tensor, entries: BlockEntries) -> Tensor:
+    """(H, W, ...) → (B, num_blocks, ...), zero-padding the last block of each row."""
+    height, width = image.shape[:2]
+    padded_width = entries.blocks_per_row * entries.block_width
+    if padded_width != width:
+        image = torch.cat([image, image.new_zeros(height, padded_width - width, *image.shape[2:])], dim=1)
+    blocks = image.reshape(entries.num_blocks, entries.block_width, *image.shape[2:])
+    return blocks.transpose(0, 1).contiguous()
+
+
+def _finish(image_ext: Tensor, background: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Image with background, alpha and Σ w·z in (H, W) layout, and T_final in block layout (B, num_blocks)."""
+    channels = background.shape[0]
+    alpha = image_ext[:, :, channels + 1]
+    t_final = 1.0 - alpha
+    image = image_ext[:, :, :channels] + t_final[:, :, None] * background
+    return (to_image(image, width, height), to_image(alpha, width, height),
+            to_image(image_ext[:, :, channels], width, height), t_final)
+
+
+class CompositeFunction(torch.autograd.Function):
+    """(means2d, conics, opacities, extended features, background) → image, alpha, Σ w·z, contributions."""
+
+    @staticmethod
+    def forward(
+        ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, features_ext: Tensor,
+        background: Tensor, entries: BlockEntries, width: int, height: int, absgrad: Tensor, max_elements: int,
+    ) -> tuple[Tensor, ...]:
+        g = GaussianParams(means2d, conics, opacities, features_ext)
+        acc, states = _run_forward(g, entries, width, max_elements, keep_state=True)
+        image, alpha, depth_num, t_final = _finish(acc.image_ext, background, width, height)
+        ctx.save_for_backward(means2d, conics, opacities, features_ext, background)
+        ctx.states, ctx.entries, ctx.t_final, ctx.width, ctx.absgrad = states, entries, t_final, width, absgrad
+        pairs = torch.tensor(acc.pairs)
+        ctx.mark_non_differentiable(acc.contrib_sum, acc.contrib_max, pairs)
+        return image, alpha, depth_num, acc.contrib_sum, acc.contrib_max, pairs
+
+    @staticmethod
+    def backward(ctx: Any, g_image: Tensor, g_alpha: Tensor, g_depth_num: Tensor, *_: Tensor) -> tuple:
+        means2d, conics, opacities, features_ext, background = ctx.saved_tensors
+        entries = ctx.entries
+        g = GaussianParams(means2d, conics, opacities, features_ext)
+        up_ext = to_blocks(torch.cat([g_image, g_depth_num[..., None], g_alpha[..., None]], dim=-1), entries)
+        channels = background.shape[0]
+        up_image = up_ext[:, :, :channels]
+        behind_background = ctx.t_final * (up_image * background).sum(-1)
+        grads = GaussianGrads(*(torch.zeros_like(x) for x in (means2d, conics, opacities, features_ext)),
+                              absgrad=ctx.absgrad)
+        for state in ctx.states:
+            backward_chunk(entries, state, g, ctx.width, up_ext, behind_background, grads)
+        grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))
+        return (grads.means2d, grads.conics, grads.opacities, grads.features_ext, grad_background,
+                None, None, None, None, None)
+
+
+def composite(
+    g: GaussianParams, background: Tensor, entries: BlockEntries, width: int, height: int,
+    absgrad: Tensor, max_elements: int,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, int]:
+    """image (H,W,C), alpha (H,W), Σ w·z (H,W), contrib_sum, contrib_max, pair count; no-grad path saves nothing."""
+    inputs = (g.means2d, g.conics, g.opacities, g.features_ext, background)
+    if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
+        image, alpha, depth_num, csum, cmax, pairs = CompositeFunction.apply(
+            *inputs, entries, width, height, absgrad, max_elements
+        )
+        return image, alpha, depth_num, csum, cmax, int(pairs)
+    acc, _ = _run_forward(g, entries, width, max_elements, keep_state=False)
+    image, alpha, depth_num, _ = _finish(acc.image_ext, background, width, height)
+    return image, alpha, depth_num, acc.contrib_sum, acc.contrib_max, acc.pairs

@@ -1,0 +1,125 @@
+"""EWA projection of 3D Gaussians to 2D screen-space ellipses, differentiable by autograd.
+
+Follows the 3DGS conventions: camera-space mean t = R m + tvec (OpenCV axes), the Jacobian of the
+perspective projection at t with t.x/t.z and t.y/t.z clamped to ±1.3·tan(half-FoV) before forming J,
+cov2d = J W Σ Wᵀ Jᵀ + 0.3·I, conic = inv(cov2d) with det clamped ≥ 1e-10.
+
+Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
+z ≤ near, z ≥ far, or its box [mx ± r] × [my ± r] with r = ceil(3·sqrt(λ_max(cov2d))) lies
+entirely off-screen: mx + r ≤ 0 or mx − r ≥ width or my + r ≤ 0 or my − r ≥ height.
+
+All covariance algebra runs in float64 whatever the input dtype: an enormous or degenerate Σ
+then stays finite (det is formed from non-negative Cauchy–Binet terms, so it cannot cancel to
+a negative number), and results are cast back to the input dtype.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+MAX_SCALE = 1e30
+"""Scales are clamped here so float64 covariance products stay finite; no real scene comes close."""
+
+LOW_PASS = 0.3
+"""The 3DGS screen-space blur added to cov2d (about one pixel)."""
+
+
+@dataclass
+class Projection:
+    means2d: Tensor  # (N, 2) pixels, input dtype, differentiable
+    conics: Tensor  # (N, 3) (a, b, c) of inv(cov2d), input dtype, differentiable
+    depths: Tensor  # (N,) camera-space z, input dtype, differentiable
+    cov2d: Tensor  # (N, 3) (xx, xy, yy), float64, detached: for footprints
+    det: Tensor  # (N,) det(cov2d), float64, detached
+    radii: Tensor  # (N,) int32, 0 when culled
+    visible: Tensor  # (N,) bool
+
+
+def quaternion_to_rotation(quats: Tensor) -> Tensor:
+    """Rotation matrices (N, 3, 3) from wxyz quaternions; a zero quaternion maps to the identity."""
+    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(*q.shape[:-1], 3, 3)
+
+
+def project_gaussians(
+    means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tensor, K: Tensor,
+    width: int, height: int, near: float, far: float, log_scales: bool,
+) -> Projection:
+    """Project every Gaussian; culled ones get finite placeholder values and radius 0."""
+    out_dtype = means.dtype
+    f64 = torch.float64
+    W2C = world_to_camera.to(f64)
+    Kd = K.to(f64)
+    fx, fy = Kd[0, 0], Kd[1, 1]
+    cx, cy = Kd[0, 2], Kd[1, 2]
+    R_cam = W2C[:3, :3]
+    t_cam = means.to(f64) @ R_cam.T + W2C[:3, 3]
+    z = t_cam[:, 2]
+    with torch.no_grad():
+        in_depth = (z > near) & (z < far)
+    # Culled-by-depth Gaussians divide by 1 instead of ~0, so neither values nor gradients blow up.
+    z_safe = torch.where(in_depth, z, torch.ones_like(z))
+    u = fx * t_cam[:, 0] / z_safe + cx
+    v = fy * t_cam[:, 1] / z_safe + cy
+
+    lim_x = 1.3 * (0.5 * width / fx)
+    lim_y = 1.3 * (0.5 * height / fy)
+    tx = torch.maximum(torch.minimum(t_cam[:, 0] / z_safe, lim_x), -lim_x) * z_safe
+    ty = torch.maximum(torch.minimum(t_cam[:, 1] / z_safe, lim_y), -lim_y) * z_safe
+    zero = torch.zeros_like(z_safe)
+    J = torch.stack(
+        [fx / z_safe, zero, -fx * tx / (z_safe * z_safe), zero, fy / z_safe, -fy * ty / (z_safe * z_safe)], dim=-1
+    ).reshape(-1, 2, 3)
+
+    if log_scales:
+        s = torch.exp(scales.to(f64).clamp(max=math.log(MAX_SCALE)))
+    else:
+        s = scales.to(f64).clamp(-MAX_SCALE, MAX_SCALE)
+    M = quaternion_to_rotation(quats.to(f64)) * s[:, None, :]  # R S
+    JW = J @ R_cam  # (N, 2, 3), one (2N, 3) @ (3, 3) product
+    T = (JW[:, :, :, None] * M[:, None, :, :]).sum(2)  # J W R S; cov2d = T Tᵀ + 0.3 I (no tiny-matrix bmm)
+    a = (T[:, 0] * T[:, 0]).sum(-1)
+    b = (T[:, 0] * T[:, 1]).sum(-1)
+    c = (T[:, 1] * T[:, 1]).sum(-1)
+    minors = torch.stack(
+        [
+            T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0],
+            T[:, 0, 0] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 0],
+            T[:, 0, 1] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 1],
+        ],
+        dim=-1,
+    )
+    det = ((minors * minors).sum(-1) + LOW_PASS * (a + c) + LOW_PASS * LOW_PASS).clamp_min(1e-10)
+    cxx, cyy = a + LOW_PASS, c + LOW_PASS
+    conics = torch.stack([cyy / det, -b / det, cxx / det], dim=-1)
+
+    with torch.no_grad():
+        half_diff = 0.5 * (cxx - cyy)
+        lam_max = 0.5 * (cxx + cyy) + torch.sqrt(half_diff * half_diff + b * b)
+        radius = torch.ceil(3.0 * torch.sqrt(lam_max)).clamp(max=2.0**30)
+        on_screen = (u + radius > 0) & (u - radius < width) & (v + radius > 0) & (v - radius < height)
+        visible = in_depth & on_screen
+        radii = torch.where(visible, radius, torch.zeros_like(radius)).to(torch.int32)
+        cov2d = torch.stack([cxx, b, cyy], dim=-1).detach()
+
+    return Projection(
+        means2d=torch.stack([u, v], dim=-1).to(out_dtype),
+        conics=conics.to(out_dtype),
+        depths=z.to(out_dtype),
+        cov2d=cov2d,
+        det=det.detach(),
+        radii=radii,
+        visible=visible,
+    )

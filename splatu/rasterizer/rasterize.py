@@ -1,0 +1,91 @@
+"""The public entry point: world-space Gaussians + a pinhole camera → image, alpha, depth and per-Gaussian stats."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from splatu.rasterizer.composite import GaussianParams
+from splatu.rasterizer.errors import RasterInputError, require_finite, require_shape
+from splatu.rasterizer.footprint import block_entries
+from splatu.rasterizer.function import composite
+from splatu.rasterizer.projection import project_gaussians
+
+BLOCK_WIDTH = 8
+"""Pixels per block (one row segment). Measured (CPU s, fwd+bwd, compiled): 100k@512x384 17.1 at 8 vs
+21.5 at 16; 20k@256² within noise of each other."""
+
+MAX_CHUNK_ELEMENTS = 1 << 22
+"""Entries × block width composited at once; bounds peak memory on large scenes."""
+
+
+@dataclass
+class RasterOutput:
+    image: Tensor  # (H, W, C) Σ_i w_i f_i + T_final · background
+    alpha: Tensor  # (H, W) 1 − T_final = Σ_i w_i
+    depth: Tensor  # (H, W) Σ_i w_i z_i / alpha where alpha > 0, else 0
+    radii: Tensor  # (N,) int32 ceil(3·sqrt(λ_max(cov2d))), 0 when culled
+    means2d: Tensor  # (N, 2) projected means in pixels, differentiable (call .retain_grad() to read its gradient)
+    means2d_absgrad: Tensor  # (N, 2) zeros after forward; backward adds Σ_pixels |dL_p/dmeans2d|
+    contrib_sum: Tensor  # (N,) Σ_pixels w_i(p), no grad
+    contrib_max: Tensor  # (N,) max_pixels w_i(p), no grad
+    depths: Tensor  # (N,) camera-space z of each mean, no grad
+    num_contributing_pairs: int  # pixel–Gaussian pairs with α ≥ 1/255 reached before termination
+
+
+def rasterize(
+    means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, features: Tensor,
+    world_to_camera: Tensor, K: Tensor, width: int, height: int, *,
+    near: float = 0.01, far: float = 1e10, background: Tensor | None = None, log_scales: bool = False,
+) -> RasterOutput:
+    """Render N Gaussians with exact 3DGS semantics (EWA splatting, α-blending front to back, early stop)."""
+    n = means.shape[0] if means.dim() == 2 else -1
+    channels = features.shape[1] if features.dim() == 2 else -1
+    require_shape("means", means, (None, 3))
+    require_shape("quats", quats, (n, 4))
+    require_shape("scales", scales, (n, 3))
+    require_shape("opacities", opacities, (n,))
+    require_shape("features", features, (n, None))
+    require_shape("world_to_camera", world_to_camera, (4, 4))
+    require_shape("K", K, (3, 3))
+    if channels < 1 or width < 1 or height < 1:
+        raise RasterInputError(
+            f"rasterize got {channels} feature channels and a {width}x{height} image",
+            "in the call to rasterize",
+            "pass at least one feature channel and a positive image size",
+        )
+    dtype, device = means.dtype, means.device
+    if background is None:
+        background = torch.zeros(channels, dtype=dtype, device=device)
+    require_shape("background", background, (channels,))
+    named = {"means": means, "quats": quats, "scales": scales, "opacities": opacities, "features": features,
+             "world_to_camera": world_to_camera, "K": K, "background": background}
+    for name, tensor in named.items():
+        require_finite(name, tensor)
+
+    proj = project_gaussians(means, quats, scales, world_to_camera, K, width, height, near, far, log_scales)
+    entries = block_entries(
+        proj.means2d.detach(), proj.cov2d, proj.det, opacities.detach(), proj.depths.detach(), proj.visible,
+        width, height, BLOCK_WIDTH,
+    )
+    absgrad = torch.zeros(n, 2, dtype=dtype, device=device)
+    ones = torch.ones(n, 1, dtype=dtype, device=device)
+    features_ext = torch.cat([features.to(dtype), proj.depths[:, None], ones], dim=1)
+    params = GaussianParams(proj.means2d, proj.conics, opacities.to(dtype), features_ext)
+    image, alpha, depth_num, contrib_sum, contrib_max, pairs = composite(
+        params, background.to(dtype), entries, width, height, absgrad, MAX_CHUNK_ELEMENTS
+    )
+    return RasterOutput(
+        image=image,
+        alpha=alpha,
+        depth=depth_num / alpha.clamp_min(1e-10),
+        radii=proj.radii,
+        means2d=proj.means2d,
+        means2d_absgrad=absgrad,
+        contrib_sum=contrib_sum,
+        contrib_max=contrib_max,
+        depths=proj.depths.detach(),
+        num_contributing_pairs=pairs,
+    )

@@ -1,0 +1,256 @@
+"""`splatu render-uncertainty`: RGB, depth, alpha and uncertainty maps of a trained run.
+
+For the chosen views (eval, train, or an orbit that also looks from below) and method, it
+writes, under <run>/uncertainty/<method>-<views>/ unless --output says otherwise:
+
+    npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
+    png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
+    colorbar_{uncertainty,depth,error}.png       the legends of those shared scales
+    panels/NAME.png                              render | uncertainty | error (error when GT exists)
+    maps/                                        the layout `eval-ause --maps` scores (when GT exists)
+    orbit.gif                                    for --views orbit
+    render.json                                  per-view mean uncertainty, elevations, timings
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+import torch
+from rich.console import Console
+
+from splatu.baselines import UncertaintyMethod, UncertaintyRender, UncertaintySource
+from splatu.camera import Camera
+from splatu.data.scene import Views
+from splatu.errors import SplatuError
+from splatu.figures import (
+    DEPTH_CMAP,
+    ERROR_CMAP,
+    UNCERTAINTY_CMAP,
+    ColourScale,
+    colour_map,
+    save_colour_bar,
+    save_orbit_gif,
+    save_panel,
+)
+from splatu.maps import MapEntry, safe_name, write_entry
+from splatu.orbit import orbit_cameras
+
+ViewSet = Literal["eval", "train", "orbit"]
+
+
+@dataclass
+class RenderUncertaintyConfig:
+    """Options of `splatu render-uncertainty`."""
+
+    load: Path = Path("outputs/poster/splatu/latest")
+    """A training run directory (an ensemble run for --method ensemble)."""
+    method: UncertaintyMethod = "ours"
+    """Which uncertainty to render: ours, ensemble, visibility, fisher or random."""
+    views: ViewSet = "eval"
+    """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
+    output: Path | None = None
+    """Output folder; default <run>/uncertainty/<method>-<views>."""
+    density_aware: bool = False
+    """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
+    max_views: int = 0
+    """Render at most this many views (evenly spaced); 0 renders all."""
+    orbit_frames: int = 24
+    """Frames of the orbit (--views orbit)."""
+    orbit_elevation: float = 60.0
+    """The orbit's elevation swings between +this and −this degrees around the capture's centre."""
+    orbit_radius_scale: float = 1.0
+    """Orbit radius as a multiple of the median training-camera distance to the centre."""
+    fisher_probes: int = 2
+    """Rademacher probes per training view for --method fisher."""
+    seed: int = 0
+    """Seed of the random method and of the Fisher probes."""
+    gif_fps: int = 6
+    """Frames per second of the orbit GIF."""
+
+
+@dataclass
+class RenderedView:
+    """One rendered view as numpy maps, with its ground truth when the scene has one."""
+
+    name: str
+    maps: dict[str, np.ndarray]  # rgb (H, W, 3), depth, alpha, uncertainty (H, W)
+    gt: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    unobserved: np.ndarray | None = None
+    elevation_degrees: float | None = None
+
+
+@dataclass(frozen=True)
+class ViewSpec:
+    """What to render: cameras, optional ground truth, and orbit elevations."""
+
+    cameras: list[Camera]
+    names: list[str]
+    views: Views | None = None
+    indices: list[int] | None = None
+    elevations: list[float] | None = None
+
+
+def _evenly(count: int, limit: int) -> list[int]:
+    if limit <= 0 or limit >= count:
+        return list(range(count))
+    return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)}) if limit > 1 else [0]
+
+
+def view_spec(scene_views: dict[str, Views], which: ViewSet, config: RenderUncertaintyConfig) -> ViewSpec:
+    """Cameras of the eval or train split (with their ground truth), or a generated orbit."""
+    if which == "orbit":
+        frames = orbit_cameras(scene_views["train"].cameras, config.orbit_frames, config.orbit_elevation,
+                               config.orbit_radius_scale)
+        keep = _evenly(len(frames), config.max_views)
+        return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
+                        elevations=[frames[i].elevation_degrees for i in keep])
+    views = scene_views[which]
+    if len(views) == 0:
+        raise SplatuError(f"the scene's {which} split is empty", "in the run's scene", "pick another --views")
+    keep = _evenly(len(views), config.max_views)
+    return ViewSpec([views.cameras[i] for i in keep], [safe_name(views.names[i]) for i in keep], views, keep)
+
+
+def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
+    maps = {key: getattr(render, key).detach().double().cpu().numpy() for key in ("rgb", "depth", "alpha",
+                                                                                     "uncertainty")}
+    for key, value in maps.items():
+        if not np.isfinite(value).all():
+            raise RuntimeError(f"the {key} map of view {name!r} has non-finite values: a rendering bug")
+    return maps
+
+
+@torch.no_grad()
+def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[RenderedView], list[float]]:
+    """Render every view (no gradients); returns the views and the seconds each took."""
+    rendered, seconds = [], []
+    for k, (camera, name) in enumerate(zip(spec.cameras, spec.names, strict=True)):
+        started = time.perf_counter()
+        maps = _numpy(source.render(camera), name)
+        seconds.append(time.perf_counter() - started)
+        view = RenderedView(name, maps)
+        if spec.views is not None and spec.indices is not None:
+            i = spec.indices[k]
+            view.gt = spec.views.images[i].double().numpy()
+            if spec.views.masks is not None:
+                view.mask = spec.views.masks[i].bool().numpy().reshape(view.gt.shape[:2])
+            if spec.views.observed is not None:
+                view.unobserved = ~spec.views.observed[i].bool().numpy().reshape(view.gt.shape[:2])
+        if spec.elevations is not None:
+            view.elevation_degrees = spec.elevations[k]
+        rendered.append(view)
+    return rendered, seconds
+
+
+def map_entries(views: list[RenderedView]) -> list[MapEntry]:
+    """The views that have ground truth, as the entries eval-ause scores."""
+    return [MapEntry(v.name, v.maps["rgb"], v.gt, v.maps["uncertainty"], v.mask, v.unobserved)
+            for v in views if v.gt is not None]
+
+
+def write_maps_layout(root: Path, views: list[RenderedView]) -> None:
+    """The `eval-ause --maps` layout for every view that has ground truth."""
+    for entry in map_entries(views):
+        write_entry(root, entry)
+
+
+def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
+    """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]."""
+    u_max = max(float(v.maps["uncertainty"].max()) for v in views)
+    hit = [v.maps["depth"][v.maps["alpha"] > 0.5] for v in views]
+    hit = [h for h in hit if h.size]
+    depth_lo, depth_hi = (float(min(h.min() for h in hit)), float(max(h.max() for h in hit))) if hit else (0.0, 1.0)
+    errors = [np.abs(v.maps["rgb"] - v.gt).sum(axis=-1) for v in views if v.gt is not None]
+    error_max = max((float(np.percentile(e, 99.5)) for e in errors), default=1.0)
+    return {
+        "uncertainty": ColourScale(0.0, max(1.0, u_max), UNCERTAINTY_CMAP, "uncertainty U"),
+        "depth": ColourScale(depth_lo, max(depth_hi, depth_lo + 1e-6), DEPTH_CMAP, "depth"),
+        "alpha": ColourScale(0.0, 1.0, "gray", "accumulated alpha"),
+        "error": ColourScale(0.0, max(error_max, 1e-6), ERROR_CMAP, "error Σ_c |Î − I|"),
+    }
+
+
+def _write_png(path: Path, rgb_uint8: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), rgb_uint8[..., ::-1]):
+        raise SplatuError("could not write image", f"in {path}", "check the output directory is writable")
+
+
+def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -> dict[str, ColourScale]:
+    """Raw maps, colour-mapped PNGs, colour bars, panels, the maps layout and (orbit) the GIF."""
+    for folder in ("npy", "png", "panels"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+    scales = shared_scales(views)
+    for key in ("uncertainty", "depth", "error"):
+        save_colour_bar(out / f"colorbar_{key}.png", scales[key])
+    for view in views:
+        for key, value in view.maps.items():
+            np.save(out / "npy" / f"{view.name}_{key}.npy", value.astype(np.float32))
+        _write_png(out / "png" / f"{view.name}_rgb.png",
+                   (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
+        for key in ("uncertainty", "depth", "alpha"):
+            _write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]))
+        error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
+        save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
+                   scales["uncertainty"], error, scales["error"])
+    write_maps_layout(out / "maps", views)
+    if orbit:
+        titles = [f"{v.name}  elevation {v.elevation_degrees:+.0f}°" for v in views]
+        save_orbit_gif(out / "orbit.gif", [v.maps["rgb"] for v in views], [v.maps["uncertainty"] for v in views],
+                       scales["uncertainty"], titles, fps)
+    return scales
+
+
+def _setup(load: Path, method: UncertaintyMethod, density_aware: bool, fisher_probes: int, seed: int):
+    """Load the run, its scene and the method (imports kept here: they pull in the whole trainer stack)."""
+    from splatu.baselines.load import build_method, check_method, load_any_run
+    from splatu.data.resolve import load_scene
+
+    run = load_any_run(load)
+    check_method(method, run)
+    scene = load_scene(run.config.data)
+    built = build_method(method, run, scene, density_aware, fisher_probes, seed)
+    return run, scene, built
+
+
+def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
+                     fisher_probes: int = 2, seed: int = 0) -> Path:
+    """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
+    run, scene, built = _setup(load, method, density_aware, fisher_probes, seed)
+    spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
+    views, seconds = render_views(built.source, spec)
+    root = Path(load) / "uncertainty" / f"{method}-eval" / "maps"
+    shutil.rmtree(root, ignore_errors=True)  # our own folder: stale views of an earlier render must not be scored
+    write_maps_layout(root, views)
+    (root / "timing.json").write_text(json.dumps({"train_seconds": run.train_seconds,
+                                                  "setup_seconds": built.setup_seconds,
+                                                  "render_seconds_per_view": float(np.median(seconds))}))
+    return root
+
+
+def run(config: RenderUncertaintyConfig) -> None:
+    run_info, scene, built = _setup(config.load, config.method, config.density_aware, config.fisher_probes,
+                                    config.seed)
+    spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
+    views, seconds = render_views(built.source, spec)
+    out = config.output or Path(config.load) / "uncertainty" / f"{config.method}-{config.views}"
+    scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
+    record = {
+        "method": config.method, "views": config.views, "density_aware": config.density_aware,
+        "train_seconds": run_info.train_seconds, "setup_seconds": built.setup_seconds,
+        "render_seconds_per_view": float(np.median(seconds)),
+        "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
+        "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
+                      "elevation_degrees": v.elevation_degrees} for v in views],
+    }
+    (out / "render.json").write_text(json.dumps(record, indent=2))
+    Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
+                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}")

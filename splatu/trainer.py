@@ -1,0 +1,486 @@
+"""The training loop: splatfacto-style 3DGS with the uncertainty SH learned in the same step.
+
+One step renders one training camera (shuffled order, resolution schedule, random background),
+adds the photometric loss and the uncertainty loss computed from the *same* render's
+contributions, and does one backward. A step whose loss or gradients are non-finite is skipped
+(no optimizer step, no density statistics), so a bad value never reaches the model.
+
+Entry points: `train(config)` (the CLI and the Python API; handles --resume and --ensemble) and
+`train_run(config, scene, run_dir)` for callers that already hold a scene.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import random
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from splatu.camera import Camera
+from splatu.checkpoint import (
+    capture_rng,
+    list_checkpoints,
+    model_from_state,
+    read_checkpoint,
+    resolve_checkpoint,
+    restore_rng,
+    run_dir_of,
+    save_checkpoint,
+)
+from splatu.data.resolve import load_scene
+from splatu.data.scene import Scene, Views
+from splatu.densify import DensityController
+from splatu.errors import SplatuError
+from splatu.losses import photometric_loss, psnr, ssim, uncertainty_loss
+from splatu.model import GaussianModel
+from splatu.optim import Optimizers
+from splatu.ply import save_ply
+from splatu.run_dir import new_run_dir, point_latest
+from splatu.train_config import TrainConfig, from_dict, save_config, to_dict
+
+console = Console(stderr=True)
+
+
+@dataclass
+class TrainState:
+    """What changes during training; with the config, exactly what a checkpoint stores."""
+
+    model: GaussianModel
+    optimizers: Optimizers
+    density: DensityController
+    generator: torch.Generator
+    scene_extent: float
+    step: int = 0
+    """Completed steps."""
+    nonfinite_streak: int = 0
+    train_seconds: float = 0.0
+    """Time spent in steps, summed over sessions (resumes)."""
+
+
+StepHook = Callable[[int, TrainState], None]
+"""Called after every completed step with the number of completed steps (tests, callers)."""
+
+
+@dataclass
+class StepOutcome:
+    loss: float
+    uncertainty_loss: float
+    psnr: float
+    skipped: str | None
+    """Why the step was skipped (which value was non-finite), or None."""
+    refined: dict[str, int]
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C: the run was saved (when it stopped between steps) and can be resumed."""
+
+    def __init__(self, message: str, run_dir: Path, step: int) -> None:
+        super().__init__(message)
+        self.message = message
+        self.run_dir = run_dir
+        self.step = step
+
+
+# --- pure schedule helpers -------------------------------------------------------------------
+
+def camera_index(step: int, num_cameras: int, seed: int) -> int:
+    """Shuffled order, a new permutation per epoch; a pure function of the step, so resume is exact."""
+    epoch, position = divmod(step, num_cameras)
+    order = torch.randperm(num_cameras, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch))
+    return int(order[position])
+
+
+def resolution_level(step: int, levels: int, interval: int) -> int:
+    """k in the 1/2^k resolution schedule: k = max(levels - step // interval, 0)."""
+    return max(levels - step // interval, 0)
+
+
+def active_sh_degree(step: int, max_degree: int, interval: int) -> int:
+    return min(step // interval, max_degree)
+
+
+def scene_extent(cameras: Sequence[Camera]) -> float:
+    """3DGS's scene radius: 1.1 × the largest camera distance from the mean camera centre."""
+    centers = torch.stack([c.center() for c in cameras])
+    radius = float((centers - centers.mean(0)).norm(dim=-1).max())
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+def training_background(kind: str, generator: torch.Generator) -> torch.Tensor:
+    """Random backgrounds stop the model from painting the background colour into empty space."""
+    if kind == "random":
+        return torch.rand(3, generator=generator)
+    return torch.full((3,), 1.0 if kind == "white" else 0.0)
+
+
+class TrainImages:
+    """Training views at every resolution level, downsampled once (area averaging) and cached.
+
+    Targets are the images as loaded: `Views.masks` are not used (they mix alpha and
+    valid-pixel masks); for images composited on a colour, train with that fixed background.
+    """
+
+    def __init__(self, views: Views) -> None:
+        self.views = views
+        self._levels: dict[int, torch.Tensor] = {}
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def _level(self, level: int) -> torch.Tensor:
+        if level not in self._levels:
+            images = self.views.images
+            if level > 0:
+                probe = self.views.cameras[0].scaled(0.5**level)
+                size = (probe.height, probe.width)
+                images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
+            self._levels[level] = images.contiguous()
+        return self._levels[level]
+
+    def get(self, index: int, level: int) -> tuple[Camera, torch.Tensor]:
+        """Camera and target image of view `index` at 1/2^level resolution."""
+        camera = self.views.cameras[index]
+        return (camera.scaled(0.5**level) if level > 0 else camera), self._level(level)[index]
+
+
+# --- one step --------------------------------------------------------------------------------
+
+def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | None:
+    """Name the first non-finite value among the loss, every parameter gradient and the absgrad.
+
+    A tensor's sum is non-finite iff it holds a NaN/Inf (or is large enough to overflow float32,
+    which is just as fatal), and one reduction per tensor is cheaper than an elementwise isfinite.
+    """
+    if not torch.isfinite(loss):
+        return "loss"
+    named = [(f"gradient of {name}", getattr(model, name).grad) for name in GaussianModel.PARAM_NAMES]
+    named.append(("screen-space gradient", getattr(raster, "means2d_absgrad", None)))
+    named = [(what, t) for what, t in named if t is not None]
+    sums = torch.stack([t.sum() for _, t in named])
+    if bool(torch.isfinite(sums).all()):
+        return None
+    return next(what for (what, _), ok in zip(named, torch.isfinite(sums).tolist(), strict=True) if not ok)
+
+
+def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> StepOutcome:
+    """Render one camera, one backward for both losses, then optimise and refine (unless non-finite)."""
+    step = state.step
+    background = training_background(config.train_background, state.generator)
+    level = resolution_level(step, config.resolution_levels, config.resolution_interval)
+    camera, target = images.get(camera_index(step, len(images), config.seed), level)
+    degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
+
+    render = state.model.render(camera, degree, background)
+    loss = photometric_loss(render.rgb, target, config.ssim_lambda)
+    u_loss = torch.zeros(())
+    if not config.uncertainty.off:
+        u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty, state.generator)
+        loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
+    loss.backward()
+
+    bad = _nonfinite(loss.detach(), state.model, render.raster)
+    train_psnr = psnr(render.rgb.detach(), target) if bad is None else float("nan")
+    refined: dict[str, int] = {}
+    if bad is None:
+        state.density.observe(render.raster, camera.width, camera.height)
+        state.optimizers.step(step)
+    state.optimizers.zero_grad()
+    if bad is None:
+        refined = {k: v for k, v in state.density.refine(step, state.model, state.optimizers).items() if v}
+    return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)
+
+
+# --- evaluation ------------------------------------------------------------------------------
+
+@torch.no_grad()
+def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor) -> dict[str, float]:
+    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels."""
+    psnrs, ssims, observed = [], [], []
+    for i, camera in enumerate(views.cameras):
+        rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
+        gt = views.images[i]
+        psnrs.append(psnr(rgb, gt))
+        ssims.append(float(ssim(rgb, gt)))
+        if views.observed is not None and bool(views.observed[i].any()):
+            observed.append(psnr(rgb, gt, mask=views.observed[i]))
+    metrics = {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)), "num_images": len(psnrs)}
+    if observed:
+        metrics["psnr_observed"] = float(np.mean(observed))
+    return metrics
+
+
+def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
+    """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
+    background = torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
+    sets = {"eval": scene.eval, **scene.extra_eval}
+    return {name: evaluate_views(model, views, config.model.sh_degree, background) for name, views in sets.items()}
+
+
+# --- run bookkeeping -------------------------------------------------------------------------
+
+class MetricsLog:
+    """metrics.jsonl: one JSON object per line, appended and flushed as training goes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def write(self, record: dict[str, Any]) -> None:
+        with self.path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def drop_after(self, step: int) -> None:
+        """On resume: forget lines logged after the checkpoint, they are about to be redone."""
+        if not self.path.is_file():
+            return
+        lines = [ln for ln in self.path.read_text().splitlines() if ln.strip()]
+        kept = [ln for ln in lines if json.loads(ln).get("step", 0) <= step]
+        self.path.write_text("".join(ln + "\n" for ln in kept))
+
+
+def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
+    return {
+        "config": to_dict(dataclasses.replace(config, resume=None)),
+        "model": state.model.state_dict(),
+        "num_gaussians": len(state.model),
+        "optimizers": state.optimizers.state_dict(),
+        "density": state.density.state_dict(),
+        "rng": capture_rng(state.generator),
+        "scene_extent": state.scene_extent,
+        "nonfinite_streak": state.nonfinite_streak,
+        "train_seconds": state.train_seconds,
+    }
+
+
+def seed_everything(seed: int) -> torch.Generator:
+    """Seed torch, numpy and random; return the trainer's own generator."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    random.seed(seed)
+    return torch.Generator().manual_seed(seed)
+
+
+def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
+    generator = seed_everything(config.seed)
+    extent = scene_extent(scene.train.cameras)
+    model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator)
+    optimizers = Optimizers(model, config.optim, extent, config.steps)
+    return TrainState(model, optimizers, DensityController(config.densify, extent, generator), generator, extent)
+
+
+def restored_state(checkpoint: dict[str, Any], config: TrainConfig) -> TrainState:
+    model = model_from_state(checkpoint, config)
+    extent = float(checkpoint["scene_extent"])
+    optimizers = Optimizers(model, config.optim, extent, config.steps)
+    optimizers.load_state_dict(checkpoint["optimizers"])
+    generator = torch.Generator()
+    restore_rng(checkpoint["rng"], generator)
+    density = DensityController(config.densify, extent, generator)
+    density.load_state_dict(checkpoint["density"])
+    return TrainState(model, optimizers, density, generator, extent, step=int(checkpoint["step"]),
+                      nonfinite_streak=int(checkpoint["nonfinite_streak"]),
+                      train_seconds=float(checkpoint["train_seconds"]))
+
+
+@contextmanager
+def deferred_interrupt() -> Iterator[dict[str, bool]]:
+    """First Ctrl-C: finish the current step, then stop cleanly; a second one aborts at once."""
+    flag = {"requested": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if flag["requested"]:
+            raise KeyboardInterrupt
+        flag["requested"] = True
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _progress(enabled: bool) -> Progress:
+    return Progress(
+        TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
+        BarColumn(),
+        TextColumn("loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
+                   "  {task.fields[rate]:5.2f} it/s"),
+        TimeRemainingColumn(),
+        console=console,
+        disable=not enabled,
+    )
+
+
+# --- the loop --------------------------------------------------------------------------------
+
+def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path,
+             hooks: Sequence[StepHook] = ()) -> TrainState:
+    """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C handling."""
+    images = TrainImages(scene.train)
+    log = MetricsLog(run_dir / "metrics.jsonl")
+    log.drop_after(state.step)
+    smoothed_psnr = float("nan")
+    session_start, session_steps = time.perf_counter(), 0
+    with _progress(config.progress) as progress, deferred_interrupt() as interrupt:
+        task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
+                                 gaussians=len(state.model), rate=0.0)
+        in_step = False
+        try:
+            while state.step < config.steps:
+                in_step = True
+                started = time.perf_counter()
+                outcome = train_step(state, config, images)
+                state.step += 1
+                state.train_seconds += time.perf_counter() - started
+                in_step = False
+                session_steps += 1
+                _account(state, config, outcome, log, run_dir)
+                if outcome.skipped is None:
+                    smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
+                                     else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
+                rate = session_steps / max(time.perf_counter() - session_start, 1e-9)
+                progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
+                                gaussians=len(state.model), rate=rate)
+                if config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps:
+                    _log_eval(state, config, scene, log)
+                if config.checkpoint_every and state.step % config.checkpoint_every == 0:
+                    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+                for hook in hooks:
+                    hook(state.step, state)
+                if interrupt["requested"]:
+                    raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise _interrupted(state, config, run_dir, mid_step=in_step) from None
+    return state
+
+
+def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: MetricsLog, run_dir: Path) -> None:
+    """Log the step; count non-finite steps in a row and stop after too many."""
+    if outcome.skipped is not None:
+        state.nonfinite_streak += 1
+        log.write({"step": state.step, "event": "nonfinite_skipped", "what": outcome.skipped})
+        print(f"step {state.step}: non-finite {outcome.skipped}, step skipped", file=sys.stderr)
+        if state.nonfinite_streak >= config.max_nonfinite_steps:
+            found = list_checkpoints(run_dir)
+            last = f"the last good checkpoint is {found[-1]}" if found else "no checkpoint was written yet"
+            raise SplatuError(
+                f"training stopped: {state.nonfinite_streak} steps in a row had a non-finite value "
+                f"(last: {outcome.skipped} at step {state.step})",
+                f"in {run_dir}",
+                f"{last}; check the input data or retrain with lower learning rates",
+            )
+        return
+    state.nonfinite_streak = 0
+    if outcome.refined or state.step % config.log_every == 0:
+        log.write({"step": state.step, "event": "train", "loss": outcome.loss,
+                   "uncertainty_loss": outcome.uncertainty_loss, "psnr": outcome.psnr,
+                   "num_gaussians": len(state.model), "train_seconds": state.train_seconds,
+                   **({"refined": outcome.refined} if outcome.refined else {})})
+
+
+def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog) -> dict[str, dict[str, float]]:
+    results = evaluate_scene(state.model, scene, config)
+    for name, metrics in results.items():
+        log.write({"step": state.step, "event": "eval", "set": name, **metrics})
+    return results
+
+
+def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool) -> TrainingInterrupted:
+    """Save (only at a step boundary, where the state is consistent) and say how to resume."""
+    if mid_step:
+        found = list_checkpoints(run_dir)
+        where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
+        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}; resume with "
+                                   f"`splatu train --resume {run_dir}`", run_dir, state.step)
+    path = save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+    return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}; resume with "
+                               f"`splatu train --resume {run_dir}`", run_dir, state.step)
+
+
+def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float) -> dict:
+    """Final checkpoint, evaluation, PLY export and summary.json."""
+    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+    results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
+    save_ply(state.model, run_dir / "splat.ply")
+    summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
+               "num_gaussians": len(state.model), "train_seconds": state.train_seconds,
+               "wall_seconds": time.perf_counter() - wall_start, "eval": results}
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
+              checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict:
+    """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary."""
+    wall_start = time.perf_counter() if wall_start is None else wall_start
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(config, run_dir / "config.yml")
+    state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config)
+    run_loop(state, config, scene, run_dir, hooks)
+    return finish_run(state, config, scene, run_dir, wall_start)
+
+
+def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
+                   hooks: Sequence[StepHook] = ()) -> dict:
+    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(config, run_dir / "config.yml")
+    members = []
+    for k in range(config.ensemble):
+        member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
+        member_dir = run_dir / "members" / str(k)
+        console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
+        train_run(member, scene, member_dir, hooks)
+        members.append(member_dir)
+    record = {"members": [str(m.relative_to(run_dir)) for m in members],
+              "seeds": [config.seed + k for k in range(config.ensemble)],
+              "wall_seconds": time.perf_counter() - wall_start}
+    (run_dir / "ensemble.json").write_text(json.dumps(record, indent=2))
+    return record
+
+
+def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
+    """Train (or resume) as configured; returns the run directory."""
+    wall_start = time.perf_counter()
+    if config.resume is not None:
+        path = resolve_checkpoint(config.resume)
+        checkpoint = read_checkpoint(path)
+        saved = from_dict(checkpoint["config"], str(path))
+        run_dir = run_dir_of(path)
+        train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)
+        return run_dir
+    scene = load_scene(config.data)
+    run_dir = new_run_dir(config.output_dir, scene.name, config.method)
+    point_latest(run_dir)
+    if config.ensemble > 1:
+        train_ensemble(config, scene, run_dir, wall_start, hooks)
+    else:
+        train_run(config, scene, run_dir, hooks, wall_start=wall_start)
+    return run_dir
+
+
+def run_command(config: TrainConfig) -> None:
+    """`splatu train`: train, print where the run went; Ctrl-C prints how to resume and exits 130."""
+    try:
+        run_dir = train(config)
+    except TrainingInterrupted as stop:
+        print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
+        raise SystemExit(130) from None
+    print(f"run saved to {run_dir}", file=sys.stderr)

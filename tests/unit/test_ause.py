@@ -1,0 +1,137 @@
+"""AUSE and AUROC on constructed inputs whose answers are known in closed form."""
+
+import numpy as np
+import pytest
+
+from splatu import ause as A
+
+
+def _rng(seed: int = 123) -> np.random.Generator:
+    return np.random.default_rng(seed)
+
+
+def test_oracle_uncertainty_scores_zero():
+    errors = _rng().exponential(size=20_000)
+    curves = A.sparsification_curves(errors, errors)
+    assert A.ause(curves) == pytest.approx(0.0, abs=1e-12)
+    assert A.ause_start_normalised(curves) == pytest.approx(0.0, abs=1e-12)
+    # a monotone transform of the error is just as perfect
+    assert A.ause(A.sparsification_curves(errors, np.log1p(errors))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_random_uncertainty_matches_closed_form_on_uniform_errors():
+    # e ~ U(0,1): O(r) = (1-r)/2 and E[S(r)] = 1/2, so (S-O)/M ≈ r and AUSE ≈ ∫_0^0.99 r dr = 0.49005
+    errors = _rng().random(50_000)
+    joint, start = A.random_baseline(errors)
+    assert joint == pytest.approx(0.49005, abs=0.02)
+    assert start == pytest.approx(0.49005, abs=0.02)
+
+
+def test_curves_follow_the_grid_definition():
+    errors = np.arange(10, dtype=float)  # N = 10: n_k = floor((100-k)·10/100), at least 1
+    curves = A.sparsification_curves(errors, errors)
+    assert A.kept_counts(10)[[0, 10, 11, 95, 99]].tolist() == [10, 9, 8, 1, 1]
+    assert curves.oracle[0] == pytest.approx(4.5)  # mean of 0..9
+    assert curves.oracle[10] == pytest.approx(4.0)  # mean of 0..8
+    reversed_curves = A.sparsification_curves(errors, -errors)
+    assert reversed_curves.sparsification[10] == pytest.approx(5.0)  # mean of 1..9
+
+
+def test_rmse_and_mse_curves():
+    rendered = np.zeros((1, 4, 3))
+    target = np.zeros((1, 4, 3))
+    target[0, :, 0] = [1.0, 2.0, 3.0, 4.0]  # squared error per pixel: 1, 4, 9, 16
+    squared = A.pixel_errors(rendered, target, "mse")
+    assert squared.ravel().tolist() == [1.0, 4.0, 9.0, 16.0]
+    mse = A.sparsification_curves(squared, squared, "mse")
+    rmse = A.sparsification_curves(squared, squared, "rmse")
+    assert mse.oracle[0] == pytest.approx(7.5)
+    assert rmse.oracle[0] == pytest.approx(np.sqrt(7.5))
+    assert rmse.oracle[50] == pytest.approx(np.sqrt(2.5))  # keeps the 2 smallest: 1 and 4
+
+
+def test_anti_correlated_beats_random_under_joint_max_on_heavy_tails_but_not_start_normalised():
+    """The documented pitfall (REFERENCE §4): on heavy-tailed errors the worst pixels inflate M.
+
+    Measured here on 50k log-normal(σ=1.5) errors: anti ≈ 0.13 vs random ≈ 0.73 (joint max),
+    but anti ≈ 2.6 vs random ≈ 0.79 start-normalised, which exposes it.
+    """
+    errors = _rng().lognormal(0.0, 1.5, 50_000)
+    anti = A.sparsification_curves(errors, -errors)
+    random_joint, random_start = A.random_baseline(errors)
+    assert A.ause(anti) < 0.5 * random_joint
+    assert A.ause_start_normalised(anti) > 2.0 * random_start
+
+
+def test_anti_correlated_is_no_better_than_random_on_light_tails():
+    errors = _rng().random(50_000)
+    anti = A.sparsification_curves(errors, -errors)
+    random_joint, _ = A.random_baseline(errors)
+    assert A.ause(anti) >= random_joint - 0.01
+
+
+def test_ties_are_deterministic_and_constant_u_is_defined():
+    errors = _rng().exponential(size=5_000)
+    constant = np.full_like(errors, 0.3)
+    first = A.ause(A.sparsification_curves(errors, constant))
+    second = A.ause(A.sparsification_curves(errors, constant))
+    assert first == second
+    # a constant u keeps pixels in a fixed random order: it scores like a random uncertainty
+    random_joint, _ = A.random_baseline(errors)
+    assert first == pytest.approx(random_joint, abs=0.05)
+    # ties are not broken by pixel order: sorted errors with constant u must not look like the oracle
+    ordered = np.sort(errors)
+    assert A.ause(A.sparsification_curves(ordered, np.zeros_like(ordered))) > 0.3
+
+
+def test_constant_error_does_not_divide_by_zero():
+    for value in (0.0, 0.25):
+        errors = np.full(1_000, value)
+        curves = A.sparsification_curves(errors, _rng().random(1_000))
+        assert A.ause(curves) == 0.0
+        assert A.ause_start_normalised(curves) == 0.0
+        joint, start = A.random_baseline(errors)
+        assert (joint, start) == (0.0, 0.0)
+
+
+def test_non_finite_inputs_are_refused():
+    with pytest.raises(ValueError):
+        A.sparsification_curves(np.array([1.0, np.nan]), np.array([0.0, 1.0]))
+    with pytest.raises(ValueError):
+        A.sparsification_curves(np.ones(3), np.ones(4))
+
+
+def test_auroc_perfect_inverted_random_and_ties():
+    positives = np.zeros(10_000, bool)
+    positives[:3_000] = True
+    scores = positives.astype(float) + 0.1 * _rng().random(10_000)
+    assert A.auroc(scores, positives) == pytest.approx(1.0)
+    assert A.auroc(-scores, positives) == pytest.approx(0.0)
+    assert A.auroc(_rng(7).random(10_000), positives) == pytest.approx(0.5, abs=0.02)
+    assert A.auroc(np.ones(10_000), positives) == pytest.approx(0.5)  # all tied: chance
+    # small case by hand: pos {2, 1}, neg {1, 0}: pairs (2>1),(2>0),(1=1 → ½),(1>0) = 3.5/4
+    assert A.auroc(np.array([2.0, 1.0, 1.0, 0.0]), np.array([1, 1, 0, 0], bool)) == pytest.approx(0.875)
+    assert A.auroc(scores, np.zeros(10_000, bool)) is None
+
+
+def test_score_image_and_mean():
+    rng = _rng()
+    target = rng.random((32, 40, 3))
+    rendered = target + rng.normal(0.0, 0.1, target.shape)
+    errors = A.pixel_errors(rendered, target)
+    unobserved = errors > np.median(errors)
+    scores = A.score_image(rendered, target, errors / errors.max(), unobserved=unobserved)
+    assert scores["ause_mae"] == pytest.approx(0.0, abs=1e-12)
+    # the MAE error orders pixels almost, not exactly, like the squared error
+    assert 0.0 < scores["ause_rmse"] < 0.2 * scores["random_ause_rmse"]
+    assert scores["random_ause_mae"] > 0.2
+    assert scores["oracle_ause_mae"] == 0.0
+    assert scores["auroc_unobserved"] == pytest.approx(1.0)
+    other = dict(scores, ause_mae=0.5, auroc_unobserved=None)
+    means = A.mean_scores({"a": scores, "b": other})
+    assert means["ause_mae"] == pytest.approx(0.25)
+    assert means["auroc_unobserved"] == pytest.approx(1.0)
+    valid = np.zeros((32, 40), bool)
+    valid[:, :20] = True
+    masked = A.score_image(rendered, target, rng.random((32, 40)), valid=valid)
+    assert masked["ause_mae"] > 0.1

@@ -1,0 +1,84 @@
+import random
+
+import numpy as np
+import pytest
+import torch
+
+from splatu import checkpoint as ckpt
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel
+from splatu.train_config import TrainConfig, to_dict
+
+
+def _state(config: TrainConfig, seed: int) -> dict:
+    generator = torch.Generator().manual_seed(seed)
+    model = GaussianModel.from_points(torch.rand(50, 3, generator=generator), None, config.model, generator)
+    return {"config": to_dict(config), "model": model.state_dict(), "num_gaussians": len(model)}
+
+
+def test_save_then_load_run_round_trips_config_and_model(tmp_path):
+    config = TrainConfig(steps=7, seed=3)
+    state = _state(config, 0)
+    ckpt.save_checkpoint(tmp_path, 5, state)
+    loaded_config, model = ckpt.load_run(tmp_path)
+    assert loaded_config == config
+    for name, value in state["model"].items():
+        assert torch.equal(model.state_dict()[name], value)
+
+
+def test_crash_mid_write_leaves_the_old_checkpoint_intact(tmp_path, monkeypatch):
+    config = TrainConfig()
+    good = _state(config, 0)
+    path = ckpt.save_checkpoint(tmp_path, 10, good)
+
+    def crash(obj, f):
+        f.write(b"half a checkpoint")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(ckpt.torch, "save", crash)
+    with pytest.raises(OSError):
+        ckpt.save_checkpoint(tmp_path, 10, _state(config, 1))
+    monkeypatch.undo()
+    survived = ckpt.read_checkpoint(path)
+    assert torch.equal(survived["model"]["means"], good["model"]["means"])
+    assert [p.name for p in (tmp_path / ckpt.CHECKPOINT_DIR).iterdir()] == [path.name]  # no temp file left
+
+
+def test_only_the_newest_checkpoints_are_kept_and_the_newest_is_resolved(tmp_path):
+    state = _state(TrainConfig(), 0)
+    for step in (10, 20, 30):
+        ckpt.save_checkpoint(tmp_path, step, state)
+    names = [p.name for p in ckpt.list_checkpoints(tmp_path)]
+    assert len(names) == ckpt.KEEP_CHECKPOINTS and names[-1] == "step-0000030.pt"
+    assert ckpt.resolve_checkpoint(tmp_path) == ckpt.checkpoint_path(tmp_path, 30)
+    assert ckpt.run_dir_of(ckpt.checkpoint_path(tmp_path, 30)) == tmp_path.resolve()
+
+
+def test_corrupt_foreign_and_missing_checkpoints_are_one_line_errors(tmp_path):
+    corrupt = tmp_path / "bad.pt"
+    corrupt.write_bytes(b"\x00not a checkpoint")
+    with pytest.raises(SplatuError, match="corrupt"):
+        ckpt.read_checkpoint(corrupt)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(2)}, foreign)
+    with pytest.raises(SplatuError, match="not a splatu checkpoint"):
+        ckpt.read_checkpoint(foreign)
+    with pytest.raises(SplatuError, match="not found"):
+        ckpt.resolve_checkpoint(tmp_path / "missing")
+    (tmp_path / "empty_run").mkdir()
+    with pytest.raises(SplatuError, match="no checkpoint"):
+        ckpt.load_run(tmp_path / "empty_run")
+
+
+def test_rng_states_round_trip_through_a_saved_checkpoint(tmp_path):
+    generator = torch.Generator().manual_seed(1)
+    torch.manual_seed(2)
+    np.random.seed(3)
+    random.seed(4)
+    ckpt.save_checkpoint(tmp_path, 1, {"rng": ckpt.capture_rng(generator)})
+    expected = (torch.rand(3, generator=generator), torch.rand(3), np.random.rand(3), random.random())
+    restored = torch.Generator()
+    ckpt.restore_rng(ckpt.read_checkpoint(ckpt.checkpoint_path(tmp_path, 1))["rng"], restored)
+    again = (torch.rand(3, generator=restored), torch.rand(3), np.random.rand(3), random.random())
+    assert torch.equal(expected[0], again[0]) and torch.equal(expected[1], again[1])
+    assert np.array_equal(expected[2], again[2]) and expected[3] == again[3]

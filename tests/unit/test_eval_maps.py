@@ -1,0 +1,100 @@
+"""`splatu eval-ause --maps` round trip on tiny directories, and its one-line errors."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from splatu import ause as A
+from splatu.cli import entrypoint
+from splatu.errors import SplatuError
+from splatu.maps import MapEntry, read_entry, write_entry
+
+
+def _tiny_maps(root: Path, n: int = 3, size: tuple[int, int] = (24, 32)) -> dict[str, np.ndarray]:
+    """Views whose uncertainty is exactly the MAE error (so AUSE-MAE must be 0), plus a half mask."""
+    rng = np.random.default_rng(0)
+    errors = {}
+    for i in range(n):
+        gt = rng.random((*size, 3))
+        rgb = np.clip(gt + rng.normal(0, 0.2, gt.shape), 0, 1)
+        unobserved = np.zeros(size, bool)
+        unobserved[:, : size[1] // 2] = True
+        entry = MapEntry(f"view_{i}", rgb, gt, np.zeros(size), unobserved=unobserved)
+        write_entry(root, entry)
+        stored = read_entry(root, entry.name)  # the 16-bit round trip quantises the images a little
+        errors[entry.name] = A.pixel_errors(stored.rgb, stored.gt)
+        np.save(root / "uncertainty" / f"{entry.name}.npy", errors[entry.name] + 10.0 * unobserved)
+    return errors
+
+
+def _run(*args: str) -> None:
+    entrypoint(["eval-ause", *args])
+
+
+def test_maps_round_trip_through_the_cli(tmp_path, capsys):
+    _tiny_maps(tmp_path / "maps")
+    out = tmp_path / "scores" / "ause.json"
+    _run("--maps", str(tmp_path / "maps"), "--output", str(out))
+    report = json.loads(out.read_text())
+    assert set(report["per_image"]) == {"view_0", "view_1", "view_2"}
+    mean = report["mean"]
+    # u = e + 10·unobserved (e ≤ 3) orders the observed half by error but ranks all unobserved pixels first
+    assert 0.0 < mean["ause_mae"] < 0.5 * mean["random_ause_mae"]
+    assert mean["oracle_ause_mae"] == 0.0
+    assert mean["auroc_unobserved"] == pytest.approx(1.0)
+    assert {"ause_rmse", "ause_mae_start_norm", "random_ause_mae_start_norm"} <= set(mean)
+    assert report["caption"] == A.CAPTION
+    assert out.with_suffix(".png").is_file()
+    assert "mean" in capsys.readouterr().out
+
+
+def test_oracle_maps_score_zero_and_masks_restrict_pixels(tmp_path):
+    root = tmp_path / "maps"
+    errors = _tiny_maps(root, n=1)
+    np.save(root / "uncertainty" / "view_0.npy", errors["view_0"])
+    (root / "unobserved" / "view_0.png").unlink()
+    _run("--maps", str(root))
+    report = json.loads((root / "ause.json").read_text())
+    assert report["mean"]["ause_mae"] == pytest.approx(0.0, abs=1e-12)
+    assert report["mean"]["auroc_unobserved"] is None
+    # an 8-bit mask written by another tool: only the left quarter is scored, where u is noise
+    np.save(root / "uncertainty" / "view_0.npy", np.where(np.arange(32) < 8, np.random.rand(24, 32), errors["view_0"]))
+    (root / "mask").mkdir()
+    mask = np.zeros((24, 32), np.uint8)
+    mask[:, :8] = 255
+    cv2.imwrite(str(root / "mask" / "view_0.png"), mask)
+    _run("--maps", str(root))
+    assert json.loads((root / "ause.json").read_text())["mean"]["ause_mae"] > 0.1
+    cv2.imwrite(str(root / "mask" / "view_0.png"), np.zeros((24, 32), np.uint8))
+    with pytest.raises(SplatuError, match="selects no pixels"):
+        entrypoint(["eval-ause", "--maps", str(root), "--debug"])
+
+
+def _one_line_error(capsys, *args: str) -> str:
+    with pytest.raises(SystemExit) as exc:
+        _run(*args)
+    assert exc.value.code == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ")
+    return lines[0]
+
+
+def test_bad_maps_are_one_line_errors(tmp_path, capsys):
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=2)
+    (root / "gt" / "view_1.png").unlink()
+    assert "gt/" in _one_line_error(capsys, "--maps", str(root))
+    cv2.imwrite(str(root / "gt" / "view_1.png"), np.zeros((10, 10, 3), np.uint8))
+    assert "ground truth is 10x10" in _one_line_error(capsys, "--maps", str(root))
+    (root / "gt" / "view_1.png").write_bytes(b"not a png")
+    assert "could not be decoded" in _one_line_error(capsys, "--maps", str(root))
+    write_entry(root, read_entry(root, "view_0"))
+    np.save(root / "uncertainty" / "view_0.npy", np.full((24, 32), np.nan))
+    assert "NaN" in _one_line_error(capsys, "--maps", str(root))
+    np.save(root / "uncertainty" / "view_0.npy", np.zeros((5, 5)))
+    assert "shape (5, 5)" in _one_line_error(capsys, "--maps", str(root))
+    assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
+    assert "exactly one" in _one_line_error(capsys)

@@ -1,0 +1,171 @@
+"""L1 / SSIM / PSNR and the view-dependent uncertainty loss (REFERENCE §1)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from splatu.camera import Camera
+from splatu.errors import SplatuError
+from splatu.losses import (
+    SSIM_C1,
+    UncertaintyLossConfig,
+    l1,
+    photometric_loss,
+    psnr,
+    ssim,
+    ssim_map,
+    uncertainty_loss,
+)
+from splatu.model import GaussianModel, ModelConfig
+
+
+def _image(seed: int, h: int = 24, w: int = 20) -> torch.Tensor:
+    return torch.rand(h, w, 3, generator=torch.Generator().manual_seed(seed))
+
+
+def test_ssim_of_identical_images_is_one():
+    x = _image(0)
+    assert float(ssim(x, x)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_ssim_is_symmetric_and_below_one_for_noise():
+    x = _image(0)
+    noisy = (x + 0.1 * torch.randn(x.shape, generator=torch.Generator().manual_seed(1))).clamp(0, 1)
+    noisier = (x + 0.3 * torch.randn(x.shape, generator=torch.Generator().manual_seed(1))).clamp(0, 1)
+    assert float(ssim(x, noisy)) == pytest.approx(float(ssim(noisy, x)), abs=1e-6)
+    assert float(ssim(x, noisier)) < float(ssim(x, noisy)) < 0.99
+
+
+def test_ssim_matches_closed_form_on_constant_images():
+    # Away from the border both windows see constants: variances vanish and SSIM = (2ab + C1) / (a² + b² + C1).
+    a, b = 0.3, 0.7
+    x = torch.full((32, 32, 3), a)
+    y = torch.full((32, 32, 3), b)
+    expected = (2 * a * b + SSIM_C1) / (a * a + b * b + SSIM_C1)
+    interior = ssim_map(x, y)[5:-5, 5:-5]
+    # float32 cancellation in E[x²] − E[x]² limits agreement to ~1e-4 (as in every float32 SSIM)
+    assert torch.allclose(interior, torch.full_like(interior, expected), atol=5e-4)
+
+
+def test_ssim_matches_a_direct_window_sum():
+    x, y = _image(2, 15, 15), _image(3, 15, 15)
+    coords = torch.arange(11, dtype=torch.float64) - 5
+    g = torch.exp(-coords**2 / (2 * 1.5**2))
+    window = torch.outer(g, g) / g.sum() ** 2
+    px, py = x[2:13, 2:13, 0].double(), y[2:13, 2:13, 0].double()  # the full window around pixel (7, 7)
+    mx, my = (window * px).sum(), (window * py).sum()
+    vx, vy = (window * px * px).sum() - mx**2, (window * py * py).sum() - my**2
+    cov = (window * px * py).sum() - mx * my
+    expected = ((2 * mx * my + 1e-4) * (2 * cov + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (vx + vy + 9e-4))
+    assert float(ssim_map(x, y)[7, 7, 0]) == pytest.approx(float(expected), abs=1e-5)
+
+
+def test_photometric_loss_combines_l1_and_ssim():
+    x, y = _image(0), _image(1)
+    expected = 0.8 * float(l1(x, y)) + 0.2 * (1 - float(ssim(x, y)))
+    assert float(photometric_loss(x, y)) == pytest.approx(expected, rel=1e-6)
+    assert float(photometric_loss(x, x)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_l1_and_psnr_known_values_and_masks():
+    gt = torch.zeros(4, 4, 3)
+    pred = gt.clone()
+    pred[:2] = 0.1
+    mask = torch.zeros(4, 4, dtype=torch.bool)
+    mask[:2] = True
+    assert float(l1(pred, gt)) == pytest.approx(0.05)
+    assert float(l1(pred, gt, mask)) == pytest.approx(0.1)
+    assert psnr(pred, gt, mask) == pytest.approx(20.0, abs=1e-4)
+    assert psnr(pred, gt) == pytest.approx(-10 * math.log10(0.005), abs=1e-4)
+    assert psnr(gt, gt) == pytest.approx(100.0)  # floored, never +inf
+    with pytest.raises(ValueError):
+        psnr(pred, gt, torch.zeros(4, 4, dtype=torch.bool))
+
+
+@pytest.mark.parametrize("lam", [0.5, 0.7, -0.1])
+def test_lambda_outside_range_is_a_user_error(lam):
+    with pytest.raises(SplatuError, match="λ"):
+        UncertaintyLossConfig(lam=lam)
+
+
+def _single_gaussian(u_degree: int) -> tuple[GaussianModel, Camera]:
+    """One opaque Gaussian 3 units in front of a camera at the origin, seen along +z."""
+    cfg = ModelConfig(sh_degree=0, u_sh_degree=u_degree, init_opacity=0.95)
+    model = GaussianModel.from_points(torch.tensor([[0.2, -0.1, 3.0]]), None, cfg, torch.Generator())
+    with torch.no_grad():
+        model.log_scales.fill_(math.log(0.3))
+    K = torch.tensor([[30.0, 0, 16], [0, 30.0, 16], [0, 0, 1]])
+    return model, Camera(K, torch.eye(4), 32, 32)
+
+
+def _train_u(model: GaussianModel, camera: Camera, cfg: UncertaintyLossConfig, steps: int = 200) -> None:
+    raster = model.render(camera, 0, torch.zeros(3)).raster
+    optimizer = torch.optim.Adam([model.u_sh], lr=0.05)
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(steps):
+        optimizer.zero_grad()
+        uncertainty_loss(model, camera.center(), raster, cfg, generator).backward()
+        optimizer.step()
+
+
+def _u_seen_and_opposite(model: GaussianModel, camera: Camera) -> tuple[float, float]:
+    with torch.no_grad():
+        d = model.view_dirs(camera)
+        return float(model.uncertainty(d)), float(model.uncertainty(-d))
+
+
+def test_antipodal_loss_makes_the_seen_side_certain_and_the_other_uncertain():
+    model, camera = _single_gaussian(u_degree=1)
+    seen0, opposite0 = _u_seen_and_opposite(model, camera)
+    assert seen0 == pytest.approx(opposite0) == pytest.approx(torch.sigmoid(torch.tensor(2.0)).item(), abs=1e-5)
+    _train_u(model, camera, UncertaintyLossConfig(kind="antipodal", lam=0.3))
+    seen, opposite = _u_seen_and_opposite(model, camera)
+    assert seen < 0.2
+    assert opposite > 0.7
+
+
+@pytest.mark.parametrize("kind", ["mean", "weighted"])
+def test_other_variants_also_reduce_the_seen_uncertainty(kind):
+    model, camera = _single_gaussian(u_degree=1)
+    _train_u(model, camera, UncertaintyLossConfig(kind=kind, lam=0.3))
+    seen, opposite = _u_seen_and_opposite(model, camera)
+    assert seen < 0.5
+    assert opposite > seen
+
+
+def test_uncertainty_loss_only_moves_u_sh_and_photometric_loss_never_does():
+    model, camera = _single_gaussian(u_degree=2)
+    render = model.render(camera, 0, torch.zeros(3))
+    uncertainty_loss(model, camera.center(), render.raster, UncertaintyLossConfig()).backward()
+    assert model.u_sh.grad is not None and model.u_sh.grad.abs().sum() > 0
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest"):
+        grad = getattr(model, name).grad
+        assert grad is None or not grad.any(), name
+
+    model.zero_grad(set_to_none=True)
+    render = model.render(camera, 0, torch.zeros(3))
+    photometric_loss(render.rgb, torch.full_like(render.rgb, 0.3)).backward()
+    assert model.means.grad is not None and model.means.grad.abs().sum() > 0
+    assert model.u_sh.grad is None or not model.u_sh.grad.any()
+
+
+def test_no_supervised_gaussian_gives_zero_with_a_gradient_path():
+    model, camera = _single_gaussian(u_degree=1)
+    raster = model.render(camera, 0, torch.zeros(3)).raster
+    loss = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(threshold=1.0))
+    assert float(loss.detach()) == 0.0 and loss.requires_grad
+    loss.backward()
+    assert not model.u_sh.grad.any()
+
+
+def test_loss_weight_scales_the_loss():
+    model, camera = _single_gaussian(u_degree=1)
+    raster = model.render(camera, 0, torch.zeros(3)).raster
+    base = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig()).detach()
+    doubled = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(weight=2.0)).detach()
+    u = torch.sigmoid(torch.tensor(2.0))
+    assert float(base) == pytest.approx(0.7 * float(u) + 0.3 * (1 - float(u)), abs=1e-5)
+    assert float(doubled) == pytest.approx(2 * float(base), rel=1e-6)

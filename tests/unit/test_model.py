@@ -1,0 +1,154 @@
+"""GaussianModel: initialisation, rendering with uncertainty / extra channels, one training step."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+import torch
+
+from splatu.camera import Camera
+from splatu.errors import SplatuError
+from splatu.losses import photometric_loss
+from splatu.model import GaussianModel, ModelConfig, mean_neighbour_distance
+from splatu.optim import OptimConfig, Optimizers
+from splatu.sh import num_sh_bases
+
+
+def _brute_force_mean_distance(points: torch.Tensor, k: int) -> torch.Tensor:
+    d = (points.double().unsqueeze(1) - points.double().unsqueeze(0)).norm(dim=-1)
+    d.fill_diagonal_(math.inf)
+    return d.topk(k, dim=1, largest=False).values.mean(-1).float()
+
+
+def _camera(width: int = 32, height: int = 24, z: float = 4.0) -> Camera:
+    K = torch.tensor([[30.0, 0, width / 2], [0, 30.0, height / 2], [0, 0, 1]])
+    world_to_camera = torch.eye(4)
+    world_to_camera[2, 3] = z
+    return Camera(K, world_to_camera, width, height)
+
+
+def test_neighbour_distance_is_exact_on_clustered_points_with_outliers_and_duplicates():
+    g = torch.Generator().manual_seed(0)
+    cluster = torch.rand(1500, 3, generator=g) * torch.tensor([1.0, 1.0, 0.01])  # a thin sheet
+    outliers = torch.randn(20, 3, generator=g) * 50
+    points = torch.cat([cluster, outliers, cluster[:5]])  # five exact duplicates
+    expected = _brute_force_mean_distance(points, 3)
+    # a small pair budget forces the grid search, its chunking and the brute-force fallback for outliers
+    for max_pairs in (50_000, 4_000_000):
+        got = mean_neighbour_distance(points, 3, max_pairs=max_pairs)
+        assert torch.allclose(got, expected.clamp_min(got.min()), rtol=1e-4, atol=1e-6)
+        assert (got > 0).all() and torch.isfinite(got).all()
+
+
+def test_neighbour_distance_with_fewer_points_than_neighbours():
+    assert torch.allclose(mean_neighbour_distance(torch.tensor([[0.0, 0, 0], [3.0, 4.0, 0]]), 3),
+                          torch.tensor([5.0, 5.0]))
+    assert mean_neighbour_distance(torch.zeros(1, 3), 3).shape == (1,)
+
+
+def test_random_init_fills_the_cube():
+    cfg = ModelConfig(random_init_points=5000, random_init_extent=4.0)
+    model = GaussianModel.from_points(torch.zeros(0, 3), None, cfg, torch.Generator().manual_seed(1))
+    assert len(model) == 5000
+    assert model.means.abs().max() <= 2.0 and model.means.abs().max() > 1.9
+    assert torch.isfinite(model.log_scales).all()
+    with torch.no_grad():
+        colors = model.colors(torch.ones(5000, 3), 0)
+    assert colors.min() >= 0.0 and colors.max() <= 1.0 and colors.std() > 0.1  # random colours
+
+
+@pytest.mark.slow
+def test_random_init_of_50k_points_takes_under_2_seconds():
+    cfg = ModelConfig(random_init_points=50_000, random_init_extent=10.0)
+    timings = []
+    for _ in range(3):
+        start = time.perf_counter()
+        model = GaussianModel.from_points(torch.zeros(0, 3), None, cfg, torch.Generator().manual_seed(1))
+        timings.append(time.perf_counter() - start)
+    assert len(model) == 50_000
+    assert sorted(timings)[1] < 2.0, f"median 50k-point initialisation took {sorted(timings)[1]:.2f} s"
+
+
+def test_from_points_follows_the_3dgs_initialisation():
+    g = torch.Generator().manual_seed(0)
+    points = torch.rand(200, 3, generator=g)
+    colors = torch.rand(200, 3, generator=g)
+    cfg = ModelConfig(sh_degree=2, u_sh_degree=3)
+    model = GaussianModel.from_points(points, colors, cfg, g)
+    assert model.sh_rest.shape == (200, num_sh_bases(2) - 1, 3)
+    assert model.u_sh.shape == (200, num_sh_bases(3), 1)
+    assert torch.allclose(model.log_scales.exp(), _brute_force_mean_distance(points, 3)[:, None].expand(-1, 3),
+                          rtol=1e-4)
+    assert torch.allclose(torch.sigmoid(model.opacity_logits), torch.full((200,), 0.1))
+    assert torch.equal(model.quats, torch.tensor([1.0, 0, 0, 0]).expand(200, 4))
+    dirs = torch.randn(200, 3, generator=g)
+    with torch.no_grad():
+        assert torch.allclose(model.colors(dirs, 2), colors, atol=1e-5)
+        assert torch.allclose(model.uncertainty(dirs), torch.full((200,), torch.sigmoid(torch.tensor(2.0)).item()))
+        model.means.add_(1.0)
+    assert not torch.equal(model.means, points), "the model must not alias the scene's points"
+
+
+@pytest.mark.parametrize(
+    ("points", "cfg"),
+    [
+        (torch.tensor([[0.0, float("nan"), 0.0]]), ModelConfig()),
+        (torch.zeros(3, 3), ModelConfig(u_sh_degree=4)),
+        (torch.zeros(3, 3), ModelConfig(init_opacity=1.0)),
+    ],
+)
+def test_bad_initialisation_inputs_are_user_errors(points, cfg):
+    with pytest.raises(SplatuError):
+        GaussianModel.from_points(points, None, cfg, torch.Generator())
+
+
+def test_uncertainty_map_composites_u_with_empty_space_at_one():
+    cfg = ModelConfig(sh_degree=0, u_sh_degree=1, init_opacity=0.8)
+    model = GaussianModel.from_points(torch.tensor([[0.0, 0.0, 0.0]]), torch.tensor([[0.2, 0.4, 0.6]]), cfg,
+                                      torch.Generator())
+    with torch.no_grad():
+        model.log_scales.fill_(math.log(0.2))
+        model.u_sh[0, :, 0] = torch.tensor([0.0, 1.0, -2.0, 0.5])
+    camera = _camera()
+    extra = torch.tensor([[0.25, 0.5]])
+    with torch.no_grad():
+        plain = model.render(camera, 0, torch.zeros(3))
+        full = model.render(camera, 0, torch.zeros(3), with_uncertainty=True, extra_features=extra)
+        u = float(model.uncertainty(model.view_dirs(camera)))
+    assert plain.uncertainty is None and plain.extra is None
+    assert torch.allclose(full.rgb, plain.rgb, atol=1e-6)
+    alpha = full.alpha
+    assert alpha.max() > 0.5 and alpha.min() == 0.0
+    assert torch.allclose(full.uncertainty, alpha * u + (1 - alpha), atol=1e-5)
+    assert torch.allclose(full.extra, alpha[..., None] * extra + (1 - alpha[..., None]), atol=1e-5)
+    assert u != pytest.approx(float(model.uncertainty(-model.view_dirs(camera)).detach()))
+
+
+def test_one_training_step_decreases_the_photometric_loss():
+    g = torch.Generator().manual_seed(3)
+    cfg = ModelConfig(sh_degree=1)
+    model = GaussianModel.from_points((torch.rand(300, 3, generator=g) - 0.5) * 2, None, cfg, g)
+    camera = _camera(40, 32)
+    target = torch.zeros(32, 40, 3)
+    target[:, :20] = torch.tensor([0.9, 0.2, 0.1])
+    background = torch.zeros(3)
+    optimizers = Optimizers(model, OptimConfig(), scene_extent=1.0, max_steps=100)
+    before = photometric_loss(model.render(camera, 1, background).rgb, target)
+    before.backward()
+    optimizers.step(0)
+    optimizers.zero_grad()
+    with torch.no_grad():
+        after = photometric_loss(model.render(camera, 1, background).rgb, target)
+    assert float(after) < float(before.detach()) - 1e-4
+
+
+def test_empty_like_config_holds_a_state_dict():
+    g = torch.Generator().manual_seed(0)
+    cfg = ModelConfig(sh_degree=1, u_sh_degree=2)
+    model = GaussianModel.from_points(torch.rand(10, 3, generator=g), None, cfg, g)
+    loaded = GaussianModel.empty_like_config(10, cfg)
+    loaded.load_state_dict(model.state_dict())
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(loaded, name), getattr(model, name))

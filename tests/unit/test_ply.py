@@ -1,0 +1,118 @@
+"""PLY export/import: the standard 3DGS layout plus u_* properties, and clear errors on bad files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from splatu.errors import SplatuError
+from splatu.model import GaussianModel, ModelConfig
+from splatu.ply import load_ply, property_names, save_ply
+
+
+def _random_model(sh_degree: int, u_degree: int, n: int = 37) -> GaussianModel:
+    g = torch.Generator().manual_seed(sh_degree * 10 + u_degree)
+    cfg = ModelConfig(sh_degree=sh_degree, u_sh_degree=u_degree)
+    model = GaussianModel.empty_like_config(n, cfg)
+    with torch.no_grad():
+        for name in GaussianModel.PARAM_NAMES:
+            param = getattr(model, name)
+            param.copy_(torch.randn(param.shape, generator=g))
+    return model
+
+
+def _header(path) -> list[str]:
+    lines = []
+    with open(path, "rb") as f:
+        while (line := f.readline().decode("ascii").strip()) != "end_header":
+            lines.append(line)
+    return lines
+
+
+@pytest.mark.parametrize(("sh_degree", "u_degree"), [(3, 1), (0, 0), (2, 3)])
+def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
+    model = _random_model(sh_degree, u_degree)
+    path = tmp_path / "point_cloud.ply"
+    save_ply(model, path)
+    loaded = load_ply(path, ModelConfig())  # degrees come from the file
+    assert (loaded.cfg.sh_degree, loaded.cfg.u_sh_degree) == (sh_degree, u_degree)
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(loaded, name), getattr(model, name)), name
+    assert list(tmp_path.iterdir()) == [path]  # the temporary file was renamed away
+
+
+def test_header_has_the_standard_3dgs_properties_in_order(tmp_path):
+    model = _random_model(3, 1, n=5)
+    path = tmp_path / "m.ply"
+    save_ply(model, path)
+    header = _header(path)
+    assert header[:3] == ["ply", "format binary_little_endian 1.0", "element vertex 5"]
+    names = [line.split()[-1] for line in header[3:]]
+    assert all(line.startswith("property float ") for line in header[3:])
+    assert names[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    assert names[9:54] == [f"f_rest_{i}" for i in range(45)]
+    assert names[54:] == ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+                          "u_0", "u_1", "u_2", "u_3"]
+    assert path.stat().st_size == len(path.read_bytes().split(b"end_header\n", 1)[0]) + 11 + 5 * 66 * 4
+
+
+def test_f_rest_is_channel_major_as_3dgs_viewers_expect(tmp_path):
+    model = _random_model(1, 1, n=2)
+    with torch.no_grad():
+        for k in range(3):
+            for c in range(3):
+                model.sh_rest[:, k, c] = 10 * c + k  # coefficient k of channel c
+    path = tmp_path / "m.ply"
+    save_ply(model, path)
+    names = property_names(3, 4)
+    data = np.frombuffer(path.read_bytes().split(b"end_header\n", 1)[1], dtype="<f4").reshape(2, len(names))
+    row = dict(zip(names, data[0], strict=True))
+    assert [row[f"f_rest_{i}"] for i in range(9)] == [0, 1, 2, 10, 11, 12, 20, 21, 22]
+
+
+def test_plain_3dgs_ply_without_u_gets_the_initial_uncertainty(tmp_path):
+    model = _random_model(1, 1, n=4)
+    path = tmp_path / "m.ply"
+    save_ply(model, path)
+    header, body = path.read_bytes().split(b"end_header\n", 1)
+    names = property_names(3, 4)
+    data = np.frombuffer(body, dtype="<f4").reshape(4, len(names))[:, :-4]
+    lines = [line for line in header.decode().split("\n") if not line.startswith("property float u_")]
+    (tmp_path / "plain.ply").write_bytes(("\n".join(lines) + "end_header\n").encode() + data.tobytes())
+    loaded = load_ply(tmp_path / "plain.ply", ModelConfig(u_sh_degree=2, u_init_logit=1.5))
+    assert loaded.u_sh.shape == (4, 9, 1)
+    with torch.no_grad():
+        assert torch.allclose(loaded.uncertainty(torch.randn(4, 3)), torch.sigmoid(torch.tensor(1.5)).expand(4))
+    assert torch.equal(loaded.means, model.means)
+
+
+def test_bad_files_are_user_errors(tmp_path):
+    good = tmp_path / "good.ply"
+    save_ply(_random_model(1, 1, n=6), good)
+    raw = good.read_bytes()
+    cases = {
+        "missing.ply": None,
+        "truncated.ply": raw[:-10],
+        "ascii.ply": raw.replace(b"binary_little_endian", b"ascii"),
+        "not_a_ply.ply": b"hello\n",
+        "nan.ply": raw[: raw.index(b"end_header\n") + 11] + np.full(6 * 30, np.nan, dtype="<f4").tobytes(),
+    }
+    for name, content in cases.items():
+        path = tmp_path / name
+        if content is not None:
+            path.write_bytes(content)
+        with pytest.raises(SplatuError):
+            load_ply(path, ModelConfig())
+
+
+def test_saving_a_non_finite_model_refuses_and_leaves_the_old_file(tmp_path):
+    path = tmp_path / "m.ply"
+    model = _random_model(0, 1, n=3)
+    save_ply(model, path)
+    before = path.read_bytes()
+    with torch.no_grad():
+        model.means[1, 0] = float("inf")
+    with pytest.raises(SplatuError):
+        save_ply(model, path)
+    assert path.read_bytes() == before

@@ -1,0 +1,245 @@
+"""Degenerate inputs: the fast rasterizer's outputs and gradients stay finite and still match the reference.
+
+Each case is its own test. Values are compared with the float64 reference where the case
+has a well-defined image; float32 runs (the training dtype) must at least stay finite.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from splatu.sh import eval_sh
+from tests.reference_rasterizer import GaussianScene, random_scene, reference_rasterize
+
+D = torch.float64
+DTYPES = [torch.float32, torch.float64]
+
+
+@pytest.fixture(scope="module")
+def fast():
+    module = pytest.importorskip("splatu.rasterizer", reason="splatu.rasterizer is not built yet")
+    if not hasattr(module, "rasterize"):
+        pytest.skip("splatu.rasterizer.rasterize is not built yet")
+    return module
+
+
+def scene_at_origin(means: list[list[float]], scales: list[list[float]] | float, opacities: list[float] | float,
+                    width: int = 8, height: int = 6, focal: float = 10.0, seed: int = 0) -> GaussianScene:
+    """Gaussians with random rotations and colours, seen by a camera at the origin looking down +z."""
+    g = torch.Generator().manual_seed(seed)
+    n = len(means)
+    scale_tensor = torch.full((n, 3), scales, dtype=D) if isinstance(scales, float) else torch.tensor(scales, dtype=D)
+    opacity_tensor = torch.full((n,), opacities, dtype=D) if isinstance(opacities, float) else torch.tensor(
+        opacities, dtype=D)
+    return GaussianScene(
+        means=torch.tensor(means, dtype=D).reshape(n, 3),
+        quats=torch.randn(n, 4, generator=g, dtype=D),
+        scales=scale_tensor.reshape(n, 3),
+        opacities=opacity_tensor,
+        features=torch.rand(n, 3, generator=g, dtype=D),
+        world_to_camera=torch.eye(4, dtype=D),
+        K=torch.tensor([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]], dtype=D),
+        width=width,
+        height=height,
+        background=torch.tensor([0.2, 0.4, 0.6], dtype=D),
+    )
+
+
+def render_backward(fast, scene: GaussianScene, dtype: torch.dtype, **options):
+    """Render with the fast rasterizer, backpropagate a loss touching every output, check all is finite."""
+    params = scene.leaves(dtype)
+    out = scene.render(fast.rasterize, params, dtype=dtype, **options)
+    g = torch.Generator().manual_seed(5)
+    loss = (out.image * torch.randn(out.image.shape, generator=g, dtype=dtype)).sum() + out.alpha.sum()
+    loss = loss + 0.1 * out.depth.sum()
+    for name in ("image", "alpha", "depth", "means2d", "contrib_sum", "contrib_max", "depths"):
+        value = getattr(out, name)
+        assert torch.isfinite(value).all(), f"{name} has non-finite values"
+    if loss.requires_grad:
+        loss.backward()
+    for name, p in params.items():
+        assert p.grad is None or torch.isfinite(p.grad).all(), f"gradient of {name} is not finite: {p.grad}"
+    assert torch.isfinite(out.means2d_absgrad).all(), "means2d_absgrad is not finite"
+    return out, params
+
+
+def reference_backward(scene: GaussianScene, **options):
+    params = scene.leaves(D)
+    out = scene.render(reference_rasterize, params, **options)
+    g = torch.Generator().manual_seed(5)
+    loss = (out.image * torch.randn(out.image.shape, generator=g, dtype=D)).sum() + out.alpha.sum()
+    loss = loss + 0.1 * out.depth.sum()
+    if loss.requires_grad:
+        loss.backward()
+    return out, params
+
+
+def assert_matches_reference(fast, scene: GaussianScene, grads: bool = True, **options) -> None:
+    """float64 fast vs reference: images, contributions, pair count and (optionally) gradients."""
+    got, got_params = render_backward(fast, scene, D, **options)
+    ref, ref_params = reference_backward(scene, **options) if grads else (scene.render(reference_rasterize,
+                                                                                        **options), None)
+    for name in ("image", "alpha", "depth", "contrib_sum", "contrib_max"):
+        torch.testing.assert_close(getattr(got, name).detach(), getattr(ref, name).detach(), rtol=0, atol=1e-5,
+                                   msg=lambda m, name=name: f"{name}: {m}")
+    assert torch.equal(got.radii, ref.radii), (got.radii, ref.radii)
+    assert got.num_contributing_pairs == ref.num_contributing_pairs
+    if grads:
+        for name, p in ref_params.items():
+            expected = p.grad if p.grad is not None else torch.zeros_like(p)
+            actual = got_params[name].grad if got_params[name].grad is not None else torch.zeros_like(p)
+            scale = max(1.0, expected.abs().max().item())
+            torch.testing.assert_close(actual, expected, rtol=1e-6, atol=1e-7 * scale,
+                                       msg=lambda m, name=name: f"d loss / d {name}: {m}")
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_gaussians_on_and_behind_the_near_plane(fast, dtype):
+    near = 0.01
+    scene = scene_at_origin(
+        [[0.0, 0.0, near], [0.0, 0.0, 0.0], [0.1, 0.0, -1.0], [0.0, 0.0, near * (1 + 1e-3)], [0.1, 0.1, 2.0]],
+        0.05, 0.8)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.radii[:3].tolist() == [0, 0, 0]
+    assert out.radii[3] > 0 and out.radii[4] > 0
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_zero_scales(fast, dtype):
+    scene = scene_at_origin([[0.1, 0.1, 2.0], [-0.2, 0.0, 3.0]], 0.0, 0.9)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.num_contributing_pairs > 0  # the 0.3 px² blur keeps a point visible
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("log_scales", [False, True])
+def test_enormous_scales(fast, dtype, log_scales):
+    scene = scene_at_origin([[0.1, 0.1, 2.0], [0.0, 0.0, 5.0]], 1e6, [0.5, 0.7])
+    if log_scales:
+        scene.scales = scene.scales.log()
+    out, _ = render_backward(fast, scene, dtype, log_scales=log_scales)
+    assert out.radii.min() > 1000
+    # Flat to within 1e-6 over the image: the front Gaussian alone covers everything with α ≈ 0.5.
+    torch.testing.assert_close(out.alpha, torch.full_like(out.alpha, 1 - 0.5 * 0.3), rtol=0, atol=1e-5)
+    if dtype == D:
+        assert_matches_reference(fast, scene, log_scales=log_scales)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_rank_deficient_covariances(fast, dtype):
+    scene = scene_at_origin(
+        [[0.1, 0.1, 2.0], [-0.2, 0.05, 2.5], [0.0, -0.1, 3.0], [0.05, 0.0, 1.5]],
+        [[0.3, 0.1, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]],
+        0.8, seed=3)
+    scene.quats[2] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=D)  # a needle along the view axis
+    render_backward(fast, scene, dtype)
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_opacity_near_zero(fast, dtype):
+    scene = scene_at_origin([[0.1, 0.1, 2.0], [0.0, 0.0, 3.0]], 0.2, [1e-8, 0.99 / 255])
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.num_contributing_pairs == 0
+    assert out.alpha.abs().max() == 0
+    torch.testing.assert_close(out.image, scene.background.to(dtype).expand_as(out.image))
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_opacity_near_one_clamps_alpha(fast, dtype):
+    scene = scene_at_origin([[0.1, 0.1, 2.0]], 0.05, 1 - 1e-7)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.alpha[3, 4].item() == pytest.approx(0.99, abs=1e-6)
+    assert out.alpha.max().item() <= 0.99 + 1e-6
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+def test_2000_coincident_layers_terminate_early(fast):
+    """T would underflow to 0 without the 1e-4 stop; with it, T_final ≥ 1e-4 at every pixel."""
+    layers = 2000
+    scene = scene_at_origin([[0.05, 0.05, 2.0]] * layers, 0.3, 0.5, width=5, height=4)
+    scene.quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * layers, dtype=D)
+    out32, _ = render_backward(fast, scene, torch.float32)
+    assert out32.alpha.max().item() <= 1 - 1e-4 + 1e-6
+    assert out32.alpha.min().item() >= 1 - 2e-4  # α ≥ 0.5·e^(−σ) per layer still saturates every pixel
+    assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_offscreen_centre_whose_footprint_covers_the_image(fast, dtype):
+    scene = scene_at_origin([[-6.0, -4.0, 2.0]], [[3.0, 3.0, 3.0]], 0.9, width=8, height=6)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.means2d[0, 0] < 0 and out.means2d[0, 1] < 0
+    assert out.radii[0] > 0 and (out.alpha > 1 / 255).all()
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_one_pixel_image(fast, dtype):
+    scene = random_scene(seed=4, n=20, width=1, height=1)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.image.shape == (1, 1, 3)
+    if dtype == D:
+        assert_matches_reference(fast, scene)
+
+
+def test_non_square_image_not_a_multiple_of_16(fast):
+    scene = random_scene(seed=6, n=40, width=37, height=23)
+    out, _ = render_backward(fast, scene, torch.float32)
+    assert out.image.shape == (23, 37, 3)
+    assert_matches_reference(fast, scene)
+
+
+INPUT_NAMES = ["means", "quats", "scales", "opacities", "features", "world_to_camera", "K", "background"]
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf], ids=["nan", "inf", "-inf"])
+@pytest.mark.parametrize("name", INPUT_NAMES)
+def test_non_finite_input_raises_a_clear_error(fast, name, bad):
+    scene = random_scene(seed=1, n=5, width=8, height=6)
+    tensor = getattr(scene, name).clone()
+    tensor.view(-1)[0] = bad
+    setattr(scene, name, tensor)
+    with pytest.raises(fast.NonFiniteInputError, match=name):
+        scene.render(fast.rasterize)
+
+
+def test_zero_length_sh_direction_stays_finite(fast):
+    """A Gaussian sitting on the camera centre has no view direction: its colour is its DC term."""
+    scene = scene_at_origin([[0.0, 0.0, 0.0], [0.1, 0.1, 2.0]], 0.1, 0.8)
+    sh = torch.randn(2, 16, 3, dtype=D, requires_grad=True)
+    means = scene.means.clone().requires_grad_(True)
+    camera_centre = torch.zeros(3, dtype=D)
+    colours = eval_sh(sh, means - camera_centre, 3) + 0.5
+    assert torch.isfinite(colours).all()
+    out = fast.rasterize(means, scene.quats, scene.scales, scene.opacities, colours, scene.world_to_camera, scene.K,
+                         scene.width, scene.height)
+    (out.image.sum() + colours.sum()).backward()
+    assert torch.isfinite(out.image).all()
+    assert torch.isfinite(sh.grad).all() and torch.isfinite(means.grad).all()
+    assert (sh.grad[0, 1:] == 0).all()  # only the DC term of the centred Gaussian is used
+
+
+@pytest.mark.parametrize("with_background", [True, False])
+def test_no_gaussians_gives_the_background(fast, with_background):
+    scene = random_scene(seed=2, n=0, width=7, height=5)
+    if not with_background:
+        scene.background = None
+    out = scene.render(fast.rasterize)
+    expected = scene.background if with_background else torch.zeros(3, dtype=D)
+    torch.testing.assert_close(out.image, expected.expand(5, 7, 3))
+    assert (out.alpha == 0).all() and (out.depth == 0).all()
+    assert out.radii.shape == (0,) and out.contrib_sum.shape == (0,) and out.contrib_max.shape == (0,)
+    assert out.num_contributing_pairs == 0

@@ -1,0 +1,276 @@
+import dataclasses
+import json
+import math
+import os
+import signal
+from pathlib import Path
+
+import pytest
+import torch
+import tyro
+
+from splatu import trainer
+from splatu.camera import Camera
+from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
+from splatu.data.scene import Scene, Views
+from splatu.densify import DensifyConfig
+from splatu.errors import SplatuError
+from splatu.losses import photometric_loss
+from splatu.methods import METHODS, get_method
+from splatu.model import GaussianModel, ModelConfig
+from splatu.train_config import (
+    TrainConfig,
+    default_config,
+    from_dict,
+    load_config,
+    preset_config,
+    preset_path,
+    read_yaml,
+    splatfacto_schedule,
+    to_dict,
+)
+
+W, H = 32, 24
+
+
+def look_at(position: torch.Tensor) -> torch.Tensor:
+    """World-to-camera (OpenCV axes) for a camera at `position` looking at the origin."""
+    forward = -position / position.norm()
+    right = torch.linalg.cross(forward, torch.tensor([0.0, 0.0, 1.0]))
+    right = right / right.norm()
+    down = torch.linalg.cross(forward, right)
+    R = torch.stack([right, down, forward])
+    w2c = torch.eye(4)
+    w2c[:3, :3] = R
+    w2c[:3, 3] = -R @ position
+    return w2c
+
+
+def tiny_scene(n_train: int = 6, n_eval: int = 2) -> Scene:
+    """Cameras on a ring around a cloud of coloured points; images are smooth colour ramps."""
+    K = torch.tensor([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1]])
+    g = torch.Generator().manual_seed(0)
+
+    def views(angles: list[float], tag: str) -> Views:
+        cams = [Camera(K, look_at(torch.tensor([3 * math.cos(a), 3 * math.sin(a), 0.5])), W, H, name=f"{tag}{i}")
+                for i, a in enumerate(angles)]
+        ys, xs = torch.meshgrid(torch.linspace(0, 1, H), torch.linspace(0, 1, W), indexing="ij")
+        images = torch.stack([torch.stack([xs, ys, (xs + ys + a) % 1.0], -1) for a in angles]) * 0.8 + 0.1
+        return Views(cams, images, [c.name for c in cams])
+
+    train_angles = [2 * math.pi * i / n_train for i in range(n_train)]
+    eval_angles = [2 * math.pi * (i + 0.5) / n_train for i in range(n_eval)]
+    return Scene("tiny", "memory", views(train_angles, "t"), views(eval_angles, "e"),
+                 points=torch.rand(300, 3, generator=g) - 0.5, point_colors=torch.rand(300, 3, generator=g))
+
+
+def tiny_config(tmp_path, **changes) -> TrainConfig:
+    config = TrainConfig(
+        steps=12, resolution_levels=1, resolution_interval=6, checkpoint_every=6, log_every=1, progress=False,
+        output_dir=tmp_path / "outputs",
+        model=ModelConfig(sh_degree=1, sh_degree_interval=4),
+        densify=DensifyConfig(warmup_length=1, refine_every=3, stop_split_at=10, reset_alpha_every=2,
+                              densify_grad_thresh=1e-6, max_gaussians=2000),
+    )
+    return dataclasses.replace(config, **changes)
+
+
+@pytest.fixture
+def scene(monkeypatch):
+    scene = tiny_scene()
+    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    return scene
+
+
+def losses_of(run_dir) -> dict[int, float]:
+    lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return {r["step"]: r["loss"] for r in lines if r["event"] == "train"}
+
+
+def test_one_training_step_decreases_the_loss(tmp_path):
+    scene = tiny_scene(n_train=1)
+    config = tiny_config(tmp_path, resolution_levels=0, train_background="black")
+    state = trainer.fresh_state(config, scene)
+    images = trainer.TrainImages(scene.train)
+    camera, target = images.get(0, 0)
+
+    def loss_now() -> float:
+        with torch.no_grad():
+            return float(photometric_loss(state.model.render(camera, 0, torch.zeros(3)).rgb, target))
+
+    before = loss_now()
+    outcome = trainer.train_step(state, config, images)
+    assert outcome.skipped is None
+    assert loss_now() < before
+
+
+def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path, scene):
+    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+
+    def ctrl_c_at_7(step, state):
+        if step == 7:
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted, match="resume with"):
+        trainer.train(tiny_config(tmp_path / "b", checkpoint_every=0), hooks=[ctrl_c_at_7])
+    interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000007.pt"]
+
+    resumed_dir = trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=interrupted_dir))
+    assert resumed_dir == interrupted_dir
+    full, resumed = losses_of(full_dir), losses_of(resumed_dir)
+    assert sorted(resumed) == list(range(1, 13))
+    assert resumed == full  # bit-identical losses, step for step
+    _, model_a = load_run(full_dir)
+    _, model_b = load_run(resumed_dir)
+    assert len(model_a) != len(scene.points)  # densification happened, so its state was resumed too
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
+
+
+def test_a_run_writes_its_layout_and_its_config_loads_back(tmp_path, scene):
+    config = tiny_config(tmp_path, steps=4, checkpoint_every=0)
+    run_dir = trainer.train(config)
+    assert run_dir.parent == tmp_path / "outputs" / "tiny" / "splatu"
+    assert (run_dir.parent / "latest").resolve() == run_dir.resolve()
+    for name in ("config.yml", "metrics.jsonl", "splat.ply", "summary.json"):
+        assert (run_dir / name).is_file(), name
+    assert load_config(run_dir / "config.yml") == config
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["steps"] == 4 and math.isfinite(summary["eval"]["eval"]["psnr"])
+
+
+def test_nonfinite_gradients_skip_the_step_and_leave_the_model_untouched(tmp_path, scene, monkeypatch):
+    poisoned_steps = {3, 4}  # 0-based step indices whose colour gradient becomes NaN
+    render = GaussianModel.render
+    calls = {"n": 0}
+
+    def render_with_nan_grad(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        if out.rgb.requires_grad and calls["n"] in poisoned_steps:
+            out.rgb.register_hook(lambda grad: grad * float("nan"))
+        calls["n"] += 1 if out.rgb.requires_grad else 0
+        return out
+
+    snapshots = {}
+
+    def snapshot(step, state):
+        snapshots[step] = {n: getattr(state.model, n).detach().clone() for n in GaussianModel.PARAM_NAMES}
+
+    monkeypatch.setattr(GaussianModel, "render", render_with_nan_grad)
+    run_dir = trainer.train(tiny_config(tmp_path, steps=8, densify=DensifyConfig(warmup_length=100)), [snapshot])
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if r["event"] == "nonfinite_skipped"] == [4, 5]
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(snapshots[3][name], snapshots[5][name]), name
+        assert torch.isfinite(snapshots[8][name]).all()
+    assert not torch.equal(snapshots[5]["means"], snapshots[6]["means"])  # training went on after the skips
+
+
+def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(tmp_path, scene, monkeypatch):
+    render = GaussianModel.render
+
+    def render_poisoned_after_5(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        if out.rgb.requires_grad and len(snapshot_steps) >= 5:
+            out.rgb.register_hook(lambda grad: grad * float("inf"))
+        return out
+
+    snapshot_steps: list[int] = []
+    monkeypatch.setattr(GaussianModel, "render", render_poisoned_after_5)
+    config = tiny_config(tmp_path, checkpoint_every=5, max_nonfinite_steps=3)
+    with pytest.raises(SplatuError, match="3 steps in a row") as err:
+        trainer.train(config, [lambda step, state: snapshot_steps.append(step)])
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert "step-0000005.pt" in str(err.value)
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000005.pt"]
+    state = read_checkpoint(list_checkpoints(run_dir)[-1])
+    assert all(torch.isfinite(v).all() for v in state["model"].values())
+
+
+def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
+    config = get_method("ensemble").configure(tiny_config(tmp_path, steps=3, checkpoint_every=0, ensemble=2,
+                                                          method="ensemble"))
+    run_dir = trainer.train(config)
+    record = json.loads((run_dir / "ensemble.json").read_text())
+    assert record["members"] == ["members/0", "members/1"] and record["wall_seconds"] > 0
+    (config_0, model_0), (config_1, model_1) = (load_run(run_dir / m) for m in record["members"])
+    assert (config_0.seed, config_1.seed) == (0, 1)
+    assert dataclasses.replace(config_0, seed=1) == config_1
+    assert not torch.equal(model_0.means, model_1.means)
+    with pytest.raises(SplatuError, match="ensemble"):
+        load_run(run_dir)
+
+
+def test_schedules_are_pure_functions_of_the_step():
+    orders = [[trainer.camera_index(epoch * 5 + i, 5, seed=0) for i in range(5)] for epoch in range(3)]
+    assert all(sorted(o) == list(range(5)) for o in orders) and orders[0] != orders[1]
+    assert [trainer.resolution_level(s, 2, 300) for s in (0, 299, 300, 600, 5000)] == [2, 2, 1, 0, 0]
+    assert [trainer.active_sh_degree(s, 3, 100) for s in (0, 100, 250, 1000)] == [0, 1, 2, 3]
+
+
+def test_presets_scale_the_splatfacto_schedule_consistently():
+    for name in ("fast", "quality"):
+        values = read_yaml(preset_path(name))
+        expected = splatfacto_schedule(values["steps"])
+        assert values["resolution_interval"] == expected["resolution_interval"], name
+        assert values["model"]["sh_degree_interval"] == expected["model"]["sh_degree_interval"], name
+        for key, value in expected["densify"].items():
+            assert values["densify"][key] == value, (name, key)
+    assert preset_config("quality").densify.max_gaussians > preset_config("fast").densify.max_gaussians
+
+
+def test_preset_and_method_flags_set_the_defaults(tmp_path):
+    assert default_config([]) == preset_config("fast")
+    quality = default_config(["--preset", "quality", "--method=splatfacto"])
+    assert quality.steps == read_yaml(preset_path("quality"))["steps"] and quality.uncertainty.off
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("steps: 123\ndensify:\n  refine_every: 7\n")
+    assert default_config(["--preset", str(custom)]).densify.refine_every == 7
+    custom.write_text("stepz: 1\n")
+    with pytest.raises(SplatuError, match="stepz"):
+        default_config(["--preset", str(custom)])
+    with pytest.raises(SplatuError, match="unknown preset"):
+        default_config(["--preset", "nope"])
+
+
+def test_methods_registry():
+    base = preset_config("fast")
+    assert not METHODS["splatu"].configure(base).uncertainty.off
+    assert METHODS["splatfacto"].configure(base).uncertainty.off
+    assert METHODS["ensemble"].configure(base).ensemble == 10
+    with pytest.raises(SplatuError):
+        get_method("nerf")
+
+
+def test_config_dict_round_trip_keeps_paths_and_tuples():
+    config = dataclasses.replace(preset_config("quality"), resume=Path("runs/x"), output_dir=Path("some/where"))
+    assert from_dict(to_dict(config)) == config
+
+
+def test_command_line_flags_override_the_preset_defaults():
+    argv = ["--preset", "quality", "--uncertainty.off", "--data", "/some/scene", "--steps", "5"]
+    config = tyro.cli(TrainConfig, default=default_config(argv), args=argv)
+    assert config.uncertainty.off and config.steps == 5 and config.data.data == "/some/scene"
+    assert config.preset == "quality"
+    assert config.densify.max_gaussians == preset_config("quality").densify.max_gaussians
+
+
+def test_a_real_sigint_finishes_the_step_then_saves(tmp_path, scene):
+    def sigint_at_2(step, state):
+        if step == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
+        trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[sigint_at_2])
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+
+
+def test_downsampled_targets_match_their_scaled_cameras():
+    images = trainer.TrainImages(tiny_scene().train)
+    for level in (0, 1, 2):
+        camera, target = images.get(3, level)
+        assert target.shape == (camera.height, camera.width, 3)
+        assert torch.allclose(target.mean(), images.views.images[3].mean(), atol=1e-3)  # area averaging
