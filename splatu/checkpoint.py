@@ -25,6 +25,10 @@ from splatu.train_config import TrainConfig, from_dict
 
 CHECKPOINT_DIR = "checkpoints"
 FORMAT = "splatu-checkpoint-v1"
+MODEL_KEYS = ("step", "config", "model", "num_gaussians")
+"""What rendering and evaluation read from a checkpoint."""
+RESUME_KEYS = (*MODEL_KEYS, "optimizers", "density", "rng", "scene_extent", "nonfinite_streak", "train_seconds")
+"""Everything the trainer writes (trainer._checkpoint_state), all of which `--resume` needs."""
 KEEP_CHECKPOINTS = 2
 
 
@@ -81,8 +85,9 @@ def run_dir_of(checkpoint: Path) -> Path:
     return parent.parent if parent.name == CHECKPOINT_DIR else parent
 
 
-def read_checkpoint(path: Path) -> dict[str, Any]:
-    """Load a checkpoint dict, or raise a one-line error for a corrupt or foreign file."""
+def read_checkpoint(path: Path, required: tuple[str, ...] = ("step",)) -> dict[str, Any]:
+    """Load a checkpoint dict holding the `required` keys, or raise a one-line error for a corrupt,
+    foreign or incomplete file."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
@@ -90,6 +95,10 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
                           "resume from an older checkpoint in the same folder or retrain") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise SplatuError("not a splatu checkpoint", f"in {path}", "pass a checkpoint written by `splatu train`")
+    missing = [key for key in required if key not in state]
+    if missing:
+        raise SplatuError(f"incomplete checkpoint (missing {', '.join(missing)})", f"in {path}",
+                          "resume from an older checkpoint in the same folder or retrain")
     return state
 
 
@@ -116,7 +125,12 @@ def restore_rng(state: dict[str, Any], generator: torch.Generator) -> None:
 
 def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianModel:
     model = GaussianModel.empty_like_config(int(state["num_gaussians"]), config.model)
-    model.load_state_dict(state["model"])
+    try:
+        model.load_state_dict(state["model"])
+    except RuntimeError as err:  # shapes that do not match the saved config (e.g. another SH degree)
+        first = str(err).strip().splitlines()[-1].strip()
+        raise SplatuError(f"checkpoint model does not match its config ({first})", "in the run's checkpoint",
+                          "retrain, or load the checkpoint with the config it was written with") from None
     return model
 
 
@@ -126,6 +140,6 @@ def load_run(run_dir: Path) -> tuple[TrainConfig, GaussianModel]:
     if (run_dir / "ensemble.json").is_file():
         raise SplatuError("this is an ensemble run; it has one model per member", f"in {run_dir}",
                           "load each run listed in its ensemble.json")
-    state = read_checkpoint(resolve_checkpoint(run_dir))
+    state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)
     config = from_dict(state["config"], str(run_dir))
     return config, model_from_state(state, config)

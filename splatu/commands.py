@@ -1,32 +1,18 @@
-"""The subcommand registry: one entry per `splatu` subcommand.
-
-A subcommand whose issue has not landed is registered as `_unbuilt`: it parses its
-options but exits with one clear line instead of pretending to work.
-"""
+"""The subcommand registry: one entry per `splatu` subcommand."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from splatu.cli import Command
 from splatu.data.process_images import ProcessImagesConfig
 from splatu.data.process_images import run as run_process_images
-from splatu.errors import SplatuError
 from splatu.eval_ause import EvalAuseConfig
 from splatu.eval_ause import run as run_eval_ause
 from splatu.render_uncertainty import RenderUncertaintyConfig
 from splatu.render_uncertainty import run as run_render_uncertainty
 from splatu.train_config import default_config as train_default_config
 from splatu.trainer import run_command as run_train
-
-
-def _unbuilt(name: str) -> Any:
-    def run(config: Any) -> None:
-        raise SplatuError(f"`splatu {name}` is not built yet", "in this version of splatu", "see the open issues")
-
-    return run
-
 
 COMMANDS: dict[str, Command] = {
     "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),

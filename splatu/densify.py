@@ -15,6 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.rasterizer import RasterOutput
@@ -72,8 +73,11 @@ class DensityController:
         """`generator` draws the split children's positions (the global RNG when None)."""
         if not (math.isfinite(scene_extent) and scene_extent > 0):
             raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
-        if cfg.refine_every < 1 or cfg.reset_alpha_every < 1 or cfg.n_split_samples < 1:
-            raise ValueError("refine_every, reset_alpha_every and n_split_samples must be at least 1")
+        for name in ("refine_every", "reset_alpha_every", "n_split_samples", "max_gaussians"):
+            if getattr(cfg, name) < 1:
+                flag = f"--densify.{name.replace('_', '-')}"
+                raise SplatuError(f"{flag} must be at least 1 (got {getattr(cfg, name)})", "in the training options",
+                                  f"pass a positive {flag}")
         self.cfg = cfg
         self.scene_extent = scene_extent
         self.generator = generator

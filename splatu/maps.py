@@ -81,8 +81,8 @@ def read_entry(root: Path, name: str) -> MapEntry:
     u_path = root / "uncertainty" / f"{name}.npy"
     try:
         uncertainty = np.load(require_file(u_path, "uncertainty map", "write it with numpy.save"), allow_pickle=False)
-    except ValueError as err:
-        raise SplatuError(f"uncertainty map is not a readable .npy ({err})", f"in {u_path}",
+    except (ValueError, EOFError, OSError) as err:  # empty, truncated or foreign files
+        raise SplatuError(f"uncertainty map is not a readable .npy ({type(err).__name__}: {err})", f"in {u_path}",
                           "write it with numpy.save(path, float_array)") from None
     if uncertainty.shape != rgb.shape[:2] or not np.issubdtype(uncertainty.dtype, np.number):
         raise SplatuError(f"uncertainty map has shape {uncertainty.shape} {uncertainty.dtype}, "

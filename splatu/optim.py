@@ -13,6 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 
 ADAM_EPS = 1e-15
@@ -57,6 +58,11 @@ class Optimizers:
     def __init__(self, model: GaussianModel, cfg: OptimConfig, scene_extent: float, max_steps: int) -> None:
         if not (math.isfinite(scene_extent) and scene_extent > 0):
             raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
+        for name, value in vars(cfg).items():
+            if not (math.isfinite(value) and value > 0):  # the means decay takes log(lr_final / lr)
+                flag = f"--optim.{name.replace('_', '-')}"
+                raise SplatuError(f"{flag} must be a positive learning rate (got {value})", "in the training options",
+                                  f"pass a positive {flag}")
         self.cfg = cfg
         self.scene_extent = scene_extent
         self.max_steps = max(1, max_steps)

@@ -33,6 +33,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from splatu.camera import Camera
 from splatu.checkpoint import (
+    RESUME_KEYS,
     capture_rng,
     list_checkpoints,
     model_from_state,
@@ -461,7 +462,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     wall_start = time.perf_counter()
     if config.resume is not None:
         path = resolve_checkpoint(config.resume)
-        checkpoint = read_checkpoint(path)
+        checkpoint = read_checkpoint(path, RESUME_KEYS)
         saved = from_dict(checkpoint["config"], str(path))
         run_dir = run_dir_of(path)
         train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)

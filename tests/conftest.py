@@ -20,6 +20,14 @@ def shared_scene(name: str) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def fast():
+    """The rasterizer under test, as a module (the exactness and hard-case tests call fast.rasterize)."""
+    import splatu.rasterizer
+
+    return splatu.rasterizer
+
+
 @pytest.fixture(autouse=True)
 def _deterministic_threads():
     """Keep tests reproducible and fair on the 2-core machines."""

@@ -70,6 +70,9 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
     if method == "ensemble" and len(run.models) < 2:
         raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
                           "train one with `splatu train --method ensemble --ensemble 10`")
+    if method == "ours" and run.config.uncertainty.off:
+        raise SplatuError("--method ours needs a run trained with the uncertainty loss; this one had it off",
+                          f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
 
 
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, density_aware: bool = False,

@@ -82,3 +82,13 @@ def test_rng_states_round_trip_through_a_saved_checkpoint(tmp_path):
     again = (torch.rand(3, generator=restored), torch.rand(3), np.random.rand(3), random.random())
     assert torch.equal(expected[0], again[0]) and torch.equal(expected[1], again[1])
     assert np.array_equal(expected[2], again[2]) and expected[3] == again[3]
+
+
+def test_checkpoint_missing_keys_is_a_one_line_error(tmp_path):
+    path = ckpt.checkpoint_path(tmp_path, 1)
+    path.parent.mkdir(parents=True)
+    torch.save({"format": ckpt.FORMAT, "step": 1}, path)
+    with pytest.raises(SplatuError, match="incomplete checkpoint"):
+        ckpt.load_run(tmp_path)
+    with pytest.raises(SplatuError, match="incomplete checkpoint"):
+        ckpt.read_checkpoint(path, ckpt.RESUME_KEYS)

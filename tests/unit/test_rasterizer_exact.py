@@ -204,14 +204,6 @@ def fast_case(case: Case) -> Rendered:
     return render_with_grads(case, rasterize)
 
 
-@pytest.fixture(scope="module")
-def fast():
-    module = pytest.importorskip("splatu.rasterizer", reason="splatu.rasterizer is not built yet")
-    if not hasattr(module, "rasterize"):
-        pytest.skip("splatu.rasterizer.rasterize is not built yet")
-    return module
-
-
 def assert_close(actual: torch.Tensor, expected: torch.Tensor, what: str, atol: float = TOL, rtol: float = 0.0):
     actual = actual.detach().to(D)
     expected = expected.detach().to(D)

@@ -18,14 +18,6 @@ D = torch.float64
 DTYPES = [torch.float32, torch.float64]
 
 
-@pytest.fixture(scope="module")
-def fast():
-    module = pytest.importorskip("splatu.rasterizer", reason="splatu.rasterizer is not built yet")
-    if not hasattr(module, "rasterize"):
-        pytest.skip("splatu.rasterizer.rasterize is not built yet")
-    return module
-
-
 def scene_at_origin(means: list[list[float]], scales: list[list[float]] | float, opacities: list[float] | float,
                     width: int = 8, height: int = 6, focal: float = 10.0, seed: int = 0) -> GaussianScene:
     """Gaussians with random rotations and colours, seen by a camera at the origin looking down +z."""

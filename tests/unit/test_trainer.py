@@ -13,11 +13,12 @@ from splatu import trainer
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
 from splatu.data.scene import Scene, Views
-from splatu.densify import DensifyConfig
+from splatu.densify import DensifyConfig, DensityController
 from splatu.errors import SplatuError
 from splatu.losses import photometric_loss
 from splatu.methods import METHODS, get_method
 from splatu.model import GaussianModel, ModelConfig
+from splatu.optim import OptimConfig, Optimizers
 from splatu.train_config import (
     TrainConfig,
     default_config,
@@ -274,3 +275,13 @@ def test_downsampled_targets_match_their_scaled_cameras():
         camera, target = images.get(3, level)
         assert target.shape == (camera.height, camera.width, 3)
         assert torch.allclose(target.mean(), images.views.images[3].mean(), atol=1e-3)  # area averaging
+
+
+@pytest.mark.parametrize(("section", "flag"), [("densify", "refine_every"), ("optim", "means_lr_final")])
+def test_bad_schedule_or_learning_rate_is_a_user_error(section, flag):
+    with pytest.raises(SplatuError, match=flag.replace("_", "-")):
+        if section == "densify":
+            DensityController(dataclasses.replace(DensifyConfig(), **{flag: 0}), scene_extent=1.0)
+        else:
+            model = GaussianModel.from_points(torch.rand(8, 3), None, ModelConfig(), torch.Generator().manual_seed(0))
+            Optimizers(model, dataclasses.replace(OptimConfig(), **{flag: 0.0}), scene_extent=1.0, max_steps=10)
