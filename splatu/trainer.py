@@ -51,6 +51,7 @@ from splatu.losses import photometric_loss, psnr, ssim, uncertainty_loss
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
+from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
 from splatu.train_config import TrainConfig, from_dict, save_config, to_dict
 
@@ -460,6 +461,8 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     """Train (or resume) as configured; returns the run directory."""
     wall_start = time.perf_counter()
+    if config.compile_kernels:
+        set_compile(True)
     if config.resume is not None:
         path = resolve_checkpoint(config.resume)
         checkpoint = read_checkpoint(path, RESUME_KEYS)

@@ -61,7 +61,7 @@ def tiny_run(tmp_path_factory):
     monkeypatch.setenv("SPLATU_CACHE", str(root / "cache"))
     base = preset_config("fast")
     config = dataclasses.replace(
-        base, steps=TINY_STEPS, checkpoint_every=0, progress=False, output_dir=root / "outputs",
+        base, steps=TINY_STEPS, checkpoint_every=0, progress=False, compile_kernels=False, output_dir=root / "outputs",
         resolution_interval=30, model=dataclasses.replace(base.model, sh_degree_interval=20),
         data=DataConfig(data="poster", poster=PosterConfig(width=48, height=80, frames=24, eval_block=5,
                                                             interp_every=6, points=2000)),

@@ -18,6 +18,7 @@ def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
     base = preset_config("fast")
     config = dataclasses.replace(
         base, steps=40, eval_every_steps=10, checkpoint_every=20, progress=False, output_dir=tmp_path / "outputs",
+        compile_kernels=False,
         resolution_levels=0, model=dataclasses.replace(base.model, sh_degree_interval=20),
         data=DataConfig(data="poster", poster=TINY_POSTER),
         densify=DensifyConfig(warmup_length=10, refine_every=10, stop_split_at=40, stop_screen_size_at=20,
