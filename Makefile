@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 RUN    := outputs/poster/splatu/latest
 
-.PHONY: install demo test lint clean
+.PHONY: install demo test clean
 
 install: $(STAMP)
 

@@ -15,9 +15,9 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import Frame, RawScene, checked_matrix, world_to_camera_from_opengl
+from splatu.data.frames import Frame, RawScene, world_to_camera_from_opengl
 from splatu.data.images import PixelRecipe, read_image
-from splatu.data.nerfstudio import frame_name, read_json
+from splatu.data.nerfstudio import frame_entry, read_json
 from splatu.errors import SplatuError
 
 SPLIT_FILES = ("train", "val", "test")
@@ -50,11 +50,7 @@ def load_blender(root: Path, downscale: int, background: tuple[float, float, flo
             raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
         start = len(frames)
         for index, frame in enumerate(frame_list):
-            if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
-                raise SplatuError(f"frame {index} has no file_path", f"in {json_path}", "give every frame a file_path")
-            name = frame_name(frame["file_path"])
-            where = f"in frame {name!r} of {json_path}"
-            c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
+            name, _where, c2w = frame_entry(frame, index, json_path)
             path = _image_path(root, frame["file_path"])
             if index == 0:  # the format stores no image size: all frames of a file share the first one's
                 height, width = read_image(path).shape[:2]

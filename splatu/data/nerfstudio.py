@@ -52,6 +52,17 @@ def frame_name(file_path: str) -> str:
     return PurePosixPath(file_path).as_posix().removeprefix("./")
 
 
+def frame_entry(frame: object, index: int, json_path: Path) -> tuple[str, str, np.ndarray]:
+    """A transforms.json frame's (name, where-text for errors, camera-to-world), validated in one place
+    for both nerfstudio and NeRF-synthetic files."""
+    if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
+        raise SplatuError(f"frame {index} has no file_path", f"in {json_path}", "give every frame a file_path")
+    name = frame_name(frame["file_path"])
+    where = f"in frame {name!r} of {json_path}"
+    c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
+    return name, where, c2w
+
+
 def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: str) -> float | None:
     value = frame.get(key, top.get(key))
     if value is None:
@@ -129,11 +140,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
     for index, frame in enumerate(frames_json):
-        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
-            raise SplatuError(f"frame {index} has no file_path", f"in {json_path}", "give every frame a file_path")
-        name = frame_name(frame["file_path"])
-        where = f"in frame {name!r} of {json_path}"
-        c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
+        name, where, c2w = frame_entry(frame, index, json_path)
         K, width, height = _intrinsics(frame, top, where)
         distortion = _distortion(frame, top, where)
         key = (K.tobytes(), width, height, distortion)
