@@ -91,12 +91,22 @@ def ause(curves: Curves) -> float:
     return float(np.trapezoid((curves.sparsification - curves.oracle) / normaliser, FRACTIONS))
 
 
+def start_normalised(curves: Curves) -> Curves:
+    """Both curves divided by O(0) = S(0), the mean error (unchanged when that is 0: all errors are 0)."""
+    start = curves.oracle[0] if curves.oracle[0] > 0.0 else 1.0
+    return Curves(curves.oracle / start, curves.sparsification / start)
+
+
 def ause_start_normalised(curves: Curves) -> float:
-    """The same area with both curves divided by O(0) = S(0), the mean error; 0 when that is 0."""
-    start = curves.oracle[0]
-    if start <= 0.0:
-        return 0.0
-    return float(np.trapezoid((curves.sparsification - curves.oracle) / start, FRACTIONS))
+    """The same area with both curves divided by O(0) = S(0); 0 when every error is 0."""
+    normalised = start_normalised(curves)
+    return float(np.trapezoid(normalised.sparsification - normalised.oracle, FRACTIONS))
+
+
+def random_curves(errors: np.ndarray, metric: Metric, seed: int) -> Curves:
+    """Curves of uniform-noise uncertainty: draw `seed` of the random baseline (ties broken by the same seed)."""
+    noise = np.random.default_rng((RANDOM_STREAM, seed)).random(errors.size)
+    return sparsification_curves(errors, noise, metric, tie_seed=seed)
 
 
 def random_baseline(errors: np.ndarray, metric: Metric = "mae",
@@ -104,8 +114,7 @@ def random_baseline(errors: np.ndarray, metric: Metric = "mae",
     """(AUSE, start-normalised AUSE) of uniform-noise uncertainty, each the mean over `seeds`."""
     scores = []
     for seed in seeds:
-        noise = np.random.default_rng((RANDOM_STREAM, seed)).random(errors.size)
-        curves = sparsification_curves(errors, noise, metric, tie_seed=seed)
+        curves = random_curves(errors, metric, seed)
         scores.append((ause(curves), ause_start_normalised(curves)))
     joint, start = np.mean(scores, axis=0)
     return float(joint), float(start)

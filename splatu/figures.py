@@ -102,16 +102,15 @@ def save_orbit_gif(path: Path, rgbs: Sequence[np.ndarray], uncertainties: Sequen
 def plot_sparsification(path: Path, curves: Mapping[str, Curves], title: str, metric: str) -> None:
     """Sparsification curves of several methods on one figure, with the (shared) oracle.
 
-    Each curve is divided by its start value O(0), so methods evaluated on the same images
-    share one oracle and their gaps read as start-normalised AUSE.
+    The curves come start-normalised (divided by O(0), `ause.start_normalised`), so methods
+    evaluated on the same images share one oracle and their gaps read as start-normalised AUSE.
     """
     fig, ax = plt.subplots(figsize=(5.5, 4.0))
     oracle_drawn = False
     for name, curve in curves.items():
-        start = curve.oracle[0] if curve.oracle[0] > 0 else 1.0
-        ax.plot(FRACTIONS, curve.sparsification / start, label=name)
+        ax.plot(FRACTIONS, curve.sparsification, label=name)
         if not oracle_drawn:
-            ax.plot(FRACTIONS, curve.oracle / start, "k--", label="oracle")
+            ax.plot(FRACTIONS, curve.oracle, "k--", label="oracle")
             oracle_drawn = True
     ax.set_xlabel("fraction of pixels removed (most uncertain first)")
     ax.set_ylabel(f"{metric.upper()} of kept pixels / {metric.upper()} of all")
