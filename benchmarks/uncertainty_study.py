@@ -235,7 +235,8 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
              f"Reproduce: `{command}`. 2 CPU cores shared with other jobs: times are noisy, compare ratios.",
              f"Budget `{budget.name}`: the `fast` preset with {budget.overrides or 'no changes'}.", "",
              f"AUSE caption: {A.CAPTION}; per-pixel error summed over RGB; random = mean over "
-             f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = 0 by construction; "
+             f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = AUSC-MAE, the area under "
+             "the oracle curve (its AUSE is 0 by construction); "
              "start-norm = curves divided by O(0) instead of the joint max (exposes anti-correlation). "
              "visibility / Fisher / random use the ours (antipodal) model; their train time adds their "
              "post-training cost. PSNR: mean over eval images (ensemble: the members' mean render).", ""]
@@ -244,13 +245,13 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
         rows = scene["rows"]
         lines += [f"## {scene_name} ({scene['size'][0]}x{scene['size'][1]}, {scene['views']['train']} train / "
                   f"{scene['views']['eval']} eval views, contiguous eval block)", "",
-                  "| method | AUSE-MAE | AUSE-RMSE | random AUSE-MAE | oracle | AUSE-MAE start-norm "
+                  "| method | AUSE-MAE | AUSE-RMSE | random AUSE-MAE | oracle AUSC-MAE | AUSE-MAE start-norm "
                   "(random) | AUROC-unobserved | PSNR dB | train s | render s/view |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for name, row in rows.items():
             m = row["mean"]
             lines.append(f"| {name} | {_cell(m['ause_mae'])} | {_cell(m['ause_rmse'])} | "
-                         f"{_cell(m['random_ause_mae'])} | {_cell(m['oracle_ause_mae'], 0)} | "
+                         f"{_cell(m['random_ause_mae'])} | {_cell(m['oracle_ausc_mae'])} | "
                          f"{_cell(m['ause_mae_start_norm'])} ({_cell(m['random_ause_mae_start_norm'])}) | "
                          f"{_cell(m['auroc_unobserved'])} | {row['psnr']:.2f} | {row['train_seconds']:.0f} | "
                          f"{row['render_seconds_per_view']:.2f} |")

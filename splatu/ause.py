@@ -2,9 +2,11 @@
 
 Why the extras: joint-max-normalised AUSE can score an *anti-correlated* uncertainty better
 than a random one on heavy-tailed errors (the worst pixels inflate the normaliser M). So every
-score here is reported beside the random baseline (mean over seeds), the oracle (0 by
-construction) and the start-normalised variant (curves divided by O(0) = S(0)), which does
-expose anti-correlation.
+score here is reported beside the random baseline (mean over seeds) and the start-normalised
+variant (curves divided by O(0) = S(0)), which does expose anti-correlation. The oracle's AUSE
+is 0 by construction, so what is reported for it is its AUSC, the area under its curve (the
+lowest mean error any ordering can leave), beside ours and random's: AUSC - oracle AUSC is the
+un-normalised gap that AUSE divides by M.
 
 Grid: r_k = k/100, k = 0..99, n_k = floor((1 - r_k)·N) pixels kept (at least 1).
 Per-pixel error e_p sums over RGB: |Î - I| for MAE, (Î - I)² for MSE and RMSE. A curve value
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -91,6 +93,11 @@ def ause(curves: Curves) -> float:
     return float(np.trapezoid((curves.sparsification - curves.oracle) / normaliser, FRACTIONS))
 
 
+def ausc(curve: np.ndarray) -> float:
+    """trapz(curve, r) over [0, 0.99]: the area under one curve, in the metric's own error units."""
+    return float(np.trapezoid(curve, FRACTIONS))
+
+
 def start_normalised(curves: Curves) -> Curves:
     """Both curves divided by O(0) = S(0), the mean error (unchanged when that is 0: all errors are 0)."""
     start = curves.oracle[0] if curves.oracle[0] > 0.0 else 1.0
@@ -109,15 +116,21 @@ def random_curves(errors: np.ndarray, metric: Metric, seed: int) -> Curves:
     return sparsification_curves(errors, noise, metric, tie_seed=seed)
 
 
-def random_baseline(errors: np.ndarray, metric: Metric = "mae",
-                    seeds: Sequence[int] = RANDOM_SEEDS) -> tuple[float, float]:
-    """(AUSE, start-normalised AUSE) of uniform-noise uncertainty, each the mean over `seeds`."""
+class RandomScores(NamedTuple):
+    """The random baseline's numbers, each the mean over its seeds."""
+
+    ause: float
+    ause_start_norm: float
+    ausc: float
+
+
+def random_baseline(errors: np.ndarray, metric: Metric = "mae", seeds: Sequence[int] = RANDOM_SEEDS) -> RandomScores:
+    """AUSE, start-normalised AUSE and AUSC of uniform-noise uncertainty, each the mean over `seeds`."""
     scores = []
     for seed in seeds:
         curves = random_curves(errors, metric, seed)
-        scores.append((ause(curves), ause_start_normalised(curves)))
-    joint, start = np.mean(scores, axis=0)
-    return float(joint), float(start)
+        scores.append((ause(curves), ause_start_normalised(curves), ausc(curves.sparsification)))
+    return RandomScores(*(float(v) for v in np.mean(scores, axis=0)))
 
 
 def auroc(scores: np.ndarray, positives: np.ndarray) -> float | None:
@@ -141,7 +154,7 @@ def auroc(scores: np.ndarray, positives: np.ndarray) -> float | None:
 def score_image(rendered: np.ndarray, target: np.ndarray, uncertainty: np.ndarray,
                 valid: np.ndarray | None = None, unobserved: np.ndarray | None = None,
                 metrics: Sequence[Metric] = ("mae", "rmse")) -> dict[str, float | None]:
-    """Every number one image contributes: AUSE, random, oracle, start-normalised, AUROC.
+    """Every number one image contributes: AUSE, random, start-normalised, AUSC (ours, random, oracle), AUROC.
 
     `valid` (H, W) restricts the pixels scored (e.g. a blender alpha mask); `unobserved`
     (H, W) marks pixels no training camera saw, for AUROC-unobserved.
@@ -153,12 +166,14 @@ def score_image(rendered: np.ndarray, target: np.ndarray, uncertainty: np.ndarra
     for metric in metrics:
         errors = pixel_errors(rendered, target, metric)[keep]
         curves = sparsification_curves(errors, uncertainty[keep], metric)
-        random_joint, random_start = random_baseline(errors, metric)
+        random = random_baseline(errors, metric)
         result[f"ause_{metric}"] = ause(curves)
-        result[f"random_ause_{metric}"] = random_joint
-        result[f"oracle_ause_{metric}"] = 0.0
+        result[f"random_ause_{metric}"] = random.ause
         result[f"ause_{metric}_start_norm"] = ause_start_normalised(curves)
-        result[f"random_ause_{metric}_start_norm"] = random_start
+        result[f"random_ause_{metric}_start_norm"] = random.ause_start_norm
+        result[f"ausc_{metric}"] = ausc(curves.sparsification)
+        result[f"random_ausc_{metric}"] = random.ausc
+        result[f"oracle_ausc_{metric}"] = ausc(curves.oracle)
     result["auroc_unobserved"] = None if unobserved is None else auroc(uncertainty[keep], unobserved[keep])
     return result
 

@@ -6,6 +6,7 @@ the CLI prints it on one line and exits 2. Everything else is a bug and keeps it
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 
@@ -23,4 +24,16 @@ def require_file(path: Path, what: str, fix: str) -> Path:
     """Return `path` if it is an existing file; otherwise raise a one-line SplatuError."""
     if not path.is_file():
         raise SplatuError(f"{what} not found", f"in {path}", fix)
+    return path
+
+
+def writable_dir(path: Path, option: str) -> Path:
+    """Create `path` if needed and prove it writable now, so a bad output folder fails before any work is done."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as err:
+        raise SplatuError(f"cannot write the output folder ({err.strerror or type(err).__name__})", f"in {path}",
+                          f"pass a writable {option}") from None
     return path

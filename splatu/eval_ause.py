@@ -18,7 +18,7 @@ from rich.table import Table
 
 from splatu import ause as A
 from splatu.baselines import UncertaintyMethod
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, writable_dir
 from splatu.figures import plot_sparsification
 from splatu.maps import MapEntry, entry_names, read_entry
 
@@ -29,6 +29,9 @@ class EvalAuseConfig:
 
     load: Path | None = None
     """A training run directory: render its eval views with --method, then score them."""
+    data: str | None = None
+    """With --load: the scene to score on; default: the one the run was trained on (its recorded path, split and
+    downscale)."""
     maps: Path | None = None
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
     method: UncertaintyMethod = "ours"
@@ -67,12 +70,20 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
     report, curves = score_entries(entries, metric)
     report["method"] = label
-    output = output or maps_dir / "ause.json"
-    output.parent.mkdir(parents=True, exist_ok=True)
+    output = checked_output(output or maps_dir / "ause.json")
     output.write_text(json.dumps(report, indent=2))
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
     plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
     return report
+
+
+def checked_output(output: Path) -> Path:
+    """The JSON path, its folder created and proven writable, so a bad --output is one line and not a traceback."""
+    if output.is_dir():
+        raise SplatuError("--output is a folder, eval-ause writes a JSON file (and a .png beside it)", f"in {output}",
+                          f"pass a file path such as {output / 'ause.json'}")
+    writable_dir(output.parent, "--output (a .json path in a writable folder)")
+    return output
 
 
 def _fmt(value: float | None) -> str:
@@ -81,9 +92,11 @@ def _fmt(value: float | None) -> str:
 
 def print_report(report: dict[str, Any], metric: A.Metric) -> None:
     """A rich table: one row per image and the mean, ours beside random and start-normalised."""
-    columns = (f"ause_{metric}", f"random_ause_{metric}", f"oracle_ause_{metric}", f"ause_{metric}_start_norm",
-               f"random_ause_{metric}_start_norm", "auroc_unobserved")
-    headers = ("AUSE", "random", "oracle", "AUSE start-norm", "random start-norm", "AUROC unobserved")
+    columns = (f"ause_{metric}", f"random_ause_{metric}", f"ause_{metric}_start_norm",
+               f"random_ause_{metric}_start_norm", f"ausc_{metric}", f"random_ausc_{metric}",
+               f"oracle_ausc_{metric}", "auroc_unobserved")
+    headers = ("AUSE", "random", "AUSE start-norm", "random start-norm", "AUSC", "random AUSC", "oracle AUSC",
+               "AUROC unobserved")
     table = Table(title=f"AUSE-{metric.upper()} of {report['method']} ({report['caption']})")
     table.add_column("image", overflow="fold")
     for header in headers:
@@ -98,13 +111,18 @@ def run(config: EvalAuseConfig) -> None:
     if (config.load is None) == (config.maps is None):
         raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
                           "use --load RUN_DIR to evaluate a run or --maps DIR for precomputed maps")
+    if config.maps is not None and config.data is not None:
+        raise SplatuError("--data only applies with --load (a maps directory already holds its images)",
+                          "in the eval-ause options", "drop --data, or pass --load RUN_DIR instead of --maps")
     if config.maps is not None:
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:
         from splatu.render_uncertainty import render_eval_maps
 
-        maps_dir = render_eval_maps(config.load, config.method, config.density_aware)
+        if config.output is not None:  # before the render, so a bad --output costs nothing
+            checked_output(config.output)
+        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, data=config.data)
         output = config.output or config.load / f"ause_{config.method}.json"
         report = evaluate_maps(maps_dir, config.metric, config.method, output)
     print_report(report, config.metric)

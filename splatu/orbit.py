@@ -1,10 +1,11 @@
 """An orbit of cameras around a capture, reaching directions the capture never saw (e.g. below).
 
 The scene's frame is inferred from the training cameras alone, so it works for any loader:
-`up` is the mean of the cameras' up vectors (phone and drone captures are held upright), the
-centre is the point closest to every optical axis (what the capture looks at), and the radius
-is the median camera distance to it. The orbit's elevation swings from +max to −max and back
-as it circles once, so half of it looks from below the centre.
+`up` is the direction perpendicular to every camera's right axis (phone and drone captures are
+held upright, without roll; the mean of the cameras' up vectors would lean towards wherever the
+capture looks down), the centre is the point closest to every optical axis (what the capture
+looks at), and the radius is the median camera distance to it. The orbit's elevation swings
+from +max to −max and back as it circles once, so half of it looks from below the centre.
 """
 
 from __future__ import annotations
@@ -37,8 +38,34 @@ class CaptureFrame:
     forward_axis: Tensor  # unit, perpendicular to up: azimuth 0 points from the centre towards it
 
 
+DEFAULT_ELEVATION_DEGREES = 50.0
+DEFAULT_RADIUS_SCALE = 0.5
+"""The default orbit: ±50° at half the capture's radius. A capture walked around an object on a
+floor (the poster stand-in: cameras 1.5 m from the poster's middle, which is 0.68 m = 0.46 radii
+above the floor and 0.25 m = 0.17 radii above the seat's underside) leaves no room to orbit at the
+full radius from below: ±60° there goes 0.87 radii down, through the floor, and renders the floor's
+back. Passing right under the chair is impossible too (its seat is 0.43 m above the floor, between
+four legs). At half the radius, the lowest camera is 0.38 radii below the centre: under the seat,
+0.11 m above the floor, looking up at the underside no training camera saw."""
+
+
 def _unit(v: Tensor) -> Tensor:
     return v / v.norm().clamp_min(1e-12)
+
+
+def _vertical(rotations: Tensor) -> Tensor:
+    """The unit vector most perpendicular to every camera's right axis, signed like the cameras' mean up.
+
+    When every right axis is the same (all cameras face one way) the vertical is undetermined, so
+    the mean up is used.
+    """
+    rights = rotations[:, 0, :]
+    mean_up = -rotations[:, 1, :].mean(dim=0)  # camera −y (OpenCV down is +y) in world
+    values, vectors = torch.linalg.eigh(rights.T @ rights)
+    if values[1] < 1e-3 * values[2]:
+        return _unit(mean_up)
+    up = vectors[:, 0]
+    return up if float(up @ mean_up) >= 0.0 else -up
 
 
 def capture_frame(cameras: list[Camera]) -> CaptureFrame:
@@ -49,7 +76,7 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
     rotations = torch.stack([c.world_to_camera[:3, :3].double() for c in cameras])
     centres = torch.stack([c.center().double() for c in cameras])
     forwards = rotations[:, 2, :]  # camera +z in world
-    up = _unit(-rotations[:, 1, :].mean(dim=0))  # camera −y (OpenCV down is +y) in world
+    up = _vertical(rotations)
     # least-squares point nearest to all optical axes: sum_i (I - f f^T)(c - o_i) = 0
     projectors = torch.eye(3, dtype=torch.float64) - forwards[:, :, None] * forwards[:, None, :]
     lhs = projectors.sum(dim=0)
@@ -79,8 +106,8 @@ def look_at(position: Tensor, target: Tensor, up: Tensor) -> Tensor:
     return world_to_camera
 
 
-def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float,
-                  radius_scale: float = 1.0) -> list[OrbitFrame]:
+def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float = DEFAULT_ELEVATION_DEGREES,
+                  radius_scale: float = DEFAULT_RADIUS_SCALE) -> list[OrbitFrame]:
     """`frames` cameras circling the capture once; elevation = max·cos(azimuth), so half look from below."""
     if frames < 2:
         raise SplatuError(f"an orbit needs at least 2 frames, got {frames}", "in --orbit-frames", "pass 2 or more")

@@ -3,6 +3,9 @@
 The layout is the one 3DGS viewers read: x y z, nx ny nz (zeros), f_dc_0..2, f_rest_* channel-major
 (all red coefficients, then green, then blue), opacity (logit), scale_0..2 (log), rot_0..3 (wxyz);
 every property a little-endian float32. Viewers ignore the extra `u_*` properties.
+
+Exports are in the data's own frame (`splatu.world_frame`), so the splats line up with the source
+cameras and points; `load_ply` reads a file back as it is stored, in that frame.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import torch
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel, ModelConfig, initial_u_sh
 from splatu.sh import MAX_SH_DEGREE
+from splatu.world_frame import WorldTransform, model_to_world
 
 FORMAT_LINE = "format binary_little_endian 1.0"
 PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
@@ -31,9 +35,11 @@ def property_names(sh_rest_count: int, u_count: int) -> list[str]:
     return names
 
 
-def save_ply(model: GaussianModel, path: Path) -> None:
-    """Write the model as a binary little-endian 3DGS PLY, atomically (temporary file, then rename)."""
+def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None:
+    """Write the model, moved by `to_world` out of training coordinates, as a binary little-endian 3DGS PLY,
+    atomically (temporary file, then rename)."""
     path = Path(path)
+    model = model_to_world(model, to_world)
     with torch.no_grad():
         n = len(model)
         rest = model.sh_rest.detach().float()

@@ -1,7 +1,8 @@
 """`splatu render-uncertainty`: RGB, depth, alpha and uncertainty maps of a trained run.
 
 For the chosen views (eval, train, or an orbit that also looks from below) and method, it
-writes, under <run>/uncertainty/<method>-<views>/ unless --output says otherwise:
+writes, under <run>/uncertainty/<method>-<views>/ unless --output says otherwise (what an earlier
+render wrote there is removed first, see `clear_previous_render`):
 
     npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
@@ -29,7 +30,7 @@ from rich.console import Console
 from splatu.baselines import UncertaintyMethod, UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.data.scene import Views
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, writable_dir
 from splatu.figures import (
     DEPTH_CMAP,
     ERROR_CMAP,
@@ -41,7 +42,7 @@ from splatu.figures import (
     save_panel,
 )
 from splatu.maps import MapEntry, safe_name, write_entry
-from splatu.orbit import orbit_cameras
+from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 
 ViewSet = Literal["eval", "train", "orbit"]
 
@@ -52,6 +53,8 @@ class RenderUncertaintyConfig:
 
     load: Path = Path("outputs/poster/splatu/latest")
     """A training run directory (an ensemble run for --method ensemble)."""
+    data: str | None = None
+    """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
     method: UncertaintyMethod = "ours"
     """Which uncertainty to render: ours, ensemble, visibility, fisher or random."""
     views: ViewSet = "eval"
@@ -64,10 +67,11 @@ class RenderUncertaintyConfig:
     """Render at most this many views (evenly spaced); 0 renders all."""
     orbit_frames: int = 24
     """Frames of the orbit (--views orbit)."""
-    orbit_elevation: float = 60.0
+    orbit_elevation: float = DEFAULT_ELEVATION_DEGREES
     """The orbit's elevation swings between +this and −this degrees around the capture's centre."""
-    orbit_radius_scale: float = 1.0
-    """Orbit radius as a multiple of the median training-camera distance to the centre."""
+    orbit_radius_scale: float = DEFAULT_RADIUS_SCALE
+    """Orbit radius as a multiple of the median training-camera distance to the centre (the default half keeps
+    the from-below views above the floor of a capture walked around an object: see splatu.orbit)."""
     fisher_probes: int = 2
     """Rademacher probes per training view for --method fisher."""
     seed: int = 0
@@ -184,6 +188,27 @@ def _write_png(path: Path, rgb_uint8: np.ndarray) -> None:
         raise SplatuError("could not write image", f"in {path}", "check the output directory is writable")
 
 
+OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
+"""What a render writes under names of its own choosing: cleared first, so no view of an earlier render survives
+(colorbar_*.png and render.json are always rewritten)."""
+
+
+def clear_previous_render(out: Path, default_folder: bool) -> None:
+    """Remove the `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
+
+    A folder is ours when it is the default <run>/uncertainty/<method>-<views> or holds our render.json.
+    """
+    present = [out / name for name in OWNED if (out / name).exists()]
+    if present and not default_folder and not (out / "render.json").is_file():
+        raise SplatuError(f"--output already holds {present[0].name!r}, not written by render-uncertainty",
+                          f"in {out}", "pass a new or empty --output folder (or the folder of an earlier render)")
+    for path in present:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
 def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -> dict[str, ColourScale]:
     """Raw maps, colour-mapped PNGs, colour bars, panels, the maps layout and (orbit) the GIF."""
     for folder in ("npy", "png", "panels"):
@@ -209,25 +234,33 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     return scales
 
 
-def _setup(load: Path, method: UncertaintyMethod, density_aware: bool, fisher_probes: int, seed: int):
-    """Load the run, its scene and the method (imports kept here: they pull in the whole trainer stack)."""
-    from splatu.baselines.load import build_method, check_method, load_any_run
-    from splatu.data.resolve import load_scene
+def _load(load: Path, method: UncertaintyMethod):
+    """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
+    from splatu.baselines.load import check_method, load_any_run
 
     run = load_any_run(load)
     check_method(method, run)
-    scene = load_scene(run.config.data)
-    built = build_method(method, run, scene, density_aware, fisher_probes, seed)
-    return run, scene, built
+    return run
+
+
+def _setup(run, method: UncertaintyMethod, data: str | None, density_aware: bool, fisher_probes: int, seed: int):
+    """The run's scene and the method's renderer."""
+    from splatu.baselines.load import build_method, run_data
+    from splatu.data.resolve import load_scene
+
+    scene = load_scene(run_data(run, data))
+    return scene, build_method(method, run, scene, density_aware, fisher_probes, seed)
 
 
 def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
-                     fisher_probes: int = 2, seed: int = 0) -> Path:
+                     fisher_probes: int = 2, seed: int = 0, data: str | None = None) -> Path:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
-    run, scene, built = _setup(load, method, density_aware, fisher_probes, seed)
+    run = _load(load, method)
+    folder = writable_dir(Path(load) / "uncertainty" / f"{method}-eval", "run directory (--load writes maps there)")
+    root = folder / "maps"
+    scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
-    root = Path(load) / "uncertainty" / f"{method}-eval" / "maps"
     shutil.rmtree(root, ignore_errors=True)  # our own folder: stale views of an earlier render must not be scored
     write_maps_layout(root, views)
     (root / "timing.json").write_text(json.dumps({"train_seconds": run.train_seconds,
@@ -237,11 +270,15 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
 
 
 def run(config: RenderUncertaintyConfig) -> None:
-    run_info, scene, built = _setup(config.load, config.method, config.density_aware, config.fisher_probes,
-                                    config.seed)
+    run_info = _load(config.load, config.method)
+    # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
+    out = writable_dir(config.output or Path(config.load) / "uncertainty" / f"{config.method}-{config.views}",
+                       "--output folder")
+    clear_previous_render(out, config.output is None)
+    scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,
+                          config.seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
-    out = config.output or Path(config.load) / "uncertainty" / f"{config.method}-{config.views}"
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         "method": config.method, "views": config.views, "density_aware": config.density_aware,

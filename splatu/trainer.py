@@ -1,11 +1,13 @@
 """The training loop: splatfacto-style 3DGS with the uncertainty SH learned in the same step.
 
-One step renders one training camera (shuffled order, resolution schedule, random background),
-adds the photometric loss and the uncertainty loss computed from the *same* render's
-contributions, and does one backward. A step whose loss or gradients are non-finite is skipped
-(no optimizer step, no density statistics), so a bad value never reaches the model.
+One step renders one training camera (shuffled order, resolution schedule, random background;
+images with alpha are composited on that same background), adds the photometric loss and the
+uncertainty loss computed from the *same* render's contributions, and does one backward. A step
+whose loss or gradients are non-finite is skipped (no optimizer step, no density statistics), so a
+bad value never reaches the model.
 
-Entry points: `train(config)` (the CLI and the Python API; handles --resume and --ensemble) and
+Entry points: `train(config)` (the CLI and the Python API; handles --resume, of a single run or of a
+whole ensemble, and --ensemble) and
 `train_run(config, scene, run_dir)` for callers that already hold a scene.
 """
 
@@ -34,6 +36,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from splatu.camera import Camera
 from splatu.checkpoint import (
     RESUME_KEYS,
+    atomic_write_text,
     capture_rng,
     list_checkpoints,
     model_from_state,
@@ -44,7 +47,7 @@ from splatu.checkpoint import (
     save_checkpoint,
 )
 from splatu.data.resolve import load_scene
-from splatu.data.scene import Scene, Views
+from splatu.data.scene import Scene, Views, on_background
 from splatu.densify import DensityController
 from splatu.errors import SplatuError
 from splatu.losses import photometric_loss, psnr, ssim, uncertainty_loss
@@ -53,7 +56,8 @@ from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
-from splatu.train_config import TrainConfig, from_dict, save_config, to_dict
+from splatu.train_config import TrainConfig, from_dict, load_config, save_config, to_dict
+from splatu.world_frame import WorldTransform
 
 console = Console(stderr=True)
 
@@ -67,6 +71,8 @@ class TrainState:
     density: DensityController
     generator: torch.Generator
     scene_extent: float
+    to_world: WorldTransform
+    """The scene's normalised → original frame; fixed, stored so exports land in the data's frame."""
     step: int = 0
     """Completed steps."""
     nonfinite_streak: int = 0
@@ -91,9 +97,10 @@ class StepOutcome:
 class TrainingInterrupted(KeyboardInterrupt):
     """Ctrl-C: the run was saved (when it stopped between steps) and can be resumed."""
 
-    def __init__(self, message: str, run_dir: Path, step: int) -> None:
-        super().__init__(message)
-        self.message = message
+    def __init__(self, what: str, run_dir: Path, step: int) -> None:
+        self.message = f"{what}; resume with `splatu train --resume {run_dir}`"
+        super().__init__(self.message)
+        self.what = what
         self.run_dir = run_dir
         self.step = step
 
@@ -133,8 +140,10 @@ def training_background(kind: str, generator: torch.Generator) -> torch.Tensor:
 class TrainImages:
     """Training views at every resolution level, downsampled once (area averaging) and cached.
 
-    Targets are the images as loaded: `Views.masks` are not used (they mix alpha and
-    valid-pixel masks); for images composited on a colour, train with that fixed background.
+    Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
+    so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
+    downsampled with the colour, which keeps that exact. `Views.masks` are not used (they mix
+    alpha and valid-pixel masks).
     """
 
     def __init__(self, views: Views) -> None:
@@ -145,8 +154,11 @@ class TrainImages:
         return len(self.views)
 
     def _level(self, level: int) -> torch.Tensor:
+        """(N, h, w, 3) images, or (N, h, w, 4) with alpha last."""
         if level not in self._levels:
             images = self.views.images
+            if self.views.alphas is not None:
+                images = torch.cat([images, self.views.alphas.unsqueeze(-1)], dim=-1)
             if level > 0:
                 probe = self.views.cameras[0].scaled(0.5**level)
                 size = (probe.height, probe.width)
@@ -154,10 +166,14 @@ class TrainImages:
             self._levels[level] = images.contiguous()
         return self._levels[level]
 
-    def get(self, index: int, level: int) -> tuple[Camera, torch.Tensor]:
-        """Camera and target image of view `index` at 1/2^level resolution."""
+    def get(self, index: int, level: int, background: torch.Tensor | None = None) -> tuple[Camera, torch.Tensor]:
+        """Camera and target image of view `index` at 1/2^level resolution, on `background` (None: as loaded)."""
         camera = self.views.cameras[index]
-        return (camera.scaled(0.5**level) if level > 0 else camera), self._level(level)[index]
+        camera = camera.scaled(0.5**level) if level > 0 else camera
+        pixels = self._level(level)[index]
+        if background is None or self.views.alphas is None:
+            return camera, pixels[..., :3]
+        return camera, on_background(pixels[..., :3], pixels[..., 3], self.views.alpha_background, background)
 
 
 # --- one step --------------------------------------------------------------------------------
@@ -184,7 +200,7 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     step = state.step
     background = training_background(config.train_background, state.generator)
     level = resolution_level(step, config.resolution_levels, config.resolution_interval)
-    camera, target = images.get(camera_index(step, len(images), config.seed), level)
+    camera, target = images.get(camera_index(step, len(images), config.seed), level, background)
     degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
 
     render = state.model.render(camera, degree, background)
@@ -211,11 +227,16 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
 
 @torch.no_grad()
 def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor) -> dict[str, float]:
-    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels."""
+    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels.
+
+    Images with alpha are scored on `background` too, so render and target share one background.
+    """
     psnrs, ssims, observed = [], [], []
     for i, camera in enumerate(views.cameras):
         rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
         gt = views.images[i]
+        if views.alphas is not None:
+            gt = on_background(gt, views.alphas[i], views.alpha_background, background)
         psnrs.append(psnr(rgb, gt))
         ssims.append(float(ssim(rgb, gt)))
         if views.observed is not None and bool(views.observed[i].any()):
@@ -263,6 +284,7 @@ def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
         "density": state.density.state_dict(),
         "rng": capture_rng(state.generator),
         "scene_extent": state.scene_extent,
+        "world_transform": state.to_world.state_dict(),
         "nonfinite_streak": state.nonfinite_streak,
         "train_seconds": state.train_seconds,
     }
@@ -281,10 +303,22 @@ def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
     extent = scene_extent(scene.train.cameras)
     model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator)
     optimizers = Optimizers(model, config.optim, extent, config.steps)
-    return TrainState(model, optimizers, DensityController(config.densify, extent, generator), generator, extent)
+    density = DensityController(config.densify, extent, generator)
+    return TrainState(model, optimizers, density, generator, extent, scene_to_world(scene))
 
 
-def restored_state(checkpoint: dict[str, Any], config: TrainConfig) -> TrainState:
+def scene_to_world(scene: Scene) -> WorldTransform:
+    return WorldTransform.from_normalization(scene.center, scene.scale)
+
+
+def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> TrainState:
+    """The checkpointed state; refuses a scene whose normalisation moved (its cameras would not fit the model)."""
+    to_world = scene_to_world(scene)
+    saved = checkpoint.get("world_transform")  # absent in checkpoints written before it was recorded
+    if saved is not None and not WorldTransform.from_state(saved).matches(to_world):
+        raise SplatuError("the scene's normalisation differs from the one this run was trained in "
+                          "(cameras were added, removed or moved)", f"in {config.data.data}",
+                          "resume with the scene as it was, or start a new run")
     model = model_from_state(checkpoint, config)
     extent = float(checkpoint["scene_extent"])
     optimizers = Optimizers(model, config.optim, extent, config.steps)
@@ -293,7 +327,7 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig) -> TrainStat
     restore_rng(checkpoint["rng"], generator)
     density = DensityController(config.densify, extent, generator)
     density.load_state_dict(checkpoint["density"])
-    return TrainState(model, optimizers, density, generator, extent, step=int(checkpoint["step"]),
+    return TrainState(model, optimizers, density, generator, extent, to_world, step=int(checkpoint["step"]),
                       nonfinite_streak=int(checkpoint["nonfinite_streak"]),
                       train_seconds=float(checkpoint["train_seconds"]))
 
@@ -409,18 +443,16 @@ def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step
     if mid_step:
         found = list_checkpoints(run_dir)
         where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
-        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}; resume with "
-                                   f"`splatu train --resume {run_dir}`", run_dir, state.step)
+        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}", run_dir, state.step)
     path = save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
-    return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}; resume with "
-                               f"`splatu train --resume {run_dir}`", run_dir, state.step)
+    return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step)
 
 
 def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float) -> dict:
     """Final checkpoint, evaluation, PLY export and summary.json."""
     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
     results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
-    save_ply(state.model, run_dir / "splat.ply")
+    save_ply(state.model, run_dir / "splat.ply", state.to_world)
     summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
                "num_gaussians": len(state.model), "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - wall_start, "eval": results}
@@ -434,36 +466,88 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     wall_start = time.perf_counter() if wall_start is None else wall_start
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
-    state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config)
+    state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
     run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir, wall_start)
 
 
+ENSEMBLE_SESSIONS = "ensemble_sessions.json"
+
+
+def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
+    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it."""
+    if (member_dir / "summary.json").is_file():
+        console.print(f"already trained: {member_dir}")
+        return
+    found = list_checkpoints(member_dir)
+    if not found:
+        train_run(member, scene, member_dir, hooks)
+        return
+    checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
+    train_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
+
+
+def record_session(run_dir: Path, seconds: float) -> list[float]:
+    """Append one session's wall time to the run's ensemble_sessions.json; returns every session's."""
+    path = run_dir / ENSEMBLE_SESSIONS
+    sessions = json.loads(path.read_text())["session_seconds"] if path.is_file() else []
+    sessions.append(seconds)
+    atomic_write_text(path, json.dumps({"session_seconds": sessions}, indent=2))
+    return sessions
+
+
 def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
                    hooks: Sequence[StepHook] = ()) -> dict:
-    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time."""
+    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
+
+    Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one
+    continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest
+    across sessions: every call (session) adds its own wall time, from `wall_start` (the start of
+    `train`, so scene loading counts) until it finishes, is interrupted or fails, to
+    ensemble_sessions.json, and `wall_seconds` is their sum. A session killed outright (SIGKILL, power
+    loss) cannot record itself and is missing from the sum.
+    """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
-    members = []
-    for k in range(config.ensemble):
-        member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
-        member_dir = run_dir / "members" / str(k)
-        console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
-        train_run(member, scene, member_dir, hooks)
-        members.append(member_dir)
+    members = [run_dir / "members" / str(k) for k in range(config.ensemble)]
+    try:
+        for k, member_dir in enumerate(members):
+            member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
+            console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
+            try:
+                train_member(member, scene, member_dir, hooks)
+            except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
+                raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
+                                          run_dir, stop.step) from None
+    finally:
+        sessions = record_session(run_dir, time.perf_counter() - wall_start)
     record = {"members": [str(m.relative_to(run_dir)) for m in members],
               "seeds": [config.seed + k for k in range(config.ensemble)],
-              "wall_seconds": time.perf_counter() - wall_start}
-    (run_dir / "ensemble.json").write_text(json.dumps(record, indent=2))
+              "wall_seconds": sum(sessions), "session_seconds": sessions}
+    atomic_write_text(run_dir / "ensemble.json", json.dumps(record, indent=2))
     return record
 
 
+def ensemble_config(run_dir: Path) -> TrainConfig | None:
+    """The saved config when `run_dir` is an ensemble run directory, else None."""
+    path = Path(run_dir).expanduser() / "config.yml"
+    if not path.is_file():
+        return None
+    config = load_config(path)
+    return config if config.ensemble > 1 else None
+
+
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
-    """Train (or resume) as configured; returns the run directory."""
+    """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
     wall_start = time.perf_counter()
     if config.compile_kernels:
         set_compile(True)
     if config.resume is not None:
+        saved_ensemble = ensemble_config(config.resume)
+        if saved_ensemble is not None:
+            run_dir = Path(config.resume).expanduser()
+            train_ensemble(saved_ensemble, load_scene(saved_ensemble.data), run_dir, wall_start, hooks)
+            return run_dir
         path = resolve_checkpoint(config.resume)
         checkpoint = read_checkpoint(path, RESUME_KEYS)
         saved = from_dict(checkpoint["config"], str(path))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass
@@ -15,6 +16,7 @@ from splatu.baselines.fisher import fisher_diagonal, fisher_feature
 from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource
 from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import load_run
+from splatu.data.config import DataConfig
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
@@ -55,6 +57,18 @@ def load_any_run(run_dir: Path) -> LoadedRun:
         return LoadedRun(run_dir, loaded[0][0], [model for _, model in loaded], record.wall_seconds)
     config, model = load_run(run_dir)
     return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir))
+
+
+def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:
+    """The scene options the run was trained with (split, downscale, …); `data` replaces only where the scene is."""
+    if data is not None:
+        return dataclasses.replace(run.config.data, data=data)
+    recorded = run.config.data
+    if recorded.data != "poster" and not Path(recorded.data).expanduser().exists():
+        raise SplatuError(f"the scene this run was trained on no longer exists ({recorded.data})",
+                          f"in {run.run_dir}", "pass --data PATH with the scene's new location "
+                          "(the run's recorded split and downscale still apply)")
+    return recorded
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:

@@ -62,11 +62,18 @@ def _stack(recipes: list[PixelRecipe | None], cache: ImageCache) -> list[np.ndar
     return [None if r is None else load_pixels(r, cache) for r in recipes]
 
 
+def _filled(arrays: list[np.ndarray | None], shape: tuple[int, ...]) -> np.ndarray:
+    """Per-frame (H, W) float32 arrays stacked, ones for the frames that have none."""
+    ones = np.ones(shape, np.float32)
+    return np.stack([ones if a is None else a for a in arrays])
+
+
 def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: ImageCache,
                 keep_observed: bool) -> Views:
     """Decode one split's frames (all one size, else a one-line error naming the odd file).
 
     masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
+    alphas: float32 (N, H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
     depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
@@ -81,12 +88,11 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     images = np.stack([p[..., :3] for p in pixels]).astype(np.float32)
     alphas = [p[..., 3] if p.shape[-1] == 4 else None for p in pixels]
     file_masks = _stack([f.mask for f in frames], cache)
-    masks = None
-    if any(a is not None for a in alphas) or any(m is not None for m in file_masks):
-        ones = np.ones(images.shape[1:3], np.float32)
-        masks = torch.from_numpy(np.stack([
-            (ones if a is None else a) * (ones if m is None else m) for a, m in zip(alphas, file_masks, strict=True)
-        ]))
+    size = images.shape[1:3]
+    alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
+    masks = alpha  # shared, not copied, when there are no mask files
+    if any(m is not None for m in file_masks):
+        masks = torch.from_numpy(_filled(alphas, size) * _filled(file_masks, size))
     depths = _stack([f.depth for f in frames], cache)
     observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
     return Views(
@@ -96,6 +102,8 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
         masks=masks,
         depths=torch.from_numpy(np.stack(depths) * np.float32(scale)) if all(d is not None for d in depths) else None,
         observed=(torch.from_numpy(np.stack(observed) > 0.5) if all(o is not None for o in observed) else None),
+        alphas=alpha,
+        alpha_background=frames[0].image.background,
     )
 
 

@@ -15,9 +15,11 @@ class Views:
     """One split: cameras with their images, all of one size.
 
     images are float32 in [0, 1], (N, H, W, 3). The optional tensors are per image:
-    `masks` marks valid pixels (e.g. a blender alpha); `depths` and `observed` exist only
-    where ground truth is known (the built-in scene): `observed` marks pixels whose surface
-    point is seen, unoccluded, by at least one training camera.
+    `masks` marks valid pixels (e.g. a blender alpha); `alphas` is the images' own alpha when
+    they had one (RGBA files; 1 for the split's opaque images), with `images` composited on
+    `alpha_background`, so `on_background` can put them on any other colour; `depths` and
+    `observed` exist only where ground truth is known (the built-in scene): `observed` marks
+    pixels whose surface point is seen, unoccluded, by at least one training camera.
     """
 
     cameras: list[Camera]
@@ -26,9 +28,22 @@ class Views:
     masks: Tensor | None = None
     depths: Tensor | None = None
     observed: Tensor | None = None
+    alphas: Tensor | None = None
+    alpha_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __len__(self) -> int:
         return len(self.cameras)
+
+
+def on_background(images: Tensor, alphas: Tensor, composited_on: tuple[float, float, float] | Tensor,
+                  background: Tensor) -> Tensor:
+    """Images (..., H, W, 3) composited on `composited_on`, recomposited on `background`.
+
+    C = rgb·α + b·(1 − α) is linear in b, so C + (b' − b)(1 − α) = rgb·α + b'·(1 − α) exactly, and that
+    survives area downsampling (linear too) as long as α is downsampled the same way.
+    """
+    shift = background.to(images) - torch.as_tensor(composited_on).to(images)
+    return images + (1.0 - alphas).unsqueeze(-1) * shift
 
 
 @dataclass

@@ -6,10 +6,14 @@ exactly that pixel's depth-ordered Gaussian list. Transmittance is then a segmen
 cumulative sum of log(1 − α) along q (float64, so long lists keep precision), and 3DGS's early
 stop is the mask "inclusive log T ≥ ln 1e-4" (monotone along a list).
 
+A block's list is composited in depth rounds (see footprint.py), in chunks of bounded size. Each
+pixel carries its log T from one chunk to the next, so a block whose pixels have all terminated is
+dropped from later rounds: exact, because its remaining pairs could only fail the stop test.
+
 The backward is the closed form of the 3DGS one, vectorised: for a pixel's loss
 L = Σ_i w_i g_i + T_final h, with g_i = gC·f_i + g_alpha + g_depthnum·z_i and h = gC·background,
 dL/dα_i = T_i g_i − (S_i + T_final h) / (1 − α_i), where S_i = Σ_{j behind i} w_j g_j.
-Entries are processed in chunks of whole blocks so that peak memory stays bounded.
+The backward walks the chunks in reverse, carrying each pixel's Σ w g of the chunks behind.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import torch
 from torch import Tensor
 
 from splatu.rasterizer.footprint import BlockEntries
-from splatu.rasterizer.kernels import kernel
+from splatu.rasterizer.kernels import LOG_T_MIN, kernel
 
 
 @dataclass
@@ -46,33 +50,32 @@ class PixelAccumulators:
 
 @dataclass
 class GaussianGrads:
-    """Gradient accumulators (N, ·) for the compositor's inputs, plus the absgrad side output."""
+    """Gradient accumulators for the compositor's inputs, packed (N, C+2 + 1 + 3 + 2 + 2) so that each
+    chunk scatters into them once: features_ext | opacity | conic | means2d | absgrad."""
 
-    means2d: Tensor
-    conics: Tensor
-    opacities: Tensor
-    features_ext: Tensor
-    absgrad: Tensor
+    packed: Tensor
+
+    def split(self, channels_ext: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(features_ext, opacities, conics, means2d, absgrad) views."""
+        f, o, c, m, a = self.packed.split([channels_ext, 1, 3, 2, 2], dim=1)
+        return f, o.squeeze(1), c, m, a
 
 
 @dataclass
 class ChunkState:
-    """What one chunk's forward leaves for its backward."""
+    """What one chunk's forward leaves for its backward: only its live entries (≥ 1 kept pair)."""
 
-    start: int
-    end: int
-    transmittance: Tensor  # (B, Q) T before each pair, 0 where the pair does not contribute
-    alpha_raw: Tensor  # (B, Q) o·exp(−σ) before the 0.99 clamp
+    positions: Tensor  # (Q',) positions in the full entry list of the live entries, in order
+    transmittance: Tensor  # (B, Q') T before each pair, 0 where the pair does not contribute
+    alpha_raw: Tensor  # (B, Q') o·exp(−σ) before the 0.99 clamp
 
 
 @dataclass
 class EntryView:
-    """Entries [start, end) with their Gaussians' screen-space parameters gathered per entry."""
+    """Some entries (a chunk, or its live subset) with their Gaussians' parameters gathered per entry."""
 
     gaussian: Tensor
     block: Tensor
-    block_start: Tensor  # local to the chunk
-    block_last: Tensor  # local to the chunk
     u: Tensor
     dy: Tensor
     conic: Tensor
@@ -80,24 +83,58 @@ class EntryView:
     in_image_cols: Tensor
 
 
-def chunk_bounds(entries: BlockEntries, max_elements: int) -> list[tuple[int, int]]:
-    """Split the entry list into slices of whole blocks with about max_elements (Q·B) each."""
-    total = entries.block.numel()
-    rows = max(1, max_elements // entries.block_width)
-    bounds, pos = [], 0
-    while pos < total:
-        end = min(pos + rows, total)
-        if end < total:
-            start_of_block = int(entries.block_start[end])
-            end = start_of_block if start_of_block > pos else int(entries.block_last[end]) + 1
-        bounds.append((pos, end))
-        pos = end
-    return bounds
+@dataclass
+class Segments:
+    """For a block-sorted entry list: each entry's first and last same-block entry, and the blocks present."""
+
+    first: Tensor  # (Q,) index of the first entry of the same block
+    last: Tensor  # (Q,) index of the last entry of the same block
+    blocks: Tensor  # (K,) the distinct blocks, in order
+    block_first: Tensor  # (K,) index of each block's first entry
+    block_last: Tensor  # (K,) index of each block's last entry
 
 
-def view_entries(entries: BlockEntries, start: int, end: int, g: GaussianParams, width: int) -> EntryView:
-    gaussian = entries.gaussian[start:end]
-    block = entries.block[start:end]
+def segments(block: Tensor) -> Segments:
+    starts = torch.ones_like(block, dtype=torch.bool)
+    starts[1:] = block[1:] != block[:-1]
+    block_first = torch.nonzero(starts).squeeze(1)
+    sizes = torch.diff(block_first, append=block_first.new_tensor([block.numel()]))
+    block_last = block_first + sizes - 1
+    which = torch.repeat_interleave(torch.arange(block_first.numel(), device=block.device), sizes)
+    return Segments(block_first.index_select(0, which), block_last.index_select(0, which),
+                    block.index_select(0, block_first), block_first, block_last)
+
+
+def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int):
+    """Yield the entry positions to composite, round by round, in pieces of about max_elements (Q·B).
+
+    From the second round on, blocks whose in-image pixels all have log T < ln 1e-4 are skipped;
+    `log_t` must be up to date with every chunk yielded before (the caller composites in between).
+    """
+    step = max(1, max_elements // entries.block_width)
+    for r, (start, end) in enumerate(zip(entries.round_bounds[:-1], entries.round_bounds[1:], strict=True)):
+        positions: slice | Tensor = slice(start, end)
+        if r > 0:
+            alive = ((log_t >= LOG_T_MIN) & in_image).any(0)
+            keep = alive.index_select(0, entries.block[start:end])
+            positions = torch.nonzero(keep).squeeze(1) + start
+            if positions.numel() == end - start:
+                positions = slice(start, end)
+        count = end - start if isinstance(positions, slice) else positions.numel()
+        for offset in range(0, count, step):
+            if isinstance(positions, slice):
+                yield slice(start + offset, min(start + offset + step, end))
+            else:
+                yield positions[offset : offset + step]
+
+
+def take(values: Tensor, positions: slice | Tensor) -> Tensor:
+    return values[positions] if isinstance(positions, slice) else values.index_select(0, positions)
+
+
+def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int) -> EntryView:
+    gaussian = take(entries.gaussian, positions)
+    block = take(entries.block, positions)
     dtype = g.means2d.dtype
     x0 = (block % entries.blocks_per_row) * entries.block_width
     row = torch.div(block, entries.blocks_per_row, rounding_mode="floor")
@@ -105,8 +142,6 @@ def view_entries(entries: BlockEntries, start: int, end: int, g: GaussianParams,
     return EntryView(
         gaussian=gaussian,
         block=block,
-        block_start=entries.block_start[start:end] - start,
-        block_last=entries.block_last[start:end] - start,
         u=x0.to(dtype) + 0.5 - mean[:, 0],
         dy=row.to(dtype) + 0.5 - mean[:, 1],
         conic=g.conics.index_select(0, gaussian),
@@ -116,22 +151,53 @@ def view_entries(entries: BlockEntries, start: int, end: int, g: GaussianParams,
 
 
 def forward_chunk(
-    entries: BlockEntries, start: int, end: int, g: GaussianParams, width: int, acc: PixelAccumulators
+    entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int, acc: PixelAccumulators,
+    log_t: Tensor,
 ) -> ChunkState:
-    """Composite entries [start, end) into the accumulators; return what the backward needs."""
-    v = view_entries(entries, start, end, g, width)
+    """Composite some entries into the accumulators and advance each pixel's carried log T (B, num_blocks).
+
+    Entries whose pixels have all terminated (or that fail the α test everywhere) keep no pair; even
+    within the rounds they are a large part of a chunk. They have w = 0 and zero gradient at every
+    pixel, so once the transmittance pass has found them, everything else (image sums,
+    contributions, the saved state and the whole backward) runs on the live entries only.
+    """
+    v = view_entries(entries, positions, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
         v.u, v.dy, v.conic, v.opacity, v.in_image_cols, entries.block_width
     )
-    cumulative = torch.cumsum(log_one_minus, 1)
-    transmittance, weight, weight_sum, weight_max = kernel("blend")(log_one_minus, cumulative, v.block_start, alpha_raw)
-    first, last = int(v.block[0]), int(v.block[-1])
-    acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, v.block - first, last - first + 1,
-                                                         g.features_ext.index_select(0, v.gaussian))
-    acc.contrib_sum.index_add_(0, v.gaussian, weight_sum)
-    acc.contrib_max.scatter_reduce_(0, v.gaussian, weight_max, reduce="amax")
+    cumulative = running_sum(log_one_minus)
+    seg = segments(v.block)
+    transmittance, weight, weight_sum, weight_max = kernel("blend")(
+        log_one_minus, cumulative, seg.first, log_t, v.block, alpha_raw
+    )
+    exclusive_at_first = cumulative.index_select(1, seg.block_first) - log_one_minus.index_select(1, seg.block_first)
+    block_total = cumulative.index_select(1, seg.block_last) - exclusive_at_first
+    log_t.index_add_(1, seg.blocks, block_total)
+    live = torch.nonzero(weight_max > 0).squeeze(1)
+    transmittance, weight, alpha_raw = (x.index_select(1, live) for x in (transmittance, weight, alpha_raw))
+    gaussian, block = v.gaussian.index_select(0, live), v.block.index_select(0, live)
+    if live.numel():
+        first, last = int(block[0]), int(block[-1])
+        acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, block - first, last - first + 1,
+                                                             g.features_ext.index_select(0, gaussian))
+    acc.contrib_sum.index_add_(0, gaussian, weight_sum.index_select(0, live))
+    acc.contrib_max.scatter_reduce_(0, gaussian, weight_max.index_select(0, live), reduce="amax")
     acc.pairs += int(torch.count_nonzero(transmittance))
-    return ChunkState(start, end, transmittance, alpha_raw)
+    return ChunkState(_global(positions, live), transmittance, alpha_raw)
+
+
+def _global(positions: slice | Tensor, local: Tensor) -> Tensor:
+    """Positions in the full entry list of the chunk-local indices `local`."""
+    return local + positions.start if isinstance(positions, slice) else positions.index_select(0, local)
+
+
+def running_sum(values: Tensor) -> Tensor:
+    """Inclusive running sum along q of a (B, Q) float64 tensor, carried on from one row to the next.
+
+    Callers only take differences within one block, so the carry between rows cancels; summing the
+    flat buffer is ~6x faster than torch's float64 cumsum along dim 1 (measured, torch 2.13 CPU).
+    """
+    return torch.cumsum(values.reshape(-1), 0).view_as(values)
 
 
 def _sum_per_pixel(weight: Tensor, local_block: Tensor, num_blocks: int, features_ext: Tensor) -> Tensor:
@@ -156,26 +222,25 @@ def _sum_per_pixel(weight: Tensor, local_block: Tensor, num_blocks: int, feature
 
 def backward_chunk(
     entries: BlockEntries, state: ChunkState, g: GaussianParams, width: int,
-    up_ext: Tensor, behind_background: Tensor, grads: GaussianGrads,
+    up_ext: Tensor, behind: Tensor, grads: GaussianGrads,
 ) -> None:
-    """Accumulate the gradient contributions of one chunk's entries into `grads`.
+    """Accumulate the gradient contributions of one chunk's entries into `grads`; chunks go back to front.
 
-    `up_ext` (B, num_blocks, C+2) holds the upstream gradients of colour, Σ w·z and alpha per pixel;
-    `behind_background` (B, num_blocks) is T_final · (gC · background).
+    `up_ext` (B, num_blocks, C+2) holds the upstream gradients of colour, Σ w·z and alpha per pixel.
+    `behind` (B, num_blocks, float64) holds per pixel T_final · (gC · background) plus Σ w g of the
+    chunks behind this one; this chunk's own Σ w g is added to it on the way out.
     """
-    v = view_entries(entries, state.start, state.end, g, width)
+    v = view_entries(entries, state.positions, g, width)
     per_weight, weighted, grad_features_ext = kernel("upstream_per_weight")(
         up_ext, v.block, state.transmittance, state.alpha_raw, g.features_ext.index_select(0, v.gaussian)
     )
-    grads.features_ext.index_add_(0, v.gaussian, grad_features_ext)
-    weighted_cumulative = torch.cumsum(weighted, 1)
-    grad_opacity, m0, m1, m2, abs_x, abs_y = kernel("entry_gradients")(
-        weighted_cumulative, v.block_last, v.block, behind_background,
-        state.transmittance, state.alpha_raw, per_weight, v.u, v.dy, v.conic, v.opacity,
+    weighted_cumulative = running_sum(weighted)
+    seg = segments(v.block)
+    per_entry = kernel("entry_gradients")(
+        weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
+        v.u, v.dy, v.conic, v.opacity, grad_features_ext,
     )
-    a, b, c = v.conic.unbind(-1)
-    dy = v.dy
-    grads.opacities.index_add_(0, v.gaussian, grad_opacity)
-    grads.conics.index_add_(0, v.gaussian, torch.stack([0.5 * m2, dy * m1, 0.5 * dy * dy * m0], dim=-1))
-    grads.means2d.index_add_(0, v.gaussian, torch.stack([-(a * m1 + b * dy * m0), -(b * m1 + c * dy * m0)], dim=-1))
-    grads.absgrad.index_add_(0, v.gaussian, torch.stack([abs_x, abs_y], dim=-1))
+    grads.packed.index_add_(0, v.gaussian, per_entry)
+    block_total = (weighted_cumulative.index_select(1, seg.block_last)
+                   - weighted_cumulative.index_select(1, seg.block_first) + weighted.index_select(1, seg.block_first))
+    behind.index_add_(1, seg.blocks, block_total)

@@ -1,11 +1,11 @@
 """Which pixels each Gaussian can reach, as depth-ordered lists per image row segment ("block").
 
 A Gaussian can only pass the α ≥ 1/255 test where σ ≤ ln(255·o), an ellipse. We cut that ellipse
-into exact per-row x-intervals, then into blocks of `block_width` pixels of one row. The output is a
-list of (block, Gaussian) entries sorted by block and, within a block, by (depth, index), the
-order in which the pixels of that block must composite their Gaussians. Entries are far fewer than
-pixel–Gaussian pairs (about one per row per `block_width` pixels), so this sort is cheap, and the
-compositor evaluates each entry densely over the block's pixels without any per-pair sort.
+into exact per-row x-intervals, then into blocks of `block_width` pixels of one row. The entries
+(block, Gaussian) are ordered by depth round (an equal slab of the depth order), then block, then
+depth. Entries are far fewer than pixel–Gaussian pairs (about one per row per `block_width`
+pixels), so this one sort is cheap. Rounds let the compositor skip the deeper part of a block's
+list once all of its pixels have terminated, which in a deep scene is most of it.
 """
 
 from __future__ import annotations
@@ -22,14 +22,21 @@ FOOTPRINT_SLACK = 1e-4
 """Relative widening of the exact footprint so rounding never drops a pair; extra pairs fail the α test."""
 
 
+MAX_ROUNDS = 16
+ROUND_MIN_ENTRIES = 1 << 16
+"""Depth rounds: equal slabs of the depth order, at most MAX_ROUNDS and at least ROUND_MIN_ENTRIES
+entries per round on average, so that a round's fixed cost stays small next to its work. On the
+benchmark scenes, 16 rounds composite 1.49 (20k case) and 1.54 (100k case) evaluated pixel–Gaussian
+elements per contributing pair, against 2.36 and 3.83 in one round (benchmarks/rasterizer.py scenes)."""
+
+
 @dataclass
 class BlockEntries:
-    """(block, Gaussian) entries sorted by (block, depth, index); one block = `block_width` pixels of a row."""
+    """(block, Gaussian) entries sorted by (depth round, block, depth, index); one block = `block_width` pixels."""
 
     gaussian: Tensor  # (Q,) int64 Gaussian index into the full (N,) arrays
     block: Tensor  # (Q,) int64 block id = row * blocks_per_row + column block
-    block_start: Tensor  # (Q,) int64 position in the entry list of the first entry of the same block
-    block_last: Tensor  # (Q,) int64 position of the last entry of the same block
+    round_bounds: list[int]  # entries [round_bounds[r], round_bounds[r + 1]) form depth round r
     block_width: int
     blocks_per_row: int
     num_blocks: int
@@ -47,12 +54,12 @@ def block_entries(
         candidate = visible & (o * 255.0 >= 1.0)
         ids = torch.nonzero(candidate).squeeze(1)
         order = torch.sort(depths.to(f64)[ids], stable=True).indices  # ties keep index order
-        ids = ids[order]
+        ids = ids.index_select(0, order)
 
-        mx, my = means2d[ids, 0].to(f64), means2d[ids, 1].to(f64)
-        _, cxy, cyy = cov2d[ids].unbind(-1)
-        det_g = det[ids]
-        s = torch.log(o[ids] * 255.0).clamp_min(0.0) * (1 + FOOTPRINT_SLACK) + FOOTPRINT_SLACK
+        mx, my = means2d.index_select(0, ids).to(f64).unbind(1)
+        _, cxy, cyy = cov2d.index_select(0, ids).unbind(-1)
+        det_g = det.index_select(0, ids)
+        s = torch.log(o.index_select(0, ids) * 255.0).clamp_min(0.0) * (1 + FOOTPRINT_SLACK) + FOOTPRINT_SLACK
 
         # Rows whose pixel centre y + 0.5 lies within the ellipse's vertical extent.
         ry = torch.sqrt(2.0 * s * cyy)
@@ -60,31 +67,35 @@ def block_entries(
         y_hi = torch.floor((my + ry - 0.5).clamp(-2.0, height)).clamp(-1, height - 1).long()
         rows_per = (y_hi - y_lo + 1).clamp_min(0)
         rec_g, rec_local = _expand(rows_per)
-        y = y_lo[rec_g] + rec_local
+        y = y_lo.index_select(0, rec_g) + rec_local
 
-        # Exact x-interval of the ellipse on each row.
-        dy = y.to(f64) + 0.5 - my[rec_g]
-        half = torch.sqrt(((2.0 * s[rec_g] * cyy[rec_g] - dy * dy) * det_g[rec_g]).clamp_min(0.0)) / cyy[rec_g]
-        xc = mx[rec_g] + cxy[rec_g] / cyy[rec_g] * dy
+        # Exact x-interval of the ellipse on each row (index_select: ~10x faster than x[idx] on CPU).
+        per_row = torch.stack([mx, my, 2.0 * s * cyy, det_g / cyy.square(), cxy / cyy], 1).index_select(0, rec_g)
+        row_mx, row_my, extent, det_over_c2, shear = per_row.unbind(1)
+        dy = y.to(f64) + 0.5 - row_my
+        half = torch.sqrt(((extent - dy * dy) * det_over_c2).clamp_min(0.0))
+        xc = row_mx + shear * dy
         x_lo = torch.ceil((xc - half - 0.5).clamp(-1.0, width + 1.0)).clamp(0, width).long()
         x_hi = torch.floor((xc + half - 0.5).clamp(-2.0, width)).clamp(-1, width - 1).long()
         j_lo = torch.div(x_lo, block_width, rounding_mode="floor")
         j_hi = torch.div(x_hi, block_width, rounding_mode="floor")
         blocks_per = torch.where(x_hi >= x_lo, j_hi - j_lo + 1, torch.zeros_like(j_lo))
         ent_rec, ent_local = _expand(blocks_per)
-        block = y[ent_rec] * blocks_per_row + j_lo[ent_rec] + ent_local
-        gaussian_rank = rec_g[ent_rec]  # entries are generated in depth order
 
-        by_block = torch.argsort(block.to(torch.int32), stable=True)  # block ids < H·W: int32 sorts faster
-        block = block[by_block]
-        gaussian = ids[gaussian_rank[by_block]]
+        # One stable sort by (round, block); entries are generated in depth order, which it keeps.
         num_blocks = height * blocks_per_row
-        counts = torch.bincount(block, minlength=num_blocks)
-        starts = torch.cumsum(counts, 0) - counts
-        block_start = starts.index_select(0, block)
-        block_last = block_start + counts.index_select(0, block) - 1
+        rounds = max(1, min(MAX_ROUNDS, ent_rec.numel() // ROUND_MIN_ENTRIES))
+        depth_round = torch.div(torch.arange(ids.numel(), device=ids.device) * rounds, max(1, ids.numel()),
+                                rounding_mode="floor")
+        record_key = depth_round.index_select(0, rec_g) * num_blocks + y * blocks_per_row + j_lo
+        key = record_key.index_select(0, ent_rec) + ent_local
+        order = torch.argsort(key.to(torch.int32), stable=True)  # keys < rounds · H·W: int32 sorts faster
+        key = key.index_select(0, order)
+        gaussian = ids.index_select(0, rec_g).index_select(0, ent_rec).index_select(0, order)
+        round_starts = torch.arange(rounds + 1, device=key.device) * num_blocks
     return BlockEntries(
-        gaussian=gaussian, block=block, block_start=block_start, block_last=block_last,
+        gaussian=gaussian, block=key % num_blocks,
+        round_bounds=torch.searchsorted(key, round_starts).tolist(),
         block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=num_blocks,
     )
 
@@ -93,4 +104,4 @@ def _expand(counts: Tensor) -> tuple[Tensor, Tensor]:
     """For counts (M,), the owner index and the 0-based position within the owner of each of sum(counts) items."""
     owner = torch.repeat_interleave(torch.arange(counts.numel(), device=counts.device), counts)
     first = torch.cumsum(counts, 0) - counts
-    return owner, torch.arange(owner.numel(), device=counts.device) - first[owner]
+    return owner, torch.arange(owner.numel(), device=counts.device) - first.index_select(0, owner)

@@ -17,7 +17,7 @@ from splatu.rasterizer.composite import (
     GaussianParams,
     PixelAccumulators,
     backward_chunk,
-    chunk_bounds,
+    chunks,
     forward_chunk,
 )
 from splatu.rasterizer.footprint import BlockEntries
@@ -33,9 +33,12 @@ def _run_forward(
         contrib_sum=torch.zeros(n, dtype=dtype, device=device),
         contrib_max=torch.zeros(n, dtype=dtype, device=device),
     )
+    log_t = torch.zeros(entries.block_width, entries.num_blocks, dtype=torch.float64, device=device)
+    height = entries.num_blocks // entries.blocks_per_row
+    in_image = to_blocks(torch.ones(height, width, dtype=torch.bool, device=device), entries)
     states = []
-    for start, end in chunk_bounds(entries, max_elements):
-        state = forward_chunk(entries, start, end, g, width, acc)
+    for positions in chunks(entries, log_t, in_image, max_elements):
+        state = forward_chunk(entries, positions, g, width, acc, log_t)
         if keep_state:
             states.append(state)
     return acc, states
@@ -91,13 +94,16 @@ class CompositeFunction(torch.autograd.Function):
         up_ext = to_blocks(torch.cat([g_image, g_depth_num[..., None], g_alpha[..., None]], dim=-1), entries)
         channels = background.shape[0]
         up_image = up_ext[:, :, :channels]
-        behind_background = ctx.t_final * (up_image * background).sum(-1)
-        grads = GaussianGrads(*(torch.zeros_like(x) for x in (means2d, conics, opacities, features_ext)),
-                              absgrad=ctx.absgrad)
-        for state in ctx.states:
-            backward_chunk(entries, state, g, ctx.width, up_ext, behind_background, grads)
+        behind = (ctx.t_final * (up_image * background).sum(-1)).to(torch.float64)
+        channels_ext = features_ext.shape[1]
+        grads = GaussianGrads(torch.zeros(means2d.shape[0], channels_ext + 8, dtype=means2d.dtype,
+                                          device=means2d.device))
+        for state in reversed(ctx.states):
+            backward_chunk(entries, state, g, ctx.width, up_ext, behind, grads)
+        grad_features_ext, grad_opacities, grad_conics, grad_means2d, absgrad = grads.split(channels_ext)
+        ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))
-        return (grads.means2d, grads.conics, grads.opacities, grads.features_ext, grad_background,
+        return (grad_means2d, grad_conics, grad_opacities, grad_features_ext, grad_background,
                 None, None, None, None, None)
 
 

@@ -55,15 +55,16 @@ def alpha_and_log_one_minus(
 
 
 def blend(
-    log_one_minus: Tensor, cumulative: Tensor, block_start: Tensor, alpha_raw: Tensor
+    log_one_minus: Tensor, cumulative: Tensor, first: Tensor, carried_log_t: Tensor, block: Tensor, alpha_raw: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Transmittance of kept pairs (0 elsewhere), weight w = T·α (B, Q), and Σ_x w, max_x w per entry.
 
-    `cumulative` is the inclusive cumsum of `log_one_minus` along q; subtracting its exclusive value
-    at the block's first entry makes it per block. Kept = valid and T·(1 − α) ≥ 1e-4.
+    `cumulative` is the inclusive running sum of `log_one_minus` along q; subtracting its exclusive
+    value at the first entry of the same block in this chunk, and adding the log T each pixel carries
+    from earlier chunks (B, num_blocks), gives log T before each pair. Kept = valid and T·(1 − α) ≥ 1e-4.
     """
     exclusive = cumulative - log_one_minus
-    log_t = exclusive - exclusive.index_select(1, block_start)
+    log_t = exclusive - exclusive.index_select(1, first) + carried_log_t.index_select(1, block)
     kept = (log_one_minus < 0) & (log_t + log_one_minus >= LOG_T_MIN)
     transmittance = torch.where(kept, torch.exp(log_t.to(alpha_raw.dtype)), 0.0)
     weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
@@ -85,29 +86,36 @@ def upstream_per_weight(
 
 
 def entry_gradients(
-    weighted_cumulative: Tensor, block_last: Tensor, block: Tensor, behind_background: Tensor,
+    weighted_cumulative: Tensor, last: Tensor, block: Tensor, carried_behind: Tensor,
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
-    u: Tensor, dy: Tensor, conic: Tensor, opacity: Tensor,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """Per entry: dL/do, the moments Σ gσ, Σ gσ t, Σ gσ t², and Σ|dL/dmean| per axis.
+    u: Tensor, dy: Tensor, conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
+) -> Tensor:
+    """Per entry, one packed row (Q, C+2 + 8): dL/df_ext | dL/do | dL/dconic (3) | dL/dmean2d (2) | Σ|dL/dmean2d|
+    per axis (2), so that the caller scatters into the Gaussians once.
 
-    dL/dα = T g − (S + T_final h)/(1 − α), S = Σ of w g over the pairs behind this one in the pixel;
-    `behind_background` is T_final h per pixel (B, num_blocks).
+    dL/dα = T g − (S + T_final h)/(1 − α), S = Σ of w g over the pairs behind this one in the pixel:
+    those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
+    holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½a t² + b t dy
+    + ½c dy², the conic and mean gradients are moments Σ gσ tᵏ over the block's pixels.
     """
-    behind = (weighted_cumulative.index_select(1, block_last) - weighted_cumulative).to(alpha_raw.dtype)
+    behind = (weighted_cumulative.index_select(1, last) - weighted_cumulative
+              + carried_behind.index_select(1, block)).to(alpha_raw.dtype)
     alpha = alpha_raw.clamp(max=ALPHA_MAX)
-    grad_alpha = transmittance * per_weight - (behind + behind_background.index_select(1, block)) / (1.0 - alpha)
+    grad_alpha = transmittance * per_weight - behind / (1.0 - alpha)
     live = (transmittance > 0) & (alpha_raw < ALPHA_MAX)
     grad_alpha = torch.where(live, grad_alpha, 0.0)
     grad_opacity = (grad_alpha * alpha_raw).sum(0) / opacity
     grad_sigma = -grad_alpha * alpha_raw
     t = _offsets(u, alpha_raw.shape[0])
     a, b, c = conic.unbind(-1)
+    m0 = grad_sigma.sum(0)
     m1 = (grad_sigma * t).sum(0)
     m2 = (grad_sigma * t * t).sum(0)
     abs_x = (grad_sigma * (a * t + b * dy)).abs().sum(0)
     abs_y = (grad_sigma * (b * t + c * dy)).abs().sum(0)
-    return grad_opacity, grad_sigma.sum(0), m1, m2, abs_x, abs_y
+    rest = torch.stack([grad_opacity, 0.5 * m2, dy * m1, 0.5 * dy * dy * m0,
+                        -(a * m1 + b * dy * m0), -(b * m1 + c * dy * m0), abs_x, abs_y], dim=-1)
+    return torch.cat([grad_features_ext, rest], dim=1)
 
 
 _EAGER: dict[str, Callable] = {

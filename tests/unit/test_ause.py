@@ -22,7 +22,7 @@ def test_oracle_uncertainty_scores_zero():
 def test_random_uncertainty_matches_closed_form_on_uniform_errors():
     # e ~ U(0,1): O(r) = (1-r)/2 and E[S(r)] = 1/2, so (S-O)/M ≈ r and AUSE ≈ ∫_0^0.99 r dr = 0.49005
     errors = _rng().random(50_000)
-    joint, start = A.random_baseline(errors)
+    joint, start, _ = A.random_baseline(errors)
     assert joint == pytest.approx(0.49005, abs=0.02)
     assert start == pytest.approx(0.49005, abs=0.02)
 
@@ -58,7 +58,7 @@ def test_anti_correlated_beats_random_under_joint_max_on_heavy_tails_but_not_sta
     """
     errors = _rng().lognormal(0.0, 1.5, 50_000)
     anti = A.sparsification_curves(errors, -errors)
-    random_joint, random_start = A.random_baseline(errors)
+    random_joint, random_start, _ = A.random_baseline(errors)
     assert A.ause(anti) < 0.5 * random_joint
     assert A.ause_start_normalised(anti) > 2.0 * random_start
 
@@ -66,7 +66,7 @@ def test_anti_correlated_beats_random_under_joint_max_on_heavy_tails_but_not_sta
 def test_anti_correlated_is_no_better_than_random_on_light_tails():
     errors = _rng().random(50_000)
     anti = A.sparsification_curves(errors, -errors)
-    random_joint, _ = A.random_baseline(errors)
+    random_joint = A.random_baseline(errors).ause
     assert A.ause(anti) >= random_joint - 0.01
 
 
@@ -77,7 +77,7 @@ def test_ties_are_deterministic_and_constant_u_is_defined():
     second = A.ause(A.sparsification_curves(errors, constant))
     assert first == second
     # a constant u keeps pixels in a fixed random order: it scores like a random uncertainty
-    random_joint, _ = A.random_baseline(errors)
+    random_joint = A.random_baseline(errors).ause
     assert first == pytest.approx(random_joint, abs=0.05)
     # ties are not broken by pixel order: sorted errors with constant u must not look like the oracle
     ordered = np.sort(errors)
@@ -90,7 +90,7 @@ def test_constant_error_does_not_divide_by_zero():
         curves = A.sparsification_curves(errors, _rng().random(1_000))
         assert A.ause(curves) == 0.0
         assert A.ause_start_normalised(curves) == 0.0
-        joint, start = A.random_baseline(errors)
+        joint, start, _ = A.random_baseline(errors)
         assert (joint, start) == (0.0, 0.0)
 
 
@@ -125,7 +125,9 @@ def test_score_image_and_mean():
     # the MAE error orders pixels almost, not exactly, like the squared error
     assert 0.0 < scores["ause_rmse"] < 0.2 * scores["random_ause_rmse"]
     assert scores["random_ause_mae"] > 0.2
-    assert scores["oracle_ause_mae"] == 0.0
+    assert "oracle_ause_mae" not in scores  # 0 by definition: the oracle is reported by its AUSC instead
+    assert scores["ausc_mae"] == pytest.approx(scores["oracle_ausc_mae"])
+    assert scores["oracle_ausc_mae"] < 0.7 * scores["random_ausc_mae"]
     assert scores["auroc_unobserved"] == pytest.approx(1.0)
     other = dict(scores, ause_mae=0.5, auroc_unobserved=None)
     means = A.mean_scores({"a": scores, "b": other})
@@ -135,6 +137,24 @@ def test_score_image_and_mean():
     valid[:, :20] = True
     masked = A.score_image(rendered, target, rng.random((32, 40)), valid=valid)
     assert masked["ause_mae"] > 0.1
+
+
+def test_ausc_is_the_area_under_each_curve_and_its_gap_is_the_unnormalised_ause():
+    # e = 0..9 (N = 10): O(r_k) is the mean of the floor((1 - k/100)·10) smallest errors, in closed form
+    errors = np.arange(10.0)
+    counts = np.maximum(((100 - np.arange(100)) * 10) // 100, 1)
+    expected_oracle = np.trapezoid((counts - 1) / 2.0, A.FRACTIONS)
+    curves = A.sparsification_curves(errors, -errors)  # worst first: S keeps the largest errors
+    scores = A.score_image(errors[:, None, None] * np.ones((10, 1, 3)) / 3.0, np.zeros((10, 1, 3)),
+                           -errors[:, None], metrics=("mae",))
+    assert A.ausc(curves.oracle) == pytest.approx(expected_oracle)
+    assert scores["oracle_ausc_mae"] == pytest.approx(expected_oracle)
+    assert scores["ausc_mae"] == pytest.approx(np.trapezoid(9.0 - (counts - 1) / 2.0, A.FRACTIONS))
+    normaliser = max(curves.oracle.max(), curves.sparsification.max())
+    assert (scores["ausc_mae"] - scores["oracle_ausc_mae"]) / normaliser == pytest.approx(scores["ause_mae"])
+    # uniform errors: E[S(r)] = mean error, so random's AUSC is about 0.99 · mean
+    uniform = _rng().random(50_000)
+    assert A.random_baseline(uniform).ausc == pytest.approx(0.99 * uniform.mean(), rel=0.01)
 
 
 def test_start_normalised_curves_start_at_one_and_random_baseline_averages_its_seeds():

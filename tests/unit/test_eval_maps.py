@@ -43,7 +43,9 @@ def test_maps_round_trip_through_the_cli(tmp_path, capsys):
     mean = report["mean"]
     # u = e + 10·unobserved (e ≤ 3) orders the observed half by error but ranks all unobserved pixels first
     assert 0.0 < mean["ause_mae"] < 0.5 * mean["random_ause_mae"]
-    assert mean["oracle_ause_mae"] == 0.0
+    assert mean["oracle_ausc_mae"] <= mean["ausc_mae"] < mean["random_ausc_mae"]
+    assert {f"{k}_{m}" for k in ("ausc", "random_ausc", "oracle_ausc") for m in ("mae", "rmse")} <= set(mean)
+    assert set(report["per_image"]["view_0"]) == set(mean)
     assert mean["auroc_unobserved"] == pytest.approx(1.0)
     assert {"ause_rmse", "ause_mae_start_norm", "random_ause_mae_start_norm"} <= set(mean)
     assert report["caption"] == A.CAPTION

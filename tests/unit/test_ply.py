@@ -9,6 +9,9 @@ import torch
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel, ModelConfig
 from splatu.ply import load_ply, property_names, save_ply
+from splatu.world_frame import WorldTransform
+
+IDENTITY = WorldTransform(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64), 1.0)
 
 
 def _random_model(sh_degree: int, u_degree: int, n: int = 37) -> GaussianModel:
@@ -34,7 +37,7 @@ def _header(path) -> list[str]:
 def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
     model = _random_model(sh_degree, u_degree)
     path = tmp_path / "point_cloud.ply"
-    save_ply(model, path)
+    save_ply(model, path, IDENTITY)
     loaded = load_ply(path, ModelConfig())  # degrees come from the file
     assert (loaded.cfg.sh_degree, loaded.cfg.u_sh_degree) == (sh_degree, u_degree)
     for name in GaussianModel.PARAM_NAMES:
@@ -45,7 +48,7 @@ def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
 def test_header_has_the_standard_3dgs_properties_in_order(tmp_path):
     model = _random_model(3, 1, n=5)
     path = tmp_path / "m.ply"
-    save_ply(model, path)
+    save_ply(model, path, IDENTITY)
     header = _header(path)
     assert header[:3] == ["ply", "format binary_little_endian 1.0", "element vertex 5"]
     names = [line.split()[-1] for line in header[3:]]
@@ -64,7 +67,7 @@ def test_f_rest_is_channel_major_as_3dgs_viewers_expect(tmp_path):
             for c in range(3):
                 model.sh_rest[:, k, c] = 10 * c + k  # coefficient k of channel c
     path = tmp_path / "m.ply"
-    save_ply(model, path)
+    save_ply(model, path, IDENTITY)
     names = property_names(3, 4)
     data = np.frombuffer(path.read_bytes().split(b"end_header\n", 1)[1], dtype="<f4").reshape(2, len(names))
     row = dict(zip(names, data[0], strict=True))
@@ -74,7 +77,7 @@ def test_f_rest_is_channel_major_as_3dgs_viewers_expect(tmp_path):
 def test_plain_3dgs_ply_without_u_gets_the_initial_uncertainty(tmp_path):
     model = _random_model(1, 1, n=4)
     path = tmp_path / "m.ply"
-    save_ply(model, path)
+    save_ply(model, path, IDENTITY)
     header, body = path.read_bytes().split(b"end_header\n", 1)
     names = property_names(3, 4)
     data = np.frombuffer(body, dtype="<f4").reshape(4, len(names))[:, :-4]
@@ -89,7 +92,7 @@ def test_plain_3dgs_ply_without_u_gets_the_initial_uncertainty(tmp_path):
 
 def test_bad_files_are_user_errors(tmp_path):
     good = tmp_path / "good.ply"
-    save_ply(_random_model(1, 1, n=6), good)
+    save_ply(_random_model(1, 1, n=6), good, IDENTITY)
     raw = good.read_bytes()
     cases = {
         "missing.ply": None,
@@ -109,10 +112,10 @@ def test_bad_files_are_user_errors(tmp_path):
 def test_saving_a_non_finite_model_refuses_and_leaves_the_old_file(tmp_path):
     path = tmp_path / "m.ply"
     model = _random_model(0, 1, n=3)
-    save_ply(model, path)
+    save_ply(model, path, IDENTITY)
     before = path.read_bytes()
     with torch.no_grad():
         model.means[1, 0] = float("inf")
     with pytest.raises(SplatuError):
-        save_ply(model, path)
+        save_ply(model, path, IDENTITY)
     assert path.read_bytes() == before

@@ -12,6 +12,9 @@ import tyro
 from splatu import trainer
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
+from splatu.cli import entrypoint
+from splatu.data.config import DataConfig
+from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views
 from splatu.densify import DensifyConfig, DensityController
 from splatu.errors import SplatuError
@@ -19,6 +22,7 @@ from splatu.losses import photometric_loss
 from splatu.methods import METHODS, get_method
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
+from splatu.ply import load_ply
 from splatu.train_config import (
     TrainConfig,
     default_config,
@@ -30,6 +34,7 @@ from splatu.train_config import (
     splatfacto_schedule,
     to_dict,
 )
+from tests.synthetic_scenes import noise_image, write_rgb
 
 W, H = 32, 24
 
@@ -235,6 +240,43 @@ def test_preset_and_method_flags_set_the_defaults(tmp_path):
         default_config(["--preset", "nope"])
 
 
+@pytest.mark.parametrize(("yaml_text", "key", "expected"), [
+    ("steps: abc\n", "'steps'", "expects int"),
+    ("steps: true\n", "'steps'", "expects int"),
+    ("optim:\n  means_lr: [1, 2]\n", "'optim.means_lr'", "expects float"),
+    ("ssim_lambda: much\n", "'ssim_lambda'", "expects float"),
+    ("train_background: green\n", "'train_background'", "one of 'random', 'black', 'white'"),
+    ("data:\n  background: [1, 0]\n", "'data.background'", "a list of 3 float"),
+    ("data:\n  downscale: two\n", "'data.downscale'", "int or null"),
+    ("model: 3\n", "'model'", "a mapping of ModelConfig options"),
+])
+def test_preset_values_of_the_wrong_type_are_one_line_errors(tmp_path, capsys, yaml_text, key, expected):
+    custom = tmp_path / "mine.yaml"
+    custom.write_text(yaml_text)
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--preset", str(custom)])
+    assert exc.value.code == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert key in lines[0] and expected in lines[0] and str(custom) in lines[0]
+
+
+def test_preset_values_are_coerced_to_the_field_types(tmp_path):
+    custom = tmp_path / "mine.yaml"
+    # YAML 1.1 reads 1e-3 (no dot) as a string; ints stand for floats, lists for tuples, null for optionals
+    custom.write_text("ssim_lambda: 1e-3\noptim:\n  opacity_lr: 1\nresume: null\noutput_dir: runs/here\n"
+                      "data:\n  data: scenes/mine\n  background: [0, 0.5, 1]\n  downscale: null\n"
+                      "  eval_list: eval.txt\n"
+                      "train_background: white\n")
+    config = default_config(["--preset", str(custom)])
+    assert config.ssim_lambda == 1e-3 and isinstance(config.optim.opacity_lr, float)
+    assert config.resume is None and config.output_dir == Path("runs/here")
+    assert config.data.background == (0.0, 0.5, 1.0) and config.data.downscale is None
+    assert config.train_background == "white"
+    # recorded absolute, so render-uncertainty and eval-ause find them from any working directory
+    assert config.data.data == str(Path.cwd() / "scenes" / "mine") and config.data.eval_list == Path.cwd() / "eval.txt"
+
+
 def test_methods_registry():
     base = preset_config("fast")
     assert not METHODS["splatu"].configure(base).uncertainty.off
@@ -285,3 +327,113 @@ def test_bad_schedule_or_learning_rate_is_a_user_error(section, flag):
         else:
             model = GaussianModel.from_points(torch.rand(8, 3), None, ModelConfig(), torch.Generator().manual_seed(0))
             Optimizers(model, dataclasses.replace(OptimConfig(), **{flag: 0.0}), scene_extent=1.0, max_steps=10)
+
+
+def _ensemble_config(root, **changes) -> TrainConfig:
+    config = tiny_config(root, steps=4, checkpoint_every=0, ensemble=3, method="ensemble", **changes)
+    return get_method("ensemble").configure(config)
+
+
+def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_sessions(tmp_path, scene):
+    full_dir = trainer.train(_ensemble_config(tmp_path / "a"))
+    calls: list[int] = []
+
+    def ctrl_c_in_member_1(step, state):
+        calls.append(step)
+        if len(calls) == 6:  # member 0 ran its 4 steps, member 1 stops after its step 2
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted, match="ensemble member 2/3: interrupted at step 2") as stop:
+        trainer.train(_ensemble_config(tmp_path / "b"), hooks=[ctrl_c_in_member_1])
+    run_dir = (tmp_path / "b" / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    assert stop.value.message.endswith(f"`splatu train --resume {run_dir}`")  # the ensemble, not the member
+    assert not (run_dir / "ensemble.json").exists() and not (run_dir / "members" / "2").exists()
+    assert [p.name for p in list_checkpoints(run_dir / "members" / "1")] == ["step-0000002.pt"]
+    first_session = json.loads((run_dir / "ensemble_sessions.json").read_text())["session_seconds"]
+    assert len(first_session) == 1 and first_session[0] > 0
+    member_0 = (run_dir / "members" / "0" / "summary.json").read_text()
+
+    resumed_steps: list[int] = []
+    resumed = dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir)
+    assert trainer.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)]) == run_dir
+    assert resumed_steps == [3, 4, 1, 2, 3, 4]  # member 0 skipped, member 1 from step 2, member 2 from scratch
+    assert (run_dir / "members" / "0" / "summary.json").read_text() == member_0
+    record = json.loads((run_dir / "ensemble.json").read_text())
+    assert record["members"] == ["members/0", "members/1", "members/2"] and record["seeds"] == [0, 1, 2]
+    assert len(record["session_seconds"]) == 2 and record["session_seconds"][0] == first_session[0]
+    assert record["wall_seconds"] == pytest.approx(sum(record["session_seconds"]))
+    for member in record["members"]:
+        assert losses_of(run_dir / member) == losses_of(full_dir / member), member
+        (_, model_a), (_, model_b) = load_run(full_dir / member), load_run(run_dir / member)
+        for name in GaussianModel.PARAM_NAMES:
+            assert torch.equal(getattr(model_a, name), getattr(model_b, name)), (member, name)
+
+
+def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation(tmp_path, scene):
+    scene.center, scene.scale = torch.tensor([5.0, -1.0, 2.0]), 0.25
+    run_dir = trainer.train(tiny_config(tmp_path, steps=3, checkpoint_every=0))
+    checkpoint = read_checkpoint(list_checkpoints(run_dir)[-1])
+    saved = checkpoint["world_transform"]
+    assert saved["scale"] == 4.0 and torch.equal(saved["translation"].float(), scene.center)
+    _, model = load_run(run_dir)
+    exported = load_ply(run_dir / "splat.ply", ModelConfig())
+    torch.testing.assert_close(exported.means, model.means * 4.0 + scene.center)
+    torch.testing.assert_close(exported.log_scales, model.log_scales + math.log(4.0))
+
+    scene.center = torch.tensor([5.0, -1.0, 3.0])  # the data changed under the run
+    with pytest.raises(SplatuError, match="normalisation"):
+        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+
+
+def _write_rgba_blender(root) -> None:
+    """A NeRF-synthetic style scene of seeded RGBA noise: 3 train and 2 test frames of 20x16."""
+    for split, count in (("train", 3), ("test", 2)):
+        frames = []
+        for i in range(count):
+            write_rgb(root / split / f"r_{i}.png", noise_image(i, 20, 16, channels=4))
+            pose = torch.eye(4)
+            pose[:3, 3] = torch.tensor([0.3 * i, 0.2, 3.0])
+            frames.append({"file_path": f"./{split}/r_{i}", "transform_matrix": pose.tolist()})
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+
+
+def test_rgba_targets_are_composited_on_the_background_the_step_renders_on(tmp_path, monkeypatch):
+    _write_rgba_blender(tmp_path / "lego")
+    scene = load_scene(DataConfig(data=str(tmp_path / "lego"), cache_dir=tmp_path / "cache"))
+    config = tiny_config(tmp_path, resolution_levels=0, model=ModelConfig(sh_degree=1, random_init_points=200))
+    seen: dict[str, list[torch.Tensor]] = {"target": [], "render_background": []}
+    loss, render = trainer.photometric_loss, GaussianModel.render
+
+    def recording_loss(rgb, target, *args):
+        seen["target"].append(target.detach().clone())
+        return loss(rgb, target, *args)
+
+    def recording_render(self, camera, degree, background, **kwargs):
+        seen["render_background"].append(background.clone())
+        return render(self, camera, degree, background, **kwargs)
+
+    monkeypatch.setattr(trainer, "photometric_loss", recording_loss)
+    monkeypatch.setattr(GaussianModel, "render", recording_render)
+    state = trainer.fresh_state(config, scene)
+    images = trainer.TrainImages(scene.train)
+    for step in range(3):
+        trainer.train_step(state, config, images)
+        state.step += 1  # as run_loop does
+        background = seen["render_background"][step]
+        index = trainer.camera_index(step, len(images), config.seed)
+        frame = int(scene.train.names[index].rsplit("_", 1)[1])
+        rgba = torch.from_numpy(noise_image(frame, 20, 16, channels=4)).float() / 255
+        rgb, alpha = rgba[..., :3], rgba[..., 3:]
+        expected = rgb * alpha + background * (1 - alpha)
+        assert not torch.allclose(background, torch.ones(3))  # a random colour, not the loader's white
+        torch.testing.assert_close(seen["target"][step], expected, atol=0.5 / 255 + 1e-6, rtol=0)
+
+
+def test_evaluation_composites_rgba_targets_on_the_render_background():
+    views = tiny_scene(n_train=1, n_eval=2).eval
+    rgb, alpha = 0.6, 0.25
+    views.images = torch.full_like(views.images, rgb * alpha + 1.0 * (1 - alpha))  # composited on white at load
+    views.alphas = torch.full(views.images.shape[:3], alpha)
+    empty = GaussianModel.empty_like_config(0, ModelConfig(sh_degree=0))  # renders the background alone
+    metrics = trainer.evaluate_views(empty, views, 0, torch.zeros(3))
+    assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)

@@ -1,0 +1,95 @@
+"""Exports in the data's own frame: SH rotation, quaternion composition, and a PLY that renders the same."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from splatu.camera import Camera
+from splatu.model import GaussianModel, ModelConfig
+from splatu.ply import load_ply, save_ply
+from splatu.rasterizer.projection import quaternion_to_rotation
+from splatu.sh import eval_sh, num_sh_bases
+from splatu.world_frame import WorldTransform, rotation_to_quaternion, sh_rotation
+
+TURN = torch.tensor([[0.36, 0.48, -0.8], [-0.8, 0.6, 0.0], [0.48, 0.64, 0.6]], dtype=torch.float64)
+"""A proper rotation (det +1) about a skew axis by about 110°."""
+
+
+def random_rotation(seed: int) -> torch.Tensor:
+    q, r = torch.linalg.qr(torch.randn(3, 3, generator=torch.Generator().manual_seed(seed), dtype=torch.float64))
+    q = q * torch.sign(torch.diagonal(r))
+    return q if torch.linalg.det(q) > 0 else -q
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_rotated_sh_in_rotated_directions_equals_the_original(degree):
+    g = torch.Generator().manual_seed(degree)
+    coeffs = torch.randn(num_sh_bases(degree), 2, generator=g, dtype=torch.float64)
+    dirs = torch.randn(50, 3, generator=g, dtype=torch.float64)
+    for rotation in (TURN, random_rotation(degree)):
+        rotated = sh_rotation(rotation, degree) @ coeffs
+        torch.testing.assert_close(eval_sh(rotated, dirs @ rotation.T, degree), eval_sh(coeffs, dirs, degree))
+    if degree:  # a rotation really changes the coefficients (the test above is not vacuous)
+        assert not torch.allclose(sh_rotation(TURN, degree), torch.eye(num_sh_bases(degree), dtype=torch.float64))
+
+
+def test_quaternion_of_a_rotation_gives_that_rotation_back_at_any_angle():
+    half_turn = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))  # trace −1: the hard case
+    for rotation in (TURN, half_turn, torch.eye(3, dtype=torch.float64), *(random_rotation(s) for s in range(5))):
+        back = quaternion_to_rotation(rotation_to_quaternion(rotation)[None])[0]
+        torch.testing.assert_close(back, rotation)
+
+
+def _model(n: int = 40) -> GaussianModel:
+    g = torch.Generator().manual_seed(0)
+    cfg = ModelConfig(sh_degree=3, u_sh_degree=2)
+    model = GaussianModel.empty_like_config(n, cfg)
+    with torch.no_grad():
+        model.means.copy_((torch.rand(n, 3, generator=g) - 0.5) * 0.8)
+        model.quats.copy_(torch.randn(n, 4, generator=g))
+        model.log_scales.copy_(torch.log(torch.rand(n, 3, generator=g) * 0.08 + 0.02))
+        model.opacity_logits.copy_(torch.randn(n, generator=g))
+        model.sh_dc.copy_(torch.randn(n, 1, 3, generator=g) * 0.5)
+        model.sh_rest.copy_(torch.randn(model.sh_rest.shape, generator=g) * 0.3)
+        model.u_sh.copy_(torch.randn(model.u_sh.shape, generator=g))
+    return model
+
+
+def _camera_in_world(camera: Camera, to_world: WorldTransform) -> Camera:
+    """The same camera with the world moved by `to_world`: x_cam·scale = R_c Rᵀ (x_w − t) + scale·t_c."""
+    w2c = camera.world_to_camera.double()
+    rotation = w2c[:3, :3] @ to_world.rotation.T
+    world = torch.eye(4, dtype=torch.float64)
+    world[:3, :3] = rotation
+    world[:3, 3] = -rotation @ to_world.translation + to_world.scale * w2c[:3, 3]
+    return dataclasses.replace(camera, world_to_camera=world.float(), near=camera.near * to_world.scale)
+
+
+def test_a_ply_exported_in_the_world_frame_renders_the_same_from_the_same_camera_in_that_frame(tmp_path):
+    model = _model()
+    to_world = WorldTransform(TURN, torch.tensor([10.0, -3.0, 2.0], dtype=torch.float64), 2.5)
+    save_ply(model, tmp_path / "splat.ply", to_world)
+    exported = load_ply(tmp_path / "splat.ply", ModelConfig())
+
+    torch.testing.assert_close(exported.means.double(), to_world.points(model.means), atol=1e-5, rtol=1e-6)
+    torch.testing.assert_close(exported.log_scales, model.log_scales + math.log(2.5))
+    K = torch.tensor([[40.0, 0, 24], [0, 40.0, 20], [0, 0, 1]])
+    for position in ([0.3, -2.0, 0.4], [-1.5, 0.5, -1.2]):
+        center = torch.tensor(position)
+        forward = -center / center.norm()
+        right = torch.linalg.cross(forward, torch.tensor([0.0, 0.0, 1.0]))
+        right = right / right.norm()
+        R = torch.stack([right, torch.linalg.cross(forward, right), forward])
+        w2c = torch.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = R, -R @ center
+        camera = Camera(K, w2c, 48, 40)
+        before = model.render(camera, 3, torch.zeros(3), with_uncertainty=True)
+        after = exported.render(_camera_in_world(camera, to_world), 3, torch.zeros(3), with_uncertainty=True)
+        assert float(before.alpha.detach().mean()) > 0.1  # the view sees the Gaussians
+        torch.testing.assert_close(after.rgb, before.rgb, atol=2e-4, rtol=0)
+        torch.testing.assert_close(after.uncertainty, before.uncertainty, atol=2e-4, rtol=0)
+        torch.testing.assert_close(after.depth, before.depth * 2.5, atol=2e-3, rtol=1e-4)
