@@ -29,7 +29,7 @@ from rich.console import Console
 
 from splatu.baselines import UncertaintyMethod, UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
-from splatu.data.scene import Views
+from splatu.data.scene import Views, on_background
 from splatu.errors import SplatuError, writable_dir
 from splatu.figures import (
     DEPTH_CMAP,
@@ -144,7 +144,10 @@ def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[Render
         view = RenderedView(name, maps)
         if spec.views is not None and spec.indices is not None:
             i = spec.indices[k]
-            view.gt = spec.views.images[i].double().numpy()
+            gt = spec.views.images[i]
+            if spec.views.alphas is not None:
+                gt = on_background(gt, spec.views.alphas[i], spec.views.alpha_background, source.background)
+            view.gt = gt.double().numpy()
             if spec.views.masks is not None:
                 view.mask = spec.views.masks[i].bool().numpy().reshape(view.gt.shape[:2])
             if spec.views.observed is not None:

@@ -33,6 +33,9 @@ class UncertaintyRender:
 
 
 class UncertaintySource(Protocol):
-    """Anything that renders a camera into an `UncertaintyRender`."""
+    """Anything that renders a camera into an `UncertaintyRender` on `background` (targets with alpha are
+    composited on the same colour before they are compared)."""
+
+    background: Tensor
 
     def render(self, camera: Camera) -> UncertaintyRender: ...

@@ -100,3 +100,24 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     assert "shape (5, 5)" in _one_line_error(capsys, "--maps", str(root))
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
     assert "exactly one" in _one_line_error(capsys)
+
+
+def test_rgba_ground_truth_is_composited_on_the_background_the_method_renders_on():
+    """An RGBA target loaded on white is scored on the render's (black) background, as training does."""
+    import torch
+
+    from splatu.baselines.model_sources import OursSource
+    from splatu.model import GaussianModel, ModelConfig
+    from splatu.render_uncertainty import ViewSpec, render_views
+    from tests.unit.test_trainer import tiny_scene
+
+    views = tiny_scene(n_train=1, n_eval=2).eval
+    rgb, alpha = 0.6, 0.25
+    views.images = torch.full_like(views.images, rgb * alpha + 1.0 * (1 - alpha))  # composited on white at load
+    views.alphas = torch.full(views.images.shape[:3], alpha)
+    empty = GaussianModel.empty_like_config(0, ModelConfig(sh_degree=0))
+    source = OursSource(empty, 0, torch.zeros(3))
+    rendered, _ = render_views(source, ViewSpec(views.cameras, views.names, views, [0, 1]))
+    for view in rendered:
+        np.testing.assert_allclose(view.gt, rgb * alpha, atol=1e-6)
+        np.testing.assert_allclose(view.maps["rgb"], 0.0, atol=1e-12)
