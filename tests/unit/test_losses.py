@@ -155,7 +155,7 @@ def test_uncertainty_loss_only_moves_u_sh_and_photometric_loss_never_does():
 def test_no_supervised_gaussian_gives_zero_with_a_gradient_path():
     model, camera = _single_gaussian(u_degree=1)
     raster = model.render(camera, 0, torch.zeros(3)).raster
-    loss = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(threshold=1.0))
+    loss = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(kind="antipodal", threshold=1.0))
     assert float(loss.detach()) == 0.0 and loss.requires_grad
     loss.backward()
     assert not model.u_sh.grad.any()
@@ -164,8 +164,9 @@ def test_no_supervised_gaussian_gives_zero_with_a_gradient_path():
 def test_loss_weight_scales_the_loss():
     model, camera = _single_gaussian(u_degree=1)
     raster = model.render(camera, 0, torch.zeros(3)).raster
-    base = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig()).detach()
-    doubled = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(weight=2.0)).detach()
+    base = uncertainty_loss(model, camera.center(), raster, UncertaintyLossConfig(kind="antipodal")).detach()
+    doubled = uncertainty_loss(model, camera.center(), raster,
+                               UncertaintyLossConfig(kind="antipodal", weight=2.0)).detach()
     u = torch.sigmoid(torch.tensor(2.0))
     assert float(base) == pytest.approx(0.7 * float(u) + 0.3 * (1 - float(u)), abs=1e-5)
     assert float(doubled) == pytest.approx(2 * float(base), rel=1e-6)
