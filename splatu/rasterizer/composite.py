@@ -19,6 +19,7 @@ The backward walks the chunks in reverse, carrying each pixel's Σ w g of the ch
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -95,6 +96,7 @@ class Segments:
 
 
 def segments(block: Tensor) -> Segments:
+    """The runs of equal block ids in a block-sorted entry list (a chunk, or its live entries)."""
     starts = torch.ones_like(block, dtype=torch.bool)
     starts[1:] = block[1:] != block[:-1]
     block_first = torch.nonzero(starts).squeeze(1)
@@ -105,7 +107,7 @@ def segments(block: Tensor) -> Segments:
                     block.index_select(0, block_first), block_first, block_last)
 
 
-def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int):
+def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int) -> Iterator[slice | Tensor]:
     """Yield the entry positions to composite, round by round, in pieces of about max_elements (Q·B).
 
     From the second round on, blocks whose in-image pixels all have log T < ln 1e-4 are skipped;
@@ -129,6 +131,7 @@ def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements:
 
 
 def take(values: Tensor, positions: slice | Tensor) -> Tensor:
+    """values[positions]: a view for a slice, index_select (much faster than x[idx] on CPU) for a tensor."""
     return values[positions] if isinstance(positions, slice) else values.index_select(0, positions)
 
 
