@@ -56,9 +56,17 @@ class GaussianGrads:
 
     packed: Tensor
 
+    WIDTHS = (1, 3, 2, 2)
+    """Columns after the C+2 feature gradients: opacity, conic, means2d, absgrad."""
+
+    @classmethod
+    def zeros(cls, like: Tensor, channels_ext: int) -> GaussianGrads:
+        """Zero accumulators for the N Gaussians of `like` (N, ·), in its dtype and device."""
+        return cls(like.new_zeros(like.shape[0], channels_ext + sum(cls.WIDTHS)))
+
     def split(self, channels_ext: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """(features_ext, opacities, conics, means2d, absgrad) views."""
-        f, o, c, m, a = self.packed.split([channels_ext, 1, 3, 2, 2], dim=1)
+        f, o, c, m, a = self.packed.split([channels_ext, *self.WIDTHS], dim=1)
         return f, o.squeeze(1), c, m, a
 
 

@@ -96,8 +96,7 @@ class CompositeFunction(torch.autograd.Function):
         up_image = up_ext[:, :, :channels]
         behind = (ctx.t_final * (up_image * background).sum(-1)).to(torch.float64)
         channels_ext = features_ext.shape[1]
-        grads = GaussianGrads(torch.zeros(means2d.shape[0], channels_ext + 8, dtype=means2d.dtype,
-                                          device=means2d.device))
+        grads = GaussianGrads.zeros(means2d, channels_ext)
         for state in reversed(ctx.states):
             backward_chunk(entries, state, g, ctx.width, up_ext, behind, grads)
         grad_features_ext, grad_opacities, grad_conics, grad_means2d, absgrad = grads.split(channels_ext)
