@@ -11,7 +11,8 @@ one budget for all (the `fast` preset, or tiny overrides of it with --quick), so
 Rows: ours (antipodal, mean, weighted losses), ensemble-N (plain 3DGS members differing only
 in seed), visibility count, Fisher diagonal and random; the last three are computed on the
 ours (antipodal) model, whose geometry the uncertainty loss never touches, so only the
-uncertainty differs. Ablations (built-in scene): λ, the supervision threshold, u-SH degree.
+uncertainty differs. Ablations (built-in scene): λ and u-SH degree on the default (weighted) loss, the
+supervision threshold on the antipodal loss (the weighted loss has none).
 Every AUSE sits beside the random baseline and the oracle on the same images; the caption
 states grid, normalisation and aggregation. Writes benchmarks/results/uncertainty_study.{md,json}
 and plots (curves and speed against error) next to them.
@@ -120,7 +121,9 @@ def variants(budget: Budget, ensemble_size: int, main_rows: bool, ablations: boo
                     ensemble=True)]
     if ablations:
         rows += [Variant(f"ablation-lam-{v}", _uncertainty(lam=v)) for v in budget.lams]
-        rows += [Variant(f"ablation-threshold-{v}", _uncertainty(threshold=v)) for v in budget.thresholds]
+        # the weighted (default) loss has no threshold, so the threshold ablation is on the paper's loss
+        rows += [Variant(f"ablation-threshold-{v}-antipodal", _uncertainty(kind="antipodal", threshold=v))
+                 for v in budget.thresholds]
         rows += [Variant(f"ablation-u-degree-{d}",
                          lambda c, d=d: dataclasses.replace(c, model=dataclasses.replace(c.model, u_sh_degree=d)))
                  for d in budget.u_degrees]

@@ -60,6 +60,8 @@ from splatu.train_config import TrainConfig, from_dict, load_config, save_config
 from splatu.world_frame import WorldTransform
 
 console = Console(stderr=True)
+UNCERTAINTY_SEED_OFFSET = 7_919
+"""Offsets the uncertainty loss's seed from the geometry's, so the two streams differ."""
 
 
 @dataclass
@@ -70,6 +72,9 @@ class TrainState:
     optimizers: Optimizers
     density: DensityController
     generator: torch.Generator
+    """Backgrounds, density control and init: everything that shapes the geometry."""
+    uncertainty_generator: torch.Generator
+    """The uncertainty loss's own draws (`mean`'s directions), so that L_u never shifts the geometry's stream."""
     scene_extent: float
     to_world: WorldTransform
     """The scene's normalised → original frame; fixed, stored so exports land in the data's frame."""
@@ -207,7 +212,8 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     loss = photometric_loss(render.rgb, target, config.ssim_lambda)
     u_loss = torch.zeros(())
     if not config.uncertainty.off:
-        u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty, state.generator)
+        u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
+                                  state.uncertainty_generator)
         loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
     loss.backward()
 
@@ -283,6 +289,7 @@ def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
         "optimizers": state.optimizers.state_dict(),
         "density": state.density.state_dict(),
         "rng": capture_rng(state.generator),
+        "uncertainty_rng": state.uncertainty_generator.get_state(),
         "scene_extent": state.scene_extent,
         "world_transform": state.to_world.state_dict(),
         "nonfinite_streak": state.nonfinite_streak,
@@ -304,7 +311,12 @@ def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
     model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator)
     optimizers = Optimizers(model, config.optim, extent, config.steps)
     density = DensityController(config.densify, extent, generator)
-    return TrainState(model, optimizers, density, generator, extent, scene_to_world(scene))
+    return TrainState(model, optimizers, density, generator, uncertainty_generator(config.seed), extent,
+                      scene_to_world(scene))
+
+
+def uncertainty_generator(seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed + UNCERTAINTY_SEED_OFFSET)
 
 
 def scene_to_world(scene: Scene) -> WorldTransform:
@@ -327,7 +339,11 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene
     restore_rng(checkpoint["rng"], generator)
     density = DensityController(config.densify, extent, generator)
     density.load_state_dict(checkpoint["density"])
-    return TrainState(model, optimizers, density, generator, extent, to_world, step=int(checkpoint["step"]),
+    u_generator = uncertainty_generator(config.seed)
+    if "uncertainty_rng" in checkpoint:  # absent in checkpoints written before L_u had its own stream
+        u_generator.set_state(checkpoint["uncertainty_rng"])
+    return TrainState(model, optimizers, density, generator, u_generator, extent, to_world,
+                      step=int(checkpoint["step"]),
                       nonfinite_streak=int(checkpoint["nonfinite_streak"]),
                       train_seconds=float(checkpoint["train_seconds"]))
 

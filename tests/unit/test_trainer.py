@@ -110,19 +110,24 @@ def test_one_training_step_decreases_the_loss(tmp_path):
     assert loss_now() < before
 
 
+def _mean_loss(config: TrainConfig) -> TrainConfig:
+    """The `mean` uncertainty loss: the one that draws random numbers, from its own stream."""
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, kind="mean"))
+
+
 def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path, scene):
-    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    full_dir = trainer.train(_mean_loss(tiny_config(tmp_path / "a")))
 
     def ctrl_c_at_7(step, state):
         if step == 7:
             raise KeyboardInterrupt
 
     with pytest.raises(trainer.TrainingInterrupted, match="resume with"):
-        trainer.train(tiny_config(tmp_path / "b", checkpoint_every=0), hooks=[ctrl_c_at_7])
+        trainer.train(_mean_loss(tiny_config(tmp_path / "b", checkpoint_every=0)), hooks=[ctrl_c_at_7])
     interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000007.pt"]
 
-    resumed_dir = trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=interrupted_dir))
+    resumed_dir = trainer.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=interrupted_dir))
     assert resumed_dir == interrupted_dir
     full, resumed = losses_of(full_dir), losses_of(resumed_dir)
     assert sorted(resumed) == list(range(1, 13))
@@ -192,6 +197,24 @@ def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000005.pt"]
     state = read_checkpoint(list_checkpoints(run_dir)[-1])
     assert all(torch.isfinite(v).all() for v in state["model"].values())
+
+
+def test_the_uncertainty_loss_never_changes_the_geometry(tmp_path, scene):
+    """Every L_u kind, and none, train the same Gaussians: L_u reaches only u_sh and draws from its own stream,
+    so the study's rows (and visibility / Fisher on top of them) compare uncertainty on one reconstruction."""
+    models = {}
+    for kind in ("antipodal", "mean", "weighted", "off"):
+        config = tiny_config(tmp_path / kind, checkpoint_every=0)
+        config = dataclasses.replace(config, uncertainty=dataclasses.replace(
+            config.uncertainty, off=kind == "off", kind="antipodal" if kind == "off" else kind))
+        models[kind] = load_run(trainer.train(config))[1]
+    reference = models.pop("off")
+    assert len(reference) != len(scene.points)  # densification ran, so its random draws were compared too
+    for kind, model in models.items():
+        for name in GaussianModel.PARAM_NAMES:
+            if name != "u_sh":
+                assert torch.equal(getattr(model, name), getattr(reference, name)), (kind, name)
+        assert not torch.equal(model.u_sh, reference.u_sh), kind  # ...while each kind trained its own u_sh
 
 
 def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
