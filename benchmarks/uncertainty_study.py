@@ -111,7 +111,7 @@ def _uncertainty(**changes: Any) -> Callable[[TrainConfig], TrainConfig]:
     return lambda c: dataclasses.replace(c, uncertainty=dataclasses.replace(c.uncertainty, **changes))
 
 
-def variants(budget: Budget, ensemble_size: int, main_rows: bool, ablations: bool) -> list[Variant]:
+def variants(ensemble_size: int, main_rows: bool, ablation: Variant | None) -> list[Variant]:
     rows = [] if not main_rows else [Variant("ours-antipodal", _uncertainty(kind="antipodal")),
             Variant("ours-mean", _uncertainty(kind="mean")),
             Variant("ours-weighted", _uncertainty(kind="weighted")),
@@ -119,15 +119,28 @@ def variants(budget: Budget, ensemble_size: int, main_rows: bool, ablations: boo
                     lambda c: dataclasses.replace(c, method="ensemble", ensemble=ensemble_size,
                                                   uncertainty=dataclasses.replace(c.uncertainty, off=True)),
                     ensemble=True)]
-    if ablations:
-        rows += [Variant(f"ablation-lam-{v}", _uncertainty(lam=v)) for v in budget.lams]
-        # the weighted (default) loss has no threshold, so the threshold ablation is on the paper's loss
-        rows += [Variant(f"ablation-threshold-{v}-antipodal", _uncertainty(kind="antipodal", threshold=v))
-                 for v in budget.thresholds]
-        rows += [Variant(f"ablation-u-degree-{d}",
-                         lambda c, d=d: dataclasses.replace(c, model=dataclasses.replace(c.model, u_sh_degree=d)))
-                 for d in budget.u_degrees]
-    return rows
+    return rows if ablation is None else [*rows, ablation]
+
+
+def ablations(budget: Budget, default_degree: int) -> tuple[Variant, dict[str, str | None]]:
+    """ONE training whose extra uncertainty heads are the ablation settings, and row name → head (None: the
+    run's own head, the weighted loss at the highest degree).
+
+    L_u never moves the geometry, so each head is the u_sh a separate run would learn (tests/unit/test_trainer.py
+    checks this): every ablation shares one training. λ and the degree vary the default (weighted) loss at the
+    default degree; the threshold varies the paper's antipodal loss, since the weighted loss has none.
+    """
+    top = max((*budget.u_degrees, default_degree))
+    rows: dict[str, str | None] = {f"ablation-u-degree-{d}": None if d == top else f"degree={d}"
+                                   for d in sorted({*budget.u_degrees, default_degree})}
+    rows |= {f"ablation-lam-{v}": f"lam={v},degree={default_degree}" for v in budget.lams}
+    rows |= {f"ablation-threshold-{v}-antipodal": f"kind=antipodal,threshold={v},degree={default_degree}"
+             for v in budget.thresholds}
+    heads = tuple(head for head in rows.values() if head is not None)
+    run = Variant("ablations", lambda c: dataclasses.replace(
+        c, model=dataclasses.replace(c.model, u_sh_degree=top),
+        uncertainty=dataclasses.replace(c.uncertainty, kind="weighted", extra_heads=heads)))
+    return run, rows
 
 
 def base_config(budget: Budget, data: DataConfig) -> TrainConfig:
@@ -164,9 +177,9 @@ def train_variant(variant: Variant, config: TrainConfig, scene: Scene, run_dir: 
     return wall
 
 
-def score(run_dir: Path, method: UncertaintyMethod, scene: Scene) -> dict[str, Any]:
-    """Render the eval block with `method`, score it, and time the render."""
-    run = load_any_run(run_dir)
+def score(run_dir: Path, method: UncertaintyMethod, scene: Scene, head: str | None = None) -> dict[str, Any]:
+    """Render the eval block with `method` (and uncertainty `head`), score it, and time the render."""
+    run = load_any_run(run_dir, head)
     built = build_method(method, run, scene)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=run_dir))
     views, seconds = render_views(built.source, spec)
@@ -190,13 +203,17 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     config = base_config(budget, data)
     root = args.output_dir / ("quick" if args.quick else "full") / scene_name
     rows: dict[str, dict[str, Any]] = {}
-    for variant in variants(budget, args.ensemble_size, args.main_rows, args.ablations and scene_name == "poster"):
+    ablation, ablation_rows = ablations(budget, config.model.u_sh_degree)
+    chosen = ablation if args.ablations and scene_name == "poster" else None
+    for variant in variants(args.ensemble_size, args.main_rows, chosen):
         wall = train_variant(variant, config, scene, root / variant.name)
         method: UncertaintyMethod = "ensemble" if variant.ensemble else "ours"
-        row = score(root / variant.name, method, scene)
-        rows[variant.name] = {**row, "train_seconds": wall, "method": method}
-        print(f"  {variant.name}: AUSE-MAE {row['mean']['ause_mae']:.3f} (random {row['mean']['random_ause_mae']:.3f})"
-              f", PSNR {row['psnr']:.2f}, train {wall:.0f} s")
+        heads = ablation_rows if variant is ablation else {variant.name: None}
+        for name, head in heads.items():
+            row = score(root / variant.name, method, scene, head)
+            rows[name] = {**row, "train_seconds": wall, "method": method, "head": head}
+            print(f"  {name}: AUSE-MAE {row['mean']['ause_mae']:.3f} (random {row['mean']['random_ause_mae']:.3f})"
+                  f", PSNR {row['psnr']:.2f}, train {wall:.0f} s")
     for method in BASELINES_ON_OURS if args.main_rows else ():
         row = score(root / "ours-antipodal", method, scene)
         rows[method] = {**row, "train_seconds": rows["ours-antipodal"]["train_seconds"] + row["setup_seconds"],
@@ -242,7 +259,10 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
              "the oracle curve (its AUSE is 0 by construction); "
              "start-norm = curves divided by O(0) instead of the joint max (exposes anti-correlation). "
              "visibility / Fisher / random use the ours (antipodal) model; their train time adds their "
-             "post-training cost. PSNR: mean over eval images (ensemble: the members' mean render).", ""]
+             "post-training cost. PSNR: mean over eval images (ensemble: the members' mean render). "
+             "Ablation rows are the extra uncertainty heads of ONE training (its wall time in every row): L_u never "
+             "moves the geometry, so each head is what a separate run with that setting learns "
+             "(ablation-u-degree-1 reproduces ours-weighted).", ""]
     all_targets = []
     for scene_name, scene in results["scenes"].items():
         rows = scene["rows"]
@@ -273,7 +293,7 @@ def plots(results: dict[str, Any], out_dir: Path) -> None:
         main = {n: r["curve"] for n, r in rows.items() if not n.startswith("ablation-")}
         plot_sparsification(out_dir / f"uncertainty_study_{scene_name}_curves.png", main,
                             f"{scene_name}: {A.CAPTION}, curves / O(0)", "mae")
-        trained = {n: r for n, r in rows.items() if n not in BASELINES_ON_OURS}
+        trained = {n: r for n, r in rows.items() if n not in BASELINES_ON_OURS and not n.startswith("ablation-")}
         plot_speed_against_error(out_dir / f"uncertainty_study_{scene_name}_speed.png",
                                  {n: r["train_seconds"] for n, r in trained.items()},
                                  {n: r["mean"]["ause_mae"] for n, r in trained.items()},

@@ -9,6 +9,7 @@ Adam moments is tens of MB.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import random
@@ -20,7 +21,9 @@ import numpy as np
 import torch
 
 from splatu.errors import SplatuError
+from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
+from splatu.sh import num_sh_bases
 from splatu.train_config import TrainConfig, from_dict
 
 CHECKPOINT_DIR = "checkpoints"
@@ -134,7 +137,8 @@ def restore_rng(state: dict[str, Any], generator: torch.Generator) -> None:
 
 
 def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianModel:
-    model = GaussianModel.empty_like_config(int(state["num_gaussians"]), config.model)
+    model = GaussianModel.empty_like_config(int(state["num_gaussians"]), config.model,
+                                            1 + len(config.uncertainty.extra_heads))
     try:
         model.load_state_dict(state["model"])
     except RuntimeError as err:  # shapes that do not match the saved config (e.g. another SH degree)
@@ -144,12 +148,34 @@ def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianMode
     return model
 
 
-def load_run(run_dir: Path) -> tuple[TrainConfig, GaussianModel]:
-    """The config and trained model of a run (its newest checkpoint), for rendering and evaluation."""
+def load_run(run_dir: Path, head: str | None = None) -> tuple[TrainConfig, GaussianModel]:
+    """The config and trained model of a run (its newest checkpoint), for rendering and evaluation; with `head`,
+    as if the run had trained only that extra uncertainty head (see `select_head`)."""
     run_dir = Path(run_dir)
     if (run_dir / "ensemble.json").is_file():
         raise SplatuError("this is an ensemble run; it has one model per member", f"in {run_dir}",
                           "load each run listed in its ensemble.json")
     state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)
     config = from_dict(state["config"], str(run_dir))
-    return config, model_from_state(state, config)
+    model = model_from_state(state, config)
+    return (config, model) if head is None else select_head(config, model, head, run_dir)
+
+
+def select_head(config: TrainConfig, model: GaussianModel, head: str, run_dir: Path) -> tuple[TrainConfig,
+                                                                                                 GaussianModel]:
+    """The config and model of a run that trained only extra head `head`: the same Gaussians, u_sh = that
+    head's channel at its degree, and the head's loss settings in the config."""
+    heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+    names = [h.name for h in heads[1:]]
+    if head not in names:
+        raise SplatuError(f"no uncertainty head {head!r} in this run", f"in {run_dir}",
+                          f"pass one of: {', '.join(repr(n) for n in names)}" if names
+                          else "drop --head: this run trained no extra heads")
+    channel = names.index(head) + 1
+    chosen = heads[channel]
+    model_cfg = dataclasses.replace(config.model, u_sh_degree=chosen.degree)
+    u_sh = model.u_sh.detach()[:, :num_sh_bases(chosen.degree), channel:channel + 1]
+    selected = GaussianModel(model.means.detach(), model.quats.detach(), model.log_scales.detach(),
+                             model.opacity_logits.detach(), model.sh_dc.detach(), model.sh_rest.detach(), u_sh,
+                             model_cfg)
+    return dataclasses.replace(config, model=model_cfg, uncertainty=chosen.loss), selected

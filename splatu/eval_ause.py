@@ -36,6 +36,9 @@ class EvalAuseConfig:
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
     method: UncertaintyMethod = "ours"
     """With --load: which uncertainty to score (ours, ensemble, visibility, fisher, random)."""
+    head: str | None = None
+    """With --load and --method ours: one of the run's extra uncertainty heads (its spec, as given to
+    --uncertainty.extra-heads); default: the run's own."""
     density_aware: bool = False
     """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
     metric: A.Metric = "mae"
@@ -118,12 +121,14 @@ def run(config: EvalAuseConfig) -> None:
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:
-        from splatu.render_uncertainty import render_eval_maps
+        from splatu.render_uncertainty import output_label, render_eval_maps
 
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)
-        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, data=config.data)
-        output = config.output or config.load / f"ause_{config.method}.json"
-        report = evaluate_maps(maps_dir, config.metric, config.method, output)
+        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, data=config.data,
+                                    head=config.head)
+        label = output_label(config.method, config.head)
+        output = config.output or config.load / f"ause_{label}.json"
+        report = evaluate_maps(maps_dir, config.metric, label, output)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}")

@@ -7,6 +7,7 @@ the photometric loss never reaches `u_sh`, because training renders without the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
@@ -16,7 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from splatu.errors import SplatuError
-from splatu.sh import eval_sh, safe_normalize
+from splatu.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases, safe_normalize
 
 if TYPE_CHECKING:
     from splatu.model import GaussianModel
@@ -120,6 +121,11 @@ class UncertaintyLossConfig:
     """Number of random unit directions that estimate ū (kind = mean)."""
     weight: float = 1.0
     """Scale of the uncertainty loss in the total loss."""
+    extra_heads: tuple[str, ...] = ()
+    """More uncertainty heads trained in the same run, each these settings with overrides, e.g. "lam=0.1",
+    "kind=antipodal,threshold=0.2" or "degree=0" (keys: kind, lam, threshold, num_dirs, degree ≤ the model's
+    u_sh_degree). Each head is one more channel of u_sh. L_u never moves the geometry, so a head learns the u_sh
+    a separate run with its settings would (to float32 rounding): an ablation costs one training, not one each."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -138,11 +144,58 @@ class UncertaintyLossConfig:
         if not (math.isfinite(self.weight) and self.weight >= 0.0):
             raise SplatuError(f"uncertainty weight = {self.weight} is not a finite non-negative number",
                               "--uncertainty.weight", "use e.g. 1.0")
+        for spec in self.extra_heads:
+            parse_head(spec, self, MAX_SH_DEGREE)
+
+
+@dataclass(frozen=True)
+class UncertaintyHead:
+    """One channel of u_sh and the loss settings that train it."""
+
+    name: str
+    loss: UncertaintyLossConfig
+    degree: int
+
+
+HEAD_KEYS = ("kind", "lam", "threshold", "num_dirs", "degree")
+
+
+def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> UncertaintyHead:
+    """The head `spec` ("key=value,key=value") describes: `base` with those values replaced."""
+    flag = "--uncertainty.extra-heads"
+    values: dict[str, str] = {}
+    for item in spec.split(","):
+        key, sep, value = (part.strip() for part in item.partition("="))
+        if not sep or key not in HEAD_KEYS or key in values:
+            raise SplatuError(f"bad uncertainty head {spec!r} (at {item.strip()!r})", flag,
+                              f"write key=value pairs joined by commas, keys from {', '.join(HEAD_KEYS)}")
+        values[key] = value
+    try:
+        degree = int(values.pop("degree", max_degree))
+        typed = {k: v if k == "kind" else int(v) if k == "num_dirs" else float(v) for k, v in values.items()}
+    except ValueError:
+        raise SplatuError(f"bad number in uncertainty head {spec!r}", flag, "e.g. lam=0.1,degree=2") from None
+    if typed.get("kind", base.kind) not in ("antipodal", "mean", "weighted"):
+        raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", flag, "use antipodal, mean or weighted")
+    if not 0 <= degree <= max_degree:
+        raise SplatuError(f"uncertainty head {spec!r} asks for degree {degree}", flag,
+                          f"use a degree from 0 to {max_degree} (raise --model.u-sh-degree for more)")
+    try:
+        loss = dataclasses.replace(base, extra_heads=(), **typed)
+    except SplatuError as err:  # name the head, not the run's own flag
+        raise SplatuError(f"{err.what} in uncertainty head {spec!r}", flag, err.fix) from None
+    return UncertaintyHead(spec, loss, degree)
+
+
+def uncertainty_heads(cfg: UncertaintyLossConfig, model_degree: int) -> list[UncertaintyHead]:
+    """Channel 0 is the run's own settings at the model's degree; then one per extra head, in order."""
+    own = UncertaintyHead("own", dataclasses.replace(cfg, extra_heads=()), model_degree)
+    return [own, *(parse_head(spec, cfg, model_degree) for spec in cfg.extra_heads)]
 
 
 def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: RasterOutput, cfg: UncertaintyLossConfig,
                      generator: torch.Generator | None = None) -> Tensor:
-    """L_u for one training view (REFERENCE §1), already scaled by `cfg.weight`.
+    """L_u for one training view (REFERENCE §1), summed over the uncertainty heads, each scaled by its weight.
 
     antipodal: mean over supervised i of (1−λ)·u_i(d) + λ·(1 − u_i(−d)).
     mean:      u_i(−d) replaced by ū_i, the mean of u_i over `num_dirs` random unit directions (shared by all
@@ -151,18 +204,29 @@ def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: Raster
                with w_i = its max blend weight in [0, 1] (contrib_max: bounded, and unlike the summed weight it
                does not grow with the Gaussian's screen size). A faint Gaussian is pulled towards certain only
                faintly, so it stays uncertain; no hard threshold.
-    d = normalize(mean − camera centre) is detached, so only `u_sh` receives gradient. With nothing supervised
-    the result is 0 but still connected to `u_sh`, so callers can add it unconditionally.
+    d = normalize(mean − camera centre) is detached, so only `u_sh` receives gradient; head h reads only
+    channel h, so the heads never mix. With nothing supervised the result is 0 but still connected to `u_sh`,
+    so callers can add it unconditionally.
     """
     cfg.validate()
+    total = model.u_sh.sum() * 0.0
+    for channel, head in enumerate(uncertainty_heads(cfg, model.cfg.u_sh_degree)):
+        u_sh = model.u_sh[:, :num_sh_bases(head.degree), channel:channel + 1]
+        total = total + _head_loss(u_sh, head, model.means.detach(), camera_center, raster, generator)
+    return total
+
+
+def _head_loss(u_sh: Tensor, head: UncertaintyHead, means: Tensor, camera_center: Tensor, raster: RasterOutput,
+               generator: torch.Generator | None) -> Tensor:
+    """One head's L_u (see `uncertainty_loss`), scaled by its weight; 0 when it supervises nothing."""
+    cfg, degree = head.loss, head.degree
     weights = raster.contrib_max.detach()
     cutoff = MIN_VISIBLE_WEIGHT if cfg.kind == "weighted" else cfg.threshold
     selected = torch.nonzero(weights >= cutoff).squeeze(-1)
     if selected.numel() == 0:
-        return model.u_sh.sum() * 0.0
-    u_sh = model.u_sh[selected]
-    degree = model.cfg.u_sh_degree
-    dirs = safe_normalize(model.means.detach()[selected] - camera_center.detach().to(model.means))
+        return u_sh.sum() * 0.0
+    u_sh = u_sh[selected]
+    dirs = safe_normalize(means[selected] - camera_center.detach().to(means))
 
     def u(directions: Tensor) -> Tensor:
         return torch.sigmoid(eval_sh(u_sh, directions, degree)).squeeze(-1)

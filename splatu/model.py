@@ -2,7 +2,8 @@
 
 Every per-Gaussian quantity is a row of one of the `PARAM_NAMES` parameters, so density
 control and checkpoints only ever edit rows of these seven tensors (see `splatu.optim`).
-Uncertainty seen along unit direction d is u(d) = sigmoid(Σ_k u_sh[k]·Y_k(d)) (REFERENCE §1).
+Uncertainty seen along unit direction d is u(d) = sigmoid(Σ_k u_sh[k]·Y_k(d)) (REFERENCE §1). `u_sh` has one
+channel per uncertainty head (see `losses.uncertainty_heads`); channel 0 is the run's own, the one rendered.
 """
 
 from __future__ import annotations
@@ -80,9 +81,11 @@ class GaussianModel(torch.nn.Module):
         super().__init__()
         cfg.validate()
         n = means.shape[0]
+        heads = max(u_sh.shape[-1], 1) if u_sh.dim() == 3 else 1  # any number of uncertainty heads, at least one
         expected = {
             "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh_dc": (n, 1, 3),
-            "sh_rest": (n, num_sh_bases(cfg.sh_degree) - 1, 3), "u_sh": (n, num_sh_bases(cfg.u_sh_degree), 1),
+            "sh_rest": (n, num_sh_bases(cfg.sh_degree) - 1, 3),
+            "u_sh": (n, num_sh_bases(cfg.u_sh_degree), heads),
         }
         given = {"means": means, "quats": quats, "log_scales": log_scales, "opacity_logits": opacity_logits,
                  "sh_dc": sh_dc, "sh_rest": sh_rest, "u_sh": u_sh}
@@ -100,7 +103,7 @@ class GaussianModel(torch.nn.Module):
 
     @classmethod
     def from_points(cls, points: Tensor, colors: Tensor | None, cfg: ModelConfig,
-                    generator: torch.Generator) -> GaussianModel:
+                    generator: torch.Generator, u_heads: int = 1) -> GaussianModel:
         """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation."""
         cfg.validate()
         points = points.detach().to(torch.float32, copy=True).reshape(-1, 3)  # never alias the scene's points
@@ -123,15 +126,15 @@ class GaussianModel(torch.nn.Module):
         opacity_logits = torch.full((n,), math.log(cfg.init_opacity / (1.0 - cfg.init_opacity)))
         sh_dc = rgb_to_sh(colors.clamp(0.0, 1.0)).unsqueeze(1)
         sh_rest = torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3)
-        return cls(points, quats, log_scales, opacity_logits, sh_dc, sh_rest, initial_u_sh(n, cfg), cfg)
+        return cls(points, quats, log_scales, opacity_logits, sh_dc, sh_rest, initial_u_sh(n, cfg, u_heads), cfg)
 
     @classmethod
-    def empty_like_config(cls, n: int, cfg: ModelConfig) -> GaussianModel:
-        """A model of `n` zero rows with the shapes `cfg` implies, to load a checkpoint into."""
+    def empty_like_config(cls, n: int, cfg: ModelConfig, u_heads: int = 1) -> GaussianModel:
+        """A model of `n` zero rows with the shapes `cfg` and `u_heads` imply, to load a checkpoint into."""
         cfg.validate()
         return cls(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3), torch.zeros(n), torch.zeros(n, 1, 3),
                    torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3),
-                   torch.zeros(n, num_sh_bases(cfg.u_sh_degree), 1), cfg)
+                   torch.zeros(n, num_sh_bases(cfg.u_sh_degree), u_heads), cfg)
 
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -141,8 +144,8 @@ class GaussianModel(torch.nn.Module):
         return self.means - camera.center().to(self.means)
 
     def uncertainty(self, dirs: Tensor) -> Tensor:
-        """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length."""
-        return torch.sigmoid(eval_sh(self.u_sh, dirs, self.cfg.u_sh_degree)).squeeze(-1)
+        """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length (channel 0)."""
+        return torch.sigmoid(eval_sh(self.u_sh[..., :1], dirs, self.cfg.u_sh_degree)).squeeze(-1)
 
     def colors(self, dirs: Tensor, sh_degree: int) -> Tensor:
         """(N, 3) colour seen along `dirs`: max(SH(d) + 0.5, 0), the 3DGS convention."""
@@ -178,10 +181,10 @@ class GaussianModel(torch.nn.Module):
         return ModelRender(image[..., :3], raster.alpha, raster.depth, uncertainty, extra, raster)
 
 
-def initial_u_sh(n: int, cfg: ModelConfig) -> Tensor:
-    """(n, Ku, 1) uncertainty SH that is sigmoid(u_init_logit) in every direction."""
-    u_sh = torch.zeros(n, num_sh_bases(cfg.u_sh_degree), 1)
-    u_sh[:, 0, 0] = cfg.u_init_logit / C0
+def initial_u_sh(n: int, cfg: ModelConfig, heads: int = 1) -> Tensor:
+    """(n, Ku, heads) uncertainty SH that is sigmoid(u_init_logit) in every direction."""
+    u_sh = torch.zeros(n, num_sh_bases(cfg.u_sh_degree), heads)
+    u_sh[:, 0, :] = cfg.u_init_logit / C0
     return u_sh
 
 

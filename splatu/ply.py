@@ -51,7 +51,7 @@ def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None
             model.opacity_logits.detach().float().reshape(n, 1),
             model.log_scales.detach().float(),
             model.quats.detach().float(),
-            model.u_sh.detach().float().reshape(n, -1),
+            model.u_sh.detach().float()[..., 0],  # the run's own head; extra (ablation) heads stay in checkpoints
         ]
         data = torch.cat(columns, dim=1).cpu().numpy().astype("<f4")
     if not np.isfinite(data).all():

@@ -57,6 +57,9 @@ class RenderUncertaintyConfig:
     """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
     method: UncertaintyMethod = "ours"
     """Which uncertainty to render: ours, ensemble, visibility, fisher or random."""
+    head: str | None = None
+    """With --method ours: one of the run's extra uncertainty heads (its spec, as given to
+    --uncertainty.extra-heads); default: the run's own."""
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
     output: Path | None = None
@@ -237,11 +240,11 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     return scales
 
 
-def _load(load: Path, method: UncertaintyMethod):
+def _load(load: Path, method: UncertaintyMethod, head: str | None):
     """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
     from splatu.baselines.load import check_method, load_any_run
 
-    run = load_any_run(load)
+    run = load_any_run(load, head)
     check_method(method, run)
     return run
 
@@ -255,11 +258,17 @@ def _setup(run, method: UncertaintyMethod, data: str | None, density_aware: bool
     return scene, build_method(method, run, scene, density_aware, fisher_probes, seed)
 
 
+def output_label(method: UncertaintyMethod, head: str | None) -> str:
+    """The method's name in folder and file names: `ours-<head spec>` for an extra uncertainty head."""
+    return method if head is None else f"{method}-{head}"
+
+
 def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
-                     fisher_probes: int = 2, seed: int = 0, data: str | None = None) -> Path:
+                     fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None) -> Path:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
-    run = _load(load, method)
-    folder = writable_dir(Path(load) / "uncertainty" / f"{method}-eval", "run directory (--load writes maps there)")
+    run = _load(load, method, head)
+    folder = writable_dir(Path(load) / "uncertainty" / f"{output_label(method, head)}-eval",
+                          "run directory (--load writes maps there)")
     root = folder / "maps"
     scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
@@ -273,9 +282,10 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
 
 
 def run(config: RenderUncertaintyConfig) -> None:
-    run_info = _load(config.load, config.method)
+    run_info = _load(config.load, config.method, config.head)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    out = writable_dir(config.output or Path(config.load) / "uncertainty" / f"{config.method}-{config.views}",
+    label = output_label(config.method, config.head)
+    out = writable_dir(config.output or Path(config.load) / "uncertainty" / f"{label}-{config.views}",
                        "--output folder")
     clear_previous_render(out, config.output is None)
     scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,
@@ -284,7 +294,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     views, seconds = render_views(built.source, spec)
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
-        "method": config.method, "views": config.views, "density_aware": config.density_aware,
+        "method": config.method, "head": config.head, "views": config.views, "density_aware": config.density_aware,
         "train_seconds": run_info.train_seconds, "setup_seconds": built.setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],

@@ -50,7 +50,7 @@ from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views, on_background
 from splatu.densify import DensityController
 from splatu.errors import SplatuError
-from splatu.losses import photometric_loss, psnr, ssim, uncertainty_loss
+from splatu.losses import photometric_loss, psnr, ssim, uncertainty_heads, uncertainty_loss
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
@@ -308,7 +308,8 @@ def seed_everything(seed: int) -> torch.Generator:
 def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
     generator = seed_everything(config.seed)
     extent = scene_extent(scene.train.cameras)
-    model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator)
+    heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)  # validates each head's degree
+    model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator, len(heads))
     optimizers = Optimizers(model, config.optim, extent, config.steps)
     density = DensityController(config.densify, extent, generator)
     return TrainState(model, optimizers, density, generator, uncertainty_generator(config.seed), extent,
@@ -570,6 +571,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         run_dir = run_dir_of(path)
         train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)
         return run_dir
+    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)  # a bad head fails before the scene loads
     scene = load_scene(config.data)
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)
     point_latest(run_dir)

@@ -48,14 +48,17 @@ def _summary_seconds(run_dir: Path) -> float | None:
     return json.loads(path.read_text()).get("train_seconds")
 
 
-def load_any_run(run_dir: Path) -> LoadedRun:
-    """A single run via `load_run`, or every member listed in an ensemble run's ensemble.json."""
+def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
+    """A single run via `load_run` (with one of its extra uncertainty heads when `head` is given), or every
+    member listed in an ensemble run's ensemble.json."""
     run_dir = Path(run_dir)
     if (run_dir / "ensemble.json").is_file():
+        if head is not None:
+            raise SplatuError("--head needs a single run, this is an ensemble", f"in {run_dir}", "drop --head")
         record = read_ensemble(run_dir)
         loaded = [load_run(member) for member in record.members]
         return LoadedRun(run_dir, loaded[0][0], [model for _, model in loaded], record.wall_seconds)
-    config, model = load_run(run_dir)
+    config, model = load_run(run_dir, head)
     return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir))
 
 

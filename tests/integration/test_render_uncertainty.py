@@ -14,7 +14,7 @@ from splatu.camera import Camera
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
 from splatu.orbit import capture_frame, look_at, orbit_cameras
-from splatu.render_uncertainty import RenderUncertaintyConfig
+from splatu.render_uncertainty import RenderUncertaintyConfig, render_eval_maps
 
 
 def _ring(n: int = 12, radius: float = 2.0, height: float = 1.0) -> list[Camera]:
@@ -76,6 +76,8 @@ def test_default_orbit_stays_above_the_poster_floor_and_looks_up_from_below_the_
 # --- on a tiny trained stand-in ----------------------------------------------------------------
 
 TINY_STEPS = 80
+EXTRA_HEAD = "kind=antipodal,degree=0"
+"""An extra uncertainty head of the tiny run: a view-independent u, trained beside the run's own."""
 
 
 @pytest.fixture(scope="module")
@@ -98,6 +100,7 @@ def tiny_run(tmp_path_factory):
                                                             interp_every=6, points=2000)),
         densify=DensifyConfig(warmup_length=10, refine_every=10, stop_split_at=50, stop_screen_size_at=25,
                               max_gaussians=2500),
+        uncertainty=dataclasses.replace(base.uncertainty, extra_heads=(EXTRA_HEAD,)),
     )
     run_dir = trainer.train(config)
     yield run_dir
@@ -157,6 +160,22 @@ def test_eval_ause_load_scores_the_run_with_auroc(tiny_run):
     assert len(report["per_image"]) == 5
     # measured over training seeds 0, 1, 2: ours 0.396 / 0.379 / 0.364 against random 0.553 / 0.548 / 0.544
     assert mean["ause_mae"] < mean["random_ause_mae"]
+
+
+def test_an_extra_uncertainty_head_renders_and_scores_on_its_own(tiny_run, capsys):
+    entrypoint(["eval-ause", "--load", str(tiny_run), "--head", EXTRA_HEAD])
+    head = json.loads((tiny_run / f"ause_ours-{EXTRA_HEAD}.json").read_text())
+    assert head["method"] == f"ours-{EXTRA_HEAD}" and len(head["per_image"]) == 5
+    own_dir, extra_dir = (render_eval_maps(tiny_run, "ours", head=h) / "uncertainty" for h in (None, EXTRA_HEAD))
+    names = sorted(p.name for p in own_dir.glob("*.npy"))
+    assert names == sorted(p.name for p in extra_dir.glob("*.npy")) and len(names) == 5
+    own, extra = ([np.load(folder / n) for n in names] for folder in (own_dir, extra_dir))
+    assert all(np.isfinite(u).all() and u.min() >= 0.0 and u.max() <= 1.0 for u in extra)
+    assert any(not np.allclose(a, b) for a, b in zip(own, extra, strict=True))  # another u on the same Gaussians
+    with pytest.raises(SystemExit):
+        entrypoint(["render-uncertainty", "--load", str(tiny_run), "--head", "lam=0.2"])
+    err = capsys.readouterr().err
+    assert "no uncertainty head 'lam=0.2'" in err and EXTRA_HEAD in err and "Traceback" not in err
 
 
 def _moved_scene_run(tiny_run, tmp_path):

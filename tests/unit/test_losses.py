@@ -17,6 +17,7 @@ from splatu.losses import (
     psnr,
     ssim,
     ssim_map,
+    uncertainty_heads,
     uncertainty_loss,
 )
 from splatu.model import GaussianModel, ModelConfig
@@ -170,3 +171,24 @@ def test_loss_weight_scales_the_loss():
     u = torch.sigmoid(torch.tensor(2.0))
     assert float(base) == pytest.approx(0.7 * float(u) + 0.3 * (1 - float(u)), abs=1e-5)
     assert float(doubled) == pytest.approx(2 * float(base), rel=1e-6)
+
+
+@pytest.mark.parametrize(("spec", "message"), [
+    ("lam", "bad uncertainty head"), ("colour=1", "bad uncertainty head"), ("lam=0.1,lam=0.2", "bad uncertainty head"),
+    ("lam=abc", "bad number"), ("kind=median", "unknown loss kind"), ("degree=4", "asks for degree 4"),
+    ("lam=0.7", "not in \\[0, 0.5\\)"),
+])
+def test_a_bad_extra_head_is_a_one_line_user_error(spec, message):
+    with pytest.raises(SplatuError, match=message):
+        UncertaintyLossConfig(extra_heads=(spec,))
+
+
+def test_extra_heads_are_the_own_settings_with_overrides_in_their_own_channels():
+    cfg = UncertaintyLossConfig(kind="weighted", lam=0.3, extra_heads=("kind=antipodal,threshold=0.2", "degree=0"))
+    own, antipodal, constant = uncertainty_heads(cfg, model_degree=2)
+    assert (own.loss, own.degree) == (UncertaintyLossConfig(kind="weighted", lam=0.3), 2)
+    assert (antipodal.loss.kind, antipodal.loss.threshold, antipodal.loss.lam, antipodal.degree) == (
+        "antipodal", 0.2, 0.3, 2)
+    assert (constant.name, constant.loss.kind, constant.degree) == ("degree=0", "weighted", 0)
+    with pytest.raises(SplatuError, match=r"raise --model\.u-sh-degree"):
+        uncertainty_heads(UncertaintyLossConfig(extra_heads=("degree=3",)), model_degree=1)

@@ -119,3 +119,15 @@ def test_saving_a_non_finite_model_refuses_and_leaves_the_old_file(tmp_path):
     with pytest.raises(SplatuError):
         save_ply(model, path, IDENTITY)
     assert path.read_bytes() == before
+
+
+def test_a_model_with_extra_uncertainty_heads_exports_only_its_own(tmp_path):
+    cfg = ModelConfig(sh_degree=1, u_sh_degree=2)
+    model = GaussianModel.empty_like_config(12, cfg, u_heads=3)
+    with torch.no_grad():
+        for name in GaussianModel.PARAM_NAMES:
+            getattr(model, name).copy_(torch.randn(getattr(model, name).shape, generator=torch.Generator()))
+    save_ply(model, tmp_path / "heads.ply", IDENTITY)
+    loaded = load_ply(tmp_path / "heads.ply", cfg)
+    assert loaded.u_sh.shape == (12, 9, 1)
+    assert torch.equal(loaded.u_sh, model.u_sh[..., :1])
