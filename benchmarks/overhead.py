@@ -95,7 +95,8 @@ def isolated_loss_seconds(state: trainer.TrainState, config: TrainConfig, images
     seconds = []
     for _ in range(repeats):
         started = time.perf_counter()
-        uncertainty_loss(state.model, camera.center(), raster, config.uncertainty, state.generator).backward()
+        uncertainty_loss(state.model, camera.center(), raster, config.uncertainty,
+                         state.uncertainty_generators).backward()
         seconds.append(time.perf_counter() - started)
     state.optimizers.zero_grad()
     return seconds

@@ -21,6 +21,7 @@ and plots (curves and speed against error) next to them.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import sys
@@ -137,7 +138,9 @@ def ablations(budget: Budget, default_degree: int) -> tuple[Variant, dict[str, s
     rows |= {f"ablation-threshold-{v}-antipodal": f"kind=antipodal,threshold={v},degree={default_degree}"
              for v in budget.thresholds}
     heads = tuple(head for head in rows.values() if head is not None)
-    run = Variant("ablations", lambda c: dataclasses.replace(
+    # the settings are in the folder's name, so a study with other settings never reuses this training
+    digest = hashlib.sha1(repr((top, heads)).encode()).hexdigest()[:8]
+    run = Variant(f"ablations-{digest}", lambda c: dataclasses.replace(
         c, model=dataclasses.replace(c.model, u_sh_degree=top),
         uncertainty=dataclasses.replace(c.uncertainty, kind="weighted", extra_heads=heads)))
     return run, rows
@@ -262,7 +265,8 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
              "post-training cost. PSNR: mean over eval images (ensemble: the members' mean render). "
              "Ablation rows are the extra uncertainty heads of ONE training (its wall time in every row): L_u never "
              "moves the geometry, so each head is what a separate run with that setting learns "
-             "(ablation-u-degree-1 reproduces ours-weighted).", ""]
+             "(the degree row at the preset's u-SH degree has ours-weighted's settings, so it reproduces it).",
+             ""]
     all_targets = []
     for scene_name, scene in results["scenes"].items():
         rows = scene["rows"]

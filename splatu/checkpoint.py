@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from splatu.errors import SplatuError
-from splatu.losses import uncertainty_heads
+from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.sh import num_sh_bases
 from splatu.train_config import TrainConfig, from_dict
@@ -31,7 +31,8 @@ FORMAT = "splatu-checkpoint-v1"
 MODEL_KEYS = ("step", "config", "model", "num_gaussians")
 """What rendering and evaluation read from a checkpoint."""
 RESUME_KEYS = (*MODEL_KEYS, "optimizers", "density", "rng", "scene_extent", "nonfinite_streak", "train_seconds")
-"""Everything the trainer writes (trainer._checkpoint_state), all of which `--resume` needs."""
+"""What `--resume` needs of what the trainer writes (trainer._checkpoint_state); `world_transform` and
+`uncertainty_rng` are read when present (older checkpoints lack them)."""
 KEEP_CHECKPOINTS = 2
 
 
@@ -166,12 +167,15 @@ def select_head(config: TrainConfig, model: GaussianModel, head: str, run_dir: P
     """The config and model of a run that trained only extra head `head`: the same Gaussians, u_sh = that
     head's channel at its degree, and the head's loss settings in the config."""
     heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
-    names = [h.name for h in heads[1:]]
-    if head not in names:
+    settings = [(h.loss, h.degree) for h in heads[1:]]
+    try:  # by settings, not by spelling: "degree=1,lam=0.1" finds the head trained as "lam=0.1,degree=1"
+        wanted = parse_head(head, config.uncertainty, config.model.u_sh_degree)
+        channel = settings.index((wanted.loss, wanted.degree)) + 1
+    except (SplatuError, ValueError):
+        names = ", ".join(repr(h.name) for h in heads[1:])
         raise SplatuError(f"no uncertainty head {head!r} in this run", f"in {run_dir}",
-                          f"pass one of: {', '.join(repr(n) for n in names)}" if names
-                          else "drop --head: this run trained no extra heads")
-    channel = names.index(head) + 1
+                          f"pass --head with one of: {names}" if names
+                          else "drop --head: this run trained no extra heads") from None
     chosen = heads[channel]
     model_cfg = dataclasses.replace(config.model, u_sh_degree=chosen.degree)
     u_sh = model.u_sh.detach()[:, :num_sh_bases(chosen.degree), channel:channel + 1]

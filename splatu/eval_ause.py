@@ -114,6 +114,9 @@ def run(config: EvalAuseConfig) -> None:
     if (config.load is None) == (config.maps is None):
         raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
                           "use --load RUN_DIR to evaluate a run or --maps DIR for precomputed maps")
+    if config.maps is not None and config.head is not None:
+        raise SplatuError("--head only applies with --load (a maps directory already holds one uncertainty)",
+                          "in the eval-ause options", "drop --head, or pass --load RUN_DIR instead of --maps")
     if config.maps is not None and config.data is not None:
         raise SplatuError("--data only applies with --load (a maps directory already holds its images)",
                           "in the eval-ause options", "drop --data, or pass --load RUN_DIR instead of --maps")

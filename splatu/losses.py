@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -144,8 +145,15 @@ class UncertaintyLossConfig:
         if not (math.isfinite(self.weight) and self.weight >= 0.0):
             raise SplatuError(f"uncertainty weight = {self.weight} is not a finite non-negative number",
                               "--uncertainty.weight", "use e.g. 1.0")
-        for spec in self.extra_heads:
-            parse_head(spec, self, MAX_SH_DEGREE)
+        if self.extra_heads and self.off:
+            raise SplatuError("extra uncertainty heads with the uncertainty loss off would never train",
+                              "--uncertainty.extra-heads", "drop them, or train with the loss on")
+        parsed = [parse_head(spec, self, MAX_SH_DEGREE) for spec in self.extra_heads]
+        settings = [(h.loss, h.degree) for h in parsed]
+        for head, setting in zip(parsed, settings, strict=True):
+            if settings.count(setting) > 1:
+                raise SplatuError(f"uncertainty head {head.name!r} repeats another head's settings",
+                                  "--uncertainty.extra-heads", "give each extra head different settings")
 
 
 @dataclass(frozen=True)
@@ -170,16 +178,21 @@ def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> Uncer
             raise SplatuError(f"bad uncertainty head {spec!r} (at {item.strip()!r})", flag,
                               f"write key=value pairs joined by commas, keys from {', '.join(HEAD_KEYS)}")
         values[key] = value
-    try:
-        degree = int(values.pop("degree", max_degree))
-        typed = {k: v if k == "kind" else int(v) if k == "num_dirs" else float(v) for k, v in values.items()}
-    except ValueError:
-        raise SplatuError(f"bad number in uncertainty head {spec!r}", flag, "e.g. lam=0.1,degree=2") from None
+    typed: dict[str, str | int | float] = {}
+    for key, value in values.items():
+        try:
+            typed[key] = value if key == "kind" else int(value) if key in ("num_dirs", "degree") else float(value)
+        except ValueError:
+            raise SplatuError(f"{key}={value!r} is not a number in uncertainty head {spec!r}", flag,
+                              "e.g. lam=0.1,degree=2") from None
+    degree = int(typed.pop("degree", max_degree))
     if typed.get("kind", base.kind) not in ("antipodal", "mean", "weighted"):
         raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", flag, "use antipodal, mean or weighted")
     if not 0 <= degree <= max_degree:
-        raise SplatuError(f"uncertainty head {spec!r} asks for degree {degree}", flag,
-                          f"use a degree from 0 to {max_degree} (raise --model.u-sh-degree for more)")
+        more = "" if max_degree == MAX_SH_DEGREE else " (raise --model.u-sh-degree for more)"
+        raise SplatuError(f"uncertainty head {spec!r} asks for degree {degree}, above the u-SH degree {max_degree}"
+                          if degree > 0 else f"uncertainty head {spec!r} asks for a negative degree", flag,
+                          f"use a degree from 0 to {max_degree}{more}")
     try:
         loss = dataclasses.replace(base, extra_heads=(), **typed)
     except SplatuError as err:  # name the head, not the run's own flag
@@ -194,12 +207,13 @@ def uncertainty_heads(cfg: UncertaintyLossConfig, model_degree: int) -> list[Unc
 
 
 def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: RasterOutput, cfg: UncertaintyLossConfig,
-                     generator: torch.Generator | None = None) -> Tensor:
+                     generators: Sequence[torch.Generator] | None = None) -> Tensor:
     """L_u for one training view (REFERENCE §1), summed over the uncertainty heads, each scaled by its weight.
 
     antipodal: mean over supervised i of (1−λ)·u_i(d) + λ·(1 − u_i(−d)).
     mean:      u_i(−d) replaced by ū_i, the mean of u_i over `num_dirs` random unit directions (shared by all
-               Gaussians in this step, drawn from `generator`).
+               Gaussians in this step, drawn from the head's own generator in `generators`, seeded alike, so
+               each head draws what it would draw alone).
     weighted:  over every Gaussian seen in this view (max weight ≥ 1/255), (1−λ)·w_i·u_i(d) + λ·(1 − u_i(−d))
                with w_i = its max blend weight in [0, 1] (contrib_max: bounded, and unlike the summed weight it
                does not grow with the Gaussian's screen size). A faint Gaussian is pulled towards certain only
@@ -209,9 +223,14 @@ def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: Raster
     so callers can add it unconditionally.
     """
     cfg.validate()
+    heads = uncertainty_heads(cfg, model.cfg.u_sh_degree)
+    if model.u_sh.shape[-1] != len(heads) or (generators is not None and len(generators) != len(heads)):
+        raise ValueError(f"{len(heads)} uncertainty heads, but u_sh has {model.u_sh.shape[-1]} channels"
+                         f" and {'no' if generators is None else len(generators)} generators were given")
     total = model.u_sh.sum() * 0.0
-    for channel, head in enumerate(uncertainty_heads(cfg, model.cfg.u_sh_degree)):
+    for channel, head in enumerate(heads):
         u_sh = model.u_sh[:, :num_sh_bases(head.degree), channel:channel + 1]
+        generator = None if generators is None else generators[channel]
         total = total + _head_loss(u_sh, head, model.means.detach(), camera_center, raster, generator)
     return total
 

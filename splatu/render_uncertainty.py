@@ -244,6 +244,9 @@ def _load(load: Path, method: UncertaintyMethod, head: str | None):
     """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
     from splatu.baselines.load import check_method, load_any_run
 
+    if head is not None and method != "ours":
+        raise SplatuError(f"--head picks an uncertainty head of ours; --method {method} has none",
+                          "in the command's options", "drop --head, or use --method ours")
     run = load_any_run(load, head)
     check_method(method, run)
     return run

@@ -73,8 +73,9 @@ class TrainState:
     density: DensityController
     generator: torch.Generator
     """Backgrounds, density control and init: everything that shapes the geometry."""
-    uncertainty_generator: torch.Generator
-    """The uncertainty loss's own draws (`mean`'s directions), so that L_u never shifts the geometry's stream."""
+    uncertainty_generators: list[torch.Generator]
+    """The uncertainty loss's own draws (`mean`'s directions), one stream per head, so that L_u never shifts the
+    geometry's stream and each head draws what it would draw in a run of its own."""
     scene_extent: float
     to_world: WorldTransform
     """The scene's normalised → original frame; fixed, stored so exports land in the data's frame."""
@@ -213,7 +214,7 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     u_loss = torch.zeros(())
     if not config.uncertainty.off:
         u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
-                                  state.uncertainty_generator)
+                                  state.uncertainty_generators)
         loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
     loss.backward()
 
@@ -289,7 +290,7 @@ def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
         "optimizers": state.optimizers.state_dict(),
         "density": state.density.state_dict(),
         "rng": capture_rng(state.generator),
-        "uncertainty_rng": state.uncertainty_generator.get_state(),
+        "uncertainty_rng": [g.get_state() for g in state.uncertainty_generators],
         "scene_extent": state.scene_extent,
         "world_transform": state.to_world.state_dict(),
         "nonfinite_streak": state.nonfinite_streak,
@@ -312,12 +313,13 @@ def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
     model = GaussianModel.from_points(scene.points, scene.point_colors, config.model, generator, len(heads))
     optimizers = Optimizers(model, config.optim, extent, config.steps)
     density = DensityController(config.densify, extent, generator)
-    return TrainState(model, optimizers, density, generator, uncertainty_generator(config.seed), extent,
-                      scene_to_world(scene))
+    return TrainState(model, optimizers, density, generator, uncertainty_generators(config.seed, len(heads)),
+                      extent, scene_to_world(scene))
 
 
-def uncertainty_generator(seed: int) -> torch.Generator:
-    return torch.Generator().manual_seed(seed + UNCERTAINTY_SEED_OFFSET)
+def uncertainty_generators(seed: int, heads: int) -> list[torch.Generator]:
+    """One identically seeded stream per uncertainty head: a head draws exactly what a run of its own would."""
+    return [torch.Generator().manual_seed(seed + UNCERTAINTY_SEED_OFFSET) for _ in range(heads)]
 
 
 def scene_to_world(scene: Scene) -> WorldTransform:
@@ -340,10 +342,10 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene
     restore_rng(checkpoint["rng"], generator)
     density = DensityController(config.densify, extent, generator)
     density.load_state_dict(checkpoint["density"])
-    u_generator = uncertainty_generator(config.seed)
-    if "uncertainty_rng" in checkpoint:  # absent in checkpoints written before L_u had its own stream
-        u_generator.set_state(checkpoint["uncertainty_rng"])
-    return TrainState(model, optimizers, density, generator, u_generator, extent, to_world,
+    u_generators = uncertainty_generators(config.seed, model.u_sh.shape[-1])
+    for u_generator, saved_state in zip(u_generators, checkpoint.get("uncertainty_rng", []), strict=False):
+        u_generator.set_state(saved_state)  # absent in checkpoints written before L_u had its own streams
+    return TrainState(model, optimizers, density, generator, u_generators, extent, to_world,
                       step=int(checkpoint["step"]),
                       nonfinite_streak=int(checkpoint["nonfinite_streak"]),
                       train_seconds=float(checkpoint["train_seconds"]))

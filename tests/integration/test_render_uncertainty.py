@@ -176,6 +176,12 @@ def test_an_extra_uncertainty_head_renders_and_scores_on_its_own(tiny_run, capsy
         entrypoint(["render-uncertainty", "--load", str(tiny_run), "--head", "lam=0.2"])
     err = capsys.readouterr().err
     assert "no uncertainty head 'lam=0.2'" in err and EXTRA_HEAD in err and "Traceback" not in err
+    for command in (["render-uncertainty", "--load", str(tiny_run), "--method", "visibility"],
+                    ["eval-ause", "--maps", str(own_dir.parent)]):
+        with pytest.raises(SystemExit):
+            entrypoint([*command, "--head", EXTRA_HEAD])
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--head" in err and "Traceback" not in err, err
 
 
 def _moved_scene_run(tiny_run, tmp_path):

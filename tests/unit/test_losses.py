@@ -108,7 +108,7 @@ def _train_u(model: GaussianModel, camera: Camera, cfg: UncertaintyLossConfig, s
     generator = torch.Generator().manual_seed(0)
     for _ in range(steps):
         optimizer.zero_grad()
-        uncertainty_loss(model, camera.center(), raster, cfg, generator).backward()
+        uncertainty_loss(model, camera.center(), raster, cfg, [generator]).backward()
         optimizer.step()
 
 
@@ -175,12 +175,20 @@ def test_loss_weight_scales_the_loss():
 
 @pytest.mark.parametrize(("spec", "message"), [
     ("lam", "bad uncertainty head"), ("colour=1", "bad uncertainty head"), ("lam=0.1,lam=0.2", "bad uncertainty head"),
-    ("lam=abc", "bad number"), ("kind=median", "unknown loss kind"), ("degree=4", "asks for degree 4"),
+    ("lam=abc", "lam='abc' is not a number"), ("kind=median", "unknown loss kind"),
+    ("degree=4", "asks for degree 4, above the u-SH degree 3"), ("degree=-1", "negative degree"),
     ("lam=0.7", "not in \\[0, 0.5\\)"),
 ])
 def test_a_bad_extra_head_is_a_one_line_user_error(spec, message):
     with pytest.raises(SplatuError, match=message):
         UncertaintyLossConfig(extra_heads=(spec,))
+
+
+def test_repeated_extra_heads_and_heads_with_the_loss_off_are_user_errors():
+    with pytest.raises(SplatuError, match="repeats another head"):
+        UncertaintyLossConfig(extra_heads=("lam=0.1,degree=1", "degree=1,lam=0.1"))
+    with pytest.raises(SplatuError, match="would never train"):
+        UncertaintyLossConfig(off=True, extra_heads=("lam=0.1",))
 
 
 def test_extra_heads_are_the_own_settings_with_overrides_in_their_own_channels():

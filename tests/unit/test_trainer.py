@@ -220,13 +220,13 @@ def test_the_uncertainty_loss_never_changes_the_geometry(tmp_path, scene):
 def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path, scene):
     """One training with extra heads replaces one training per setting (the study's ablations): the same
     Gaussians bit for bit, and each head's u_sh to float32 rounding."""
-    heads = ("degree=1", "kind=antipodal,threshold=0.2", "kind=mean,lam=0.1,degree=0")
+    heads = ("degree=1", "kind=antipodal,threshold=0.2", "kind=mean,lam=0.1,degree=0", "kind=mean,degree=1")
     base = tiny_config(tmp_path / "heads", checkpoint_every=0)
     base = dataclasses.replace(base, model=dataclasses.replace(base.model, u_sh_degree=2),
                                uncertainty=dataclasses.replace(base.uncertainty, extra_heads=heads))
     run_dir = trainer.train(base)
     _, own = load_run(run_dir)
-    assert own.u_sh.shape[1:] == (9, 4)
+    assert own.u_sh.shape[1:] == (9, 5)
     for head in (None, *heads):
         head_config, head_model = load_run(run_dir, head)
         u_sh = head_model.u_sh[..., :1]  # the own head (head None) is channel 0; a selected head is its channel
@@ -239,8 +239,11 @@ def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path
         torch.testing.assert_close(u_sh, separate.u_sh, rtol=1e-6, atol=1e-8, msg=str(head))
         for name in GaussianModel.PARAM_NAMES[:-1]:
             assert torch.equal(getattr(head_model, name), getattr(separate, name)), (head, name)
-    with pytest.raises(SplatuError, match=r"no uncertainty head 'lam=0\.2'.*'degree=1'"):
-        load_run(run_dir, "lam=0.2")
+    respelled = load_run(run_dir, "threshold=0.2, kind=antipodal")[1]  # found by its settings, not its spelling
+    assert torch.equal(respelled.u_sh, load_run(run_dir, "kind=antipodal,threshold=0.2")[1].u_sh)
+    for missing in ("lam=0.2", "lam"):
+        with pytest.raises(SplatuError, match=rf"no uncertainty head '{missing}'.*'degree=1'"):
+            load_run(run_dir, missing)
 
 
 def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
