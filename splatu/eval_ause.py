@@ -35,7 +35,7 @@ class EvalAuseConfig:
     maps: Path | None = None
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
     method: UncertaintyMethod = "ours"
-    """With --load: which uncertainty to score (ours, ensemble, visibility, fisher, random)."""
+    """With --load: which uncertainty to score (ours, ensemble, visibility, fisher, random, spread, ours-spread)."""
     head: str | None = None
     """With --load and --method ours: one of the run's extra uncertainty heads (its spec, as given to
     --uncertainty.extra-heads); default: the run's own."""

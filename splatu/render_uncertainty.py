@@ -56,7 +56,7 @@ class RenderUncertaintyConfig:
     data: str | None = None
     """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
     method: UncertaintyMethod = "ours"
-    """Which uncertainty to render: ours, ensemble, visibility, fisher or random."""
+    """Which uncertainty to render: ours, ensemble, visibility, fisher, random, spread or ours-spread."""
     head: str | None = None
     """With --method ours: one of the run's extra uncertainty heads (its spec, as given to
     --uncertainty.extra-heads); default: the run's own."""
@@ -244,9 +244,9 @@ def _load(load: Path, method: UncertaintyMethod, head: str | None):
     """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
     from splatu.baselines.load import check_method, load_any_run
 
-    if head is not None and method != "ours":
+    if head is not None and method not in ("ours", "ours-spread"):
         raise SplatuError(f"--head picks an uncertainty head of ours; --method {method} has none",
-                          "in the command's options", "drop --head, or use --method ours")
+                          "in the command's options", "drop --head, or use --method ours or ours-spread")
     run = load_any_run(load, head)
     check_method(method, run)
     return run

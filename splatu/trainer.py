@@ -483,6 +483,8 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
               checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict:
     """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary."""
     wall_start = time.perf_counter() if wall_start is None else wall_start
+    if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
+        set_compile(True)
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
@@ -559,8 +561,6 @@ def ensemble_config(run_dir: Path) -> TrainConfig | None:
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
     wall_start = time.perf_counter()
-    if config.compile_kernels:
-        set_compile(True)
     if config.resume is not None:
         saved_ensemble = ensemble_config(config.resume)
         if saved_ensemble is not None:

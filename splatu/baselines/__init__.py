@@ -7,7 +7,9 @@ and AUSE treat them identically:
 - ensemble: per-pixel std of RGB across the members of an ensemble run (REFERENCE §5);
 - visibility: view-independent 1/(1 + #training views where a Gaussian's max weight ≥ T_thr);
 - fisher: a FisherRF-like diagonal Fisher information per Gaussian, rendered as a feature;
-- random: seeded uniform noise, the floor any method must beat.
+- random: seeded uniform noise, the floor any method must beat;
+- spread: the std of the colours each pixel blends, training-free (`model_sources.colour_spread`);
+- ours-spread: ours OR spread, 1 − (1 − U)(1 − S).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from torch import Tensor
 
 from splatu.camera import Camera
 
-UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random"]
+UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random", "spread", "ours-spread"]
 
 
 @dataclass

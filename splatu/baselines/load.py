@@ -13,7 +13,7 @@ import torch
 from splatu.baselines import UncertaintyMethod, UncertaintySource
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal, fisher_feature
-from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource
+from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource, SpreadSource
 from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
@@ -87,8 +87,8 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
     if method == "ensemble" and len(run.models) < 2:
         raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
                           "train one with `splatu train --method ensemble --ensemble 10`")
-    if method == "ours" and run.config.uncertainty.off:
-        raise SplatuError("--method ours needs a run trained with the uncertainty loss; this one had it off",
+    if method in ("ours", "ours-spread") and run.config.uncertainty.off:
+        raise SplatuError(f"--method {method} needs a run trained with the uncertainty loss; this one had it off",
                           f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
 
 
@@ -113,7 +113,9 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
         source = FeatureSource(model, degree, background, fisher_feature(information))
     elif method == "random":
         source = RandomSource(model, degree, background, seed)
+    elif method in ("spread", "ours-spread"):
+        source = SpreadSource(model, degree, background, with_ours=method == "ours-spread")
     else:
         raise SplatuError(f"unknown uncertainty method {method!r}", "in --method",
-                          "use ours, ensemble, visibility, fisher or random")
+                          "use ours, ensemble, visibility, fisher, random, spread or ours-spread")
     return BuiltMethod(source, time.perf_counter() - started)
