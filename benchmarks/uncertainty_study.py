@@ -225,11 +225,13 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
         rows[method] = {**row, "train_seconds": rows["ours-antipodal"]["train_seconds"] + row["setup_seconds"],
                         "method": method}
         print(f"  {method}: AUSE-MAE {row['mean']['ause_mae']:.3f}")
-    # ours OR colour spread, on the default (weighted) head
-    row = score(root / heads_run.name, "ours-spread", scene, rows_of_heads["ours-weighted"])
-    rows["ours-weighted-spread"] = {**row, "train_seconds": rows["ours-weighted"]["train_seconds"],
-                                    "method": "ours-spread", "head": rows_of_heads["ours-weighted"]}
-    print(f"  ours-weighted-spread: AUSE-MAE {row['mean']['ause_mae']:.3f}")
+    # ours OR colour spread, on the default (weighted) head and on the highest-degree one
+    top_degree = max((n for n in rows_of_heads if n.startswith("ablation-u-degree-")), default=None)
+    for name in ("ours-weighted", *([top_degree] if top_degree else [])):
+        row = score(root / heads_run.name, "ours-spread", scene, rows_of_heads[name])
+        rows[f"{name}-spread"] = {**row, "train_seconds": rows[name]["train_seconds"], "method": "ours-spread",
+                                  "head": rows_of_heads[name]}
+        print(f"  {name}-spread: AUSE-MAE {row['mean']['ause_mae']:.3f}")
     return {"rows": rows, "views": {"train": len(scene.train), "eval": len(scene.eval)},
             "size": [int(scene.train.images.shape[2]), int(scene.train.images.shape[1])]}
 
@@ -237,10 +239,13 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
 def targets(scene_name: str, rows: dict[str, dict[str, Any]], ensemble: str) -> list[tuple[str, float, str, bool]]:
     """The issue's numbers, measured: (what, value, target, reached)."""
     ours = rows["ours-antipodal"]
-    best = min((r for n, r in rows.items() if n.startswith("ours-")), key=lambda r: r["mean"]["ause_mae"])
-    best_name = next(n for n, r in rows.items() if r is best)
-    result = [("ours (antipodal) AUSE-MAE ÷ random", ours["mean"]["ause_mae"] / ours["mean"]["random_ause_mae"],
-               "≤ 0.5", ours["mean"]["ause_mae"] <= 0.5 * ours["mean"]["random_ause_mae"])]
+    family = {n: r for n, r in rows.items() if r["method"] in ("ours", "ours-spread")}  # ablations included
+    best_name = min(family, key=lambda n: family[n]["mean"]["ause_mae"])
+    best = family[best_name]
+    result = []
+    for name, row in (("ours (antipodal)", ours), (f"best ours ({best_name})", best)):
+        ratio = row["mean"]["ause_mae"] / row["mean"]["random_ause_mae"]
+        result.append((f"{name} AUSE-MAE ÷ random", ratio, "≤ 0.5", ratio <= 0.5))
     if ensemble in rows:
         ratio = best["mean"]["ause_mae"] / max(rows[ensemble]["mean"]["ause_mae"], 1e-12)
         result.append((f"best ours ({best_name}) AUSE-MAE ÷ {ensemble}", ratio, "≤ 1.0", ratio <= 1.0))
