@@ -8,7 +8,8 @@ camera at full resolution; refinement is switched off during measurement so the 
 Gaussians stays fixed. The ratio of the median step times is the overhead (target ≤ 1.05);
 because step times on a shared machine are noisy, the script also times the uncertainty loss's
 forward + backward alone and reports (median off + that) / median off.
-Writes benchmarks/results/overhead.json.
+Kernels are compiled when the preset compiles them (as in training; --eager for eager ones).
+Writes benchmarks/results/overhead.json (compiled) or overhead_eager.json.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.densify import DensityController
 from splatu.losses import uncertainty_loss
+from splatu.rasterizer.kernels import kernels_compiled, set_compile
 from splatu.train_config import TrainConfig, preset_config
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
@@ -43,10 +45,13 @@ class Args:
     """Training steps before measuring, so the model is densified as in a real run."""
     pairs: int = 40
     """Measured (on, off) step pairs."""
+    eager: bool = False
+    """Eager rasterizer kernels even when the preset compiles them (training uses the preset's choice)."""
 
 
 def measure(args: Args) -> dict:
     config = dataclasses.replace(preset_config(args.preset), data=DataConfig(data=args.data), progress=False)
+    set_compile(config.compile_kernels and not args.eager)
     scene = load_scene(config.data)
     state = trainer.fresh_state(config, scene)
     images = trainer.TrainImages(scene.train)
@@ -73,7 +78,7 @@ def measure(args: Args) -> dict:
     loss_seconds = statistics.median(isolated_loss_seconds(state, variants["on"], images, repeats=5 * args.pairs))
     return {
         "scene": scene.name, "preset": args.preset, "gaussians": len(state.model), "warmup_steps": args.warmup,
-        "pairs": args.pairs, "threads": torch.get_num_threads(),
+        "pairs": args.pairs, "threads": torch.get_num_threads(), "compiled_kernels": kernels_compiled(),
         "median_step_seconds_on": median["on"], "median_step_seconds_off": median["off"],
         "ratio_on_over_off": median["on"] / median["off"],
         "median_uncertainty_loss_seconds": loss_seconds,
@@ -105,7 +110,8 @@ def isolated_loss_seconds(state: trainer.TrainState, config: TrainConfig, images
 def main(args: Args) -> None:
     result = measure(args)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "overhead.json").write_text(json.dumps(result, indent=2))
+    name = "overhead.json" if result["compiled_kernels"] else "overhead_eager.json"
+    (RESULTS / name).write_text(json.dumps(result, indent=2))
     print(f"{'scene':<10}{'gaussians':>10}{'pairs':>7}{'median on (s)':>15}{'median off (s)':>16}{'on/off':>8}"
           f"{'L_u fwd+bwd (ms)':>18}{'(off+L_u)/off':>15}")
     print(f"{result['scene']:<10}{result['gaussians']:>10}{result['pairs']:>7}{result['median_step_seconds_on']:>15.4f}"

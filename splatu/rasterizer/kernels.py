@@ -134,6 +134,11 @@ def set_compile(enabled: bool) -> bool:
     return previous
 
 
+def kernels_compiled() -> bool:
+    """Whether the kernels currently go through torch.compile (`set_compile` or SPLATU_COMPILE=1)."""
+    return _use_compile
+
+
 def kernel(name: str) -> Callable:
     """The eager or compiled version of kernel `name`, as chosen by `set_compile`."""
     if not _use_compile:
