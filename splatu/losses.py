@@ -126,7 +126,8 @@ class UncertaintyLossConfig:
     """More uncertainty heads trained in the same run, each these settings with overrides, e.g. "lam=0.1",
     "kind=antipodal,threshold=0.2" or "degree=0" (keys: kind, lam, threshold, num_dirs, degree ≤ the model's
     u_sh_degree). Each head is one more channel of u_sh. L_u never moves the geometry, so a head learns the u_sh
-    a separate run with its settings would (to float32 rounding): an ablation costs one training, not one each."""
+    a separate run with its settings would (to float32 rounding): an ablation costs one training, not one each.
+    The logged uncertainty loss is then the sum over the heads."""
 
     def __post_init__(self) -> None:
         self.validate()

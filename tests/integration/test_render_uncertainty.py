@@ -158,7 +158,8 @@ def test_eval_ause_load_scores_the_run_with_auroc(tiny_run):
     assert mean["oracle_ausc_mae"] < mean["ausc_mae"] < mean["random_ausc_mae"]
     assert 0.0 <= mean["auroc_unobserved"] <= 1.0
     assert len(report["per_image"]) == 5
-    # measured over training seeds 0, 1, 2 (u-SH degree 1): ours 0.396 / 0.379 / 0.364 against random 0.553 / 0.548 / 0.544
+    # measured over training seeds 0, 1, 2 (u-SH degree 1): ours 0.396 / 0.379 / 0.364,
+    # against random 0.553 / 0.548 / 0.544
     assert mean["ause_mae"] < mean["random_ause_mae"]
 
 
