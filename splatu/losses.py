@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from splatu.errors import SplatuError
-from splatu.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases, safe_normalize
+from splatu.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases, safe_normalize, sh_basis
 
 if TYPE_CHECKING:
     from splatu.model import GaussianModel
@@ -248,15 +248,14 @@ def _head_loss(u_sh: Tensor, head: UncertaintyHead, means: Tensor, camera_center
     u_sh = u_sh[selected]
     dirs = safe_normalize(means[selected] - camera_center.detach().to(means))
 
-    def u(directions: Tensor) -> Tensor:
-        return torch.sigmoid(eval_sh(u_sh, directions, degree)).squeeze(-1)
-
-    seen = u(dirs)
     if cfg.kind == "mean":
+        seen = torch.sigmoid(eval_sh(u_sh, dirs, degree)).squeeze(-1)
         random_dirs = torch.randn(cfg.num_dirs, 3, generator=generator).to(u_sh)
         other = torch.sigmoid(eval_sh(u_sh.unsqueeze(1), safe_normalize(random_dirs), degree)).squeeze(-1).mean(1)
-    else:
-        other = u(-dirs)
+    else:  # Y_l(−d) = (−1)^l·Y_l(d): one basis evaluation gives u(d) and u(−d), from the even and odd bands
+        terms = sh_basis(dirs, degree).to(u_sh) * u_sh[..., 0]
+        parity = 1.0 - 2.0 * (torch.arange(terms.shape[-1]).sqrt().floor() % 2)  # (−1)^l per coefficient
+        seen, other = torch.sigmoid(terms.sum(-1)), torch.sigmoid(terms @ parity.to(terms))
     first = seen * weights[selected] if cfg.kind == "weighted" else seen
     loss = ((1.0 - cfg.lam) * first + cfg.lam * (1.0 - other)).mean()
     return cfg.weight * loss

@@ -21,6 +21,7 @@ from splatu.losses import (
     uncertainty_loss,
 )
 from splatu.model import GaussianModel, ModelConfig
+from splatu.sh import eval_sh, safe_normalize
 
 
 def _image(seed: int, h: int = 24, w: int = 20) -> torch.Tensor:
@@ -200,3 +201,33 @@ def test_extra_heads_are_the_own_settings_with_overrides_in_their_own_channels()
     assert (constant.name, constant.loss.kind, constant.degree) == ("degree=0", "weighted", 0)
     with pytest.raises(SplatuError, match=r"raise --model\.u-sh-degree"):
         uncertainty_heads(UncertaintyLossConfig(extra_heads=("degree=3",)), model_degree=1)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+@pytest.mark.parametrize("kind", ["antipodal", "weighted"])
+def test_the_one_basis_parity_evaluation_equals_evaluating_both_directions(kind, degree):
+    """u(−d) comes from the even/odd bands of u(d)'s basis; it must equal evaluating −d directly."""
+    from types import SimpleNamespace
+
+    g = torch.Generator().manual_seed(degree)
+    n = 300
+    model = GaussianModel.empty_like_config(n, ModelConfig(u_sh_degree=degree))
+    with torch.no_grad():
+        model.means.copy_(torch.randn(n, 3, generator=g))
+        model.u_sh.copy_(torch.randn(model.u_sh.shape, generator=g))
+    raster = SimpleNamespace(contrib_max=torch.rand(n, generator=g))
+    cfg = UncertaintyLossConfig(kind=kind, lam=0.3, threshold=0.2)
+    centre = torch.tensor([0.3, -2.0, 0.5])
+    loss = uncertainty_loss(model, centre, raster, cfg)
+    weights = raster.contrib_max
+    chosen = weights >= (1.0 / 255.0 if kind == "weighted" else 0.2)
+    dirs = safe_normalize(model.means.detach()[chosen] - centre)
+    u_sh = model.u_sh[chosen]
+    seen = torch.sigmoid(eval_sh(u_sh, dirs, degree)).squeeze(-1)
+    other = torch.sigmoid(eval_sh(u_sh, -dirs, degree)).squeeze(-1)
+    first = seen * weights[chosen] if kind == "weighted" else seen
+    expected = ((1 - 0.3) * first + 0.3 * (1 - other)).mean()
+    torch.testing.assert_close(loss, expected, rtol=1e-6, atol=1e-7)
+    grad, = torch.autograd.grad(loss, model.u_sh)
+    expected_grad, = torch.autograd.grad(expected, model.u_sh)
+    torch.testing.assert_close(grad, expected_grad, rtol=1e-5, atol=1e-8)
