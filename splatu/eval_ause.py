@@ -37,7 +37,7 @@ class EvalAuseConfig:
     method: UncertaintyMethod = "ours"
     """With --load: which uncertainty to score (ours, ensemble, visibility, fisher, random, spread, ours-spread)."""
     head: str | None = None
-    """With --load and --method ours: one of the run's extra uncertainty heads (its spec, as given to
+    """With --load and --method ours or ours-spread: one of the run's extra uncertainty heads (its spec, as given to
     --uncertainty.extra-heads); default: the run's own."""
     density_aware: bool = False
     """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""

@@ -58,7 +58,7 @@ class RenderUncertaintyConfig:
     method: UncertaintyMethod = "ours"
     """Which uncertainty to render: ours, ensemble, visibility, fisher, random, spread or ours-spread."""
     head: str | None = None
-    """With --method ours: one of the run's extra uncertainty heads (its spec, as given to
+    """With --method ours or ours-spread: one of the run's extra uncertainty heads (its spec, as given to
     --uncertainty.extra-heads); default: the run's own."""
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
