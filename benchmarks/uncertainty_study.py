@@ -185,6 +185,20 @@ def train_variant(variant: Variant, config: TrainConfig, scene: Scene, run_dir: 
     return wall
 
 
+def warm_up_kernels(config: TrainConfig, scene: Scene, scratch: Path) -> float:
+    """Compile the rasterizer's kernels, untimed, before any timed training; returns its wall seconds.
+
+    torch.compile caches per process, and the first render at each resolution level compiles: without
+    this, whichever training comes first pays ~10-30 s that the others do not, which skews the wall ratios.
+    A few steps per resolution level, then the final evaluation (the no-grad path), compile everything.
+    """
+    levels = config.resolution_levels + 1
+    short = dataclasses.replace(config, steps=2 * levels, resolution_interval=2)
+    started = time.perf_counter()
+    trainer.train_run(short, scene, scratch)
+    return time.perf_counter() - started
+
+
 def score(run_dir: Path, method: UncertaintyMethod, scene: Scene, head: str | None = None) -> dict[str, Any]:
     """Render the eval block with `method` (and uncertainty `head`), score it, and time the render."""
     run = load_any_run(run_dir, head)
@@ -212,7 +226,12 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     root = args.output_dir / ("quick" if args.quick else "full") / scene_name
     rows: dict[str, dict[str, Any]] = {}
     heads_run, rows_of_heads = head_rows(budget, config.model.u_sh_degree, args.ablations and scene_name == "poster")
-    for variant in variants(args.ensemble_size, heads_run):
+    to_train = variants(args.ensemble_size, heads_run)
+    warm_up = None
+    if config.compile_kernels and any(not (root / v.name / "study_wall_seconds.json").is_file() for v in to_train):
+        warm_up = warm_up_kernels(config, scene, root / "kernel-warm-up")
+        print(f"  compiled the rasterizer kernels in an untimed warm-up training: {warm_up:.1f} s")
+    for variant in to_train:
         wall = train_variant(variant, config, scene, root / variant.name)
         method: UncertaintyMethod = "ensemble" if variant.ensemble else "ours"
         heads = rows_of_heads if variant is heads_run else {variant.name: None}
@@ -233,7 +252,8 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
         rows[f"{name}-spread"] = {**row, "train_seconds": rows[name]["train_seconds"], "method": "ours-spread",
                                   "head": rows_of_heads[name]}
         print(f"  {name}-spread: AUSE-MAE {row['mean']['ause_mae']:.3f}")
-    return {"rows": rows, "views": {"train": len(scene.train), "eval": len(scene.eval)},
+    return {"rows": rows, "kernel_warm_up_seconds": warm_up,
+            "views": {"train": len(scene.train), "eval": len(scene.eval)},
             "size": [int(scene.train.images.shape[2]), int(scene.train.images.shape[1])]}
 
 
@@ -292,6 +312,10 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
                          f"{_cell(m['ause_mae_start_norm'])} ({_cell(m['random_ause_mae_start_norm'])}) | "
                          f"{_cell(m['auroc_unobserved'])} | {row['psnr']:.2f} | {row['train_seconds']:.0f} | "
                          f"{row['render_seconds_per_view']:.2f} |")
+        warm_up = scene.get("kernel_warm_up_seconds")
+        if warm_up is not None:
+            lines += ["", f"Before the timed trainings of this invocation, an untimed warm-up training compiled the "
+                      f"rasterizer kernels ({warm_up:.0f} s), so no timed training pays the compile."]
         lines += ["", f"Curves: `uncertainty_study_{scene_name}_curves.png`; speed against error: "
                   f"`uncertainty_study_{scene_name}_speed.png`.", ""]
         all_targets += targets(scene_name, rows, ensemble) if "ours-antipodal" in rows else []
