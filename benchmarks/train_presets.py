@@ -2,10 +2,13 @@
 
     .venv/bin/python benchmarks/train_presets.py                      # poster + fox, fast + quality
     .venv/bin/python benchmarks/train_presets.py --scenes poster --presets fast
+    .venv/bin/python benchmarks/train_presets.py --scenes poster --presets fast --sh-degrees 0 1 3
 
 Each row is one full `splatu train` run through the Python API (data loading included in the
-wall time; the image/stand-in cache may already be warm, which the table says). fox is read
-from ../shared/data/fox with a contiguous eval block and is skipped with a message when absent.
+wall time; the image/stand-in cache may already be warm, which the table says). `--sh-degrees`
+trains each preset once per colour-SH degree, to measure which degree a scene needs (the
+preset's own degree when not given). fox is read from ../shared/data/fox with a contiguous
+eval block and is skipped with a message when absent.
 Writes benchmarks/results/train_presets.json and .md.
 """
 
@@ -35,6 +38,8 @@ class Args:
     """Scenes to train: poster (built-in stand-in) and/or fox (../shared/data/fox)."""
     presets: list[str] = field(default_factory=lambda: ["fast", "quality"])
     """Presets to compare."""
+    sh_degrees: list[int] = field(default_factory=list)
+    """Colour-SH degrees to train each preset at (empty: the preset's own)."""
     fox_downscale: int = 8
     """fox is 1080x1920; 8 gives 135x240, about the stand-in's 144x256."""
     output_dir: Path = Path("outputs/benchmarks")
@@ -51,13 +56,17 @@ def data_config(scene: str, fox_downscale: int) -> DataConfig | None:
     return DataConfig(data=str(path), eval_split="contiguous", downscale=fox_downscale)
 
 
-def run_one(scene: str, preset: str, data: DataConfig, output_dir: Path) -> dict:
+def run_one(scene: str, preset: str, sh_degree: int | None, data: DataConfig, output_dir: Path) -> dict:
     config = dataclasses.replace(preset_config(preset), data=data, output_dir=output_dir, progress=False)
+    if sh_degree is not None:
+        config = dataclasses.replace(config, model=dataclasses.replace(config.model, sh_degree=sh_degree))
     started = time.perf_counter()
     run_dir = trainer.train(config)
     wall = time.perf_counter() - started
     summary = json.loads((run_dir / "summary.json").read_text())
-    row = {"scene": scene, "preset": preset, "steps": summary["steps"], "gaussians": summary["num_gaussians"],
+    uncertainty = "off" if config.uncertainty.off else f"{config.uncertainty.kind}, u-SH {config.model.u_sh_degree}"
+    row = {"scene": scene, "preset": preset, "sh_degree": config.model.sh_degree, "uncertainty": uncertainty,
+           "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "wall_seconds": wall, "train_seconds": summary["train_seconds"], "run_dir": str(run_dir)}
     for set_name, metrics in summary["eval"].items():
         for key, value in metrics.items():
@@ -67,8 +76,8 @@ def run_one(scene: str, preset: str, data: DataConfig, output_dir: Path) -> dict
 
 
 def markdown(rows: list[dict]) -> str:
-    cols = ["scene", "preset", "steps", "gaussians", "wall_seconds", "eval_psnr", "eval_psnr_observed",
-            "eval_ssim", "interp_psnr", "interp_ssim"]
+    cols = ["scene", "preset", "sh_degree", "uncertainty", "steps", "gaussians", "wall_seconds", "eval_psnr",
+            "eval_psnr_observed", "eval_ssim", "interp_psnr", "interp_ssim"]
     lines = ["PSNR (dB, mean over images) on the contiguous held-out block (`eval`), on its observed pixels",
              "(built-in scene only) and on every-8th held-out path frames (`interp`, built-in only); wall time",
              "includes data loading (cached stand-in/images when warm). 2 shared CPU cores.", "",
@@ -80,10 +89,14 @@ def markdown(rows: list[dict]) -> str:
 
 
 def merged_with_previous(rows: list[dict], path: Path) -> list[dict]:
-    """Keep earlier rows for (scene, preset) pairs this invocation did not rerun."""
+    """Keep earlier rows for (scene, preset, colour-SH degree) this invocation did not rerun."""
     previous = json.loads(path.read_text()) if path.is_file() else []
-    done = {(r["scene"], r["preset"]) for r in rows}
-    return [r for r in previous if (r["scene"], r["preset"]) not in done] + rows
+    done = {_key(r) for r in rows}
+    return [r for r in previous if _key(r) not in done] + rows
+
+
+def _key(row: dict) -> tuple[str, str, int]:
+    return row["scene"], row["preset"], row.get("sh_degree", 3)  # rows from before the sweep used degree 3
 
 
 def main(args: Args) -> None:
@@ -93,9 +106,11 @@ def main(args: Args) -> None:
         if data is None:
             continue
         for preset in args.presets:
-            print(f"training {scene} with preset {preset} ...", flush=True)
-            rows.append(run_one(scene, preset, data, args.output_dir))
-            print(json.dumps(rows[-1]), flush=True)
+            for sh_degree in args.sh_degrees or [None]:
+                print(f"training {scene} with preset {preset}, colour-SH degree {sh_degree or 'of the preset'} ...",
+                      flush=True)
+                rows.append(run_one(scene, preset, sh_degree, data, args.output_dir))
+                print(json.dumps(rows[-1]), flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
     rows = merged_with_previous(rows, RESULTS / "train_presets.json")
     (RESULTS / "train_presets.json").write_text(json.dumps(rows, indent=2))

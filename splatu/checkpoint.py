@@ -15,7 +15,7 @@ import pickle
 import random
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -25,6 +25,7 @@ from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.sh import num_sh_bases
 from splatu.train_config import TrainConfig, from_dict
+from splatu.world_frame import WorldTransform
 
 CHECKPOINT_DIR = "checkpoints"
 FORMAT = "splatu-checkpoint-v1"
@@ -149,9 +150,23 @@ def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianMode
     return model
 
 
-def load_run(run_dir: Path, head: str | None = None) -> tuple[TrainConfig, GaussianModel]:
-    """The config and trained model of a run (its newest checkpoint), for rendering and evaluation; with `head`,
-    as if the run had trained only that extra uncertainty head (see `select_head`)."""
+def saved_frame(state: dict[str, Any]) -> WorldTransform | None:
+    """The frame the model was trained in (the scene's normalisation), or None in checkpoints older than it."""
+    saved = state.get("world_transform")
+    return None if saved is None else WorldTransform.from_state(saved)
+
+
+class TrainedRun(NamedTuple):
+    """What rendering and evaluation need of a run: its config, its model and the frame it was trained in."""
+
+    config: TrainConfig
+    model: GaussianModel
+    frame: WorldTransform | None
+
+
+def load_run(run_dir: Path, head: str | None = None) -> TrainedRun:
+    """A run's config, trained model (its newest checkpoint) and frame, for rendering and evaluation; with
+    `head`, as if the run had trained only that extra uncertainty head (see `select_head`)."""
     run_dir = Path(run_dir)
     if (run_dir / "ensemble.json").is_file():
         raise SplatuError("this is an ensemble run; it has one model per member", f"in {run_dir}",
@@ -159,7 +174,9 @@ def load_run(run_dir: Path, head: str | None = None) -> tuple[TrainConfig, Gauss
     state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)
     config = from_dict(state["config"], str(run_dir))
     model = model_from_state(state, config)
-    return (config, model) if head is None else select_head(config, model, head, run_dir)
+    if head is not None:
+        config, model = select_head(config, model, head, run_dir)
+    return TrainedRun(config, model, saved_frame(state))
 
 
 def select_head(config: TrainConfig, model: GaussianModel, head: str, run_dir: Path) -> tuple[TrainConfig,

@@ -16,6 +16,7 @@ from typing import Any
 
 import tyro
 
+from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
 
 
@@ -54,6 +55,7 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args or os.environ.get("SPLATU_DEBUG", "") not in ("", "0")
     args = [a for a in args if a != "--debug"]
+    keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
     try:
         main(args)
     except SplatuError as err:

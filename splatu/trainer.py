@@ -33,6 +33,7 @@ import torch.nn.functional as F
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+from splatu.allocator import keep_freed_memory
 from splatu.camera import Camera
 from splatu.checkpoint import (
     RESUME_KEYS,
@@ -45,6 +46,7 @@ from splatu.checkpoint import (
     restore_rng,
     run_dir_of,
     save_checkpoint,
+    saved_frame,
 )
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views, on_background
@@ -57,7 +59,7 @@ from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
 from splatu.train_config import TrainConfig, from_dict, load_config, save_config, to_dict
-from splatu.world_frame import WorldTransform
+from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 console = Console(stderr=True)
 UNCERTAINTY_SEED_OFFSET = 7_919
@@ -314,7 +316,7 @@ def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
     optimizers = Optimizers(model, config.optim, extent, config.steps)
     density = DensityController(config.densify, extent, generator)
     return TrainState(model, optimizers, density, generator, uncertainty_generators(config.seed, len(heads)),
-                      extent, scene_to_world(scene))
+                      extent, scene_frame(scene))
 
 
 def uncertainty_generators(seed: int, heads: int) -> list[torch.Generator]:
@@ -322,18 +324,11 @@ def uncertainty_generators(seed: int, heads: int) -> list[torch.Generator]:
     return [torch.Generator().manual_seed(seed + UNCERTAINTY_SEED_OFFSET) for _ in range(heads)]
 
 
-def scene_to_world(scene: Scene) -> WorldTransform:
-    return WorldTransform.from_normalization(scene.center, scene.scale)
-
-
 def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> TrainState:
     """The checkpointed state; refuses a scene whose normalisation moved (its cameras would not fit the model)."""
-    to_world = scene_to_world(scene)
-    saved = checkpoint.get("world_transform")  # absent in checkpoints written before it was recorded
-    if saved is not None and not WorldTransform.from_state(saved).matches(to_world):
-        raise SplatuError("the scene's normalisation differs from the one this run was trained in "
-                          "(cameras were added, removed or moved)", f"in {config.data.data}",
-                          "resume with the scene as it was, or start a new run")
+    to_world = scene_frame(scene)
+    require_same_frame(saved_frame(checkpoint), scene, f"in {config.data.data}",
+                       "resume with the scene as it was, or start a new run")
     model = model_from_state(checkpoint, config)
     extent = float(checkpoint["scene_extent"])
     optimizers = Optimizers(model, config.optim, extent, config.steps)
@@ -485,6 +480,7 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     wall_start = time.perf_counter() if wall_start is None else wall_start
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)
+    keep_freed_memory()  # likewise: without it the first training of a process page-faults ~20% of its time away
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)

@@ -17,6 +17,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from splatu.data.scene import Scene
+from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.sh import num_sh_bases, sh_basis
 
@@ -57,6 +59,20 @@ class WorldTransform:
     def points(self, x: Tensor) -> Tensor:
         """Normalised points (N, 3) in the world frame."""
         return self.scale * x.double() @ self.rotation.double().T + self.translation.double()
+
+
+def scene_frame(scene: Scene) -> WorldTransform:
+    """The frame a model trained on `scene` lives in: the inverse of the scene's normalisation."""
+    return WorldTransform.from_normalization(scene.center, scene.scale)
+
+
+def require_same_frame(saved: WorldTransform | None, scene: Scene, where: str, fix: str) -> None:
+    """Refuse a scene whose normalisation differs from the one a model was trained in: its cameras would not
+    fit the model, and every render would be silently wrong. `saved` is None for checkpoints older than
+    the record, which are let through."""
+    if saved is not None and not saved.matches(scene_frame(scene)):
+        raise SplatuError("the scene's normalisation differs from the one this run was trained in "
+                          "(cameras added, removed or moved, or another scene)", where, fix)
 
 
 def rotation_to_quaternion(rotation: Tensor) -> Tensor:

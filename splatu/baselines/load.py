@@ -21,6 +21,7 @@ from splatu.data.scene import Scene
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig
+from splatu.world_frame import WorldTransform, require_same_frame
 
 
 @dataclass
@@ -32,6 +33,8 @@ class LoadedRun:
     models: list[GaussianModel]
     train_seconds: float | None
     """Training time as the run recorded it (an ensemble: the wall time of all members)."""
+    frames: list[WorldTransform | None]
+    """Per model, the frame (scene normalisation) it was trained in; None in older checkpoints."""
 
 
 @dataclass
@@ -57,9 +60,10 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
             raise SplatuError("--head needs a single run, this is an ensemble", f"in {run_dir}", "drop --head")
         record = read_ensemble(run_dir)
         loaded = [load_run(member) for member in record.members]
-        return LoadedRun(run_dir, loaded[0][0], [model for _, model in loaded], record.wall_seconds)
-    config, model = load_run(run_dir, head)
-    return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir))
+        return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], record.wall_seconds,
+                         [m.frame for m in loaded])
+    config, model, frame = load_run(run_dir, head)
+    return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir), [frame])
 
 
 def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:
@@ -72,6 +76,17 @@ def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:
                           f"in {run.run_dir}", "pass --data PATH with the scene's new location "
                           "(the run's recorded split and downscale still apply)")
     return recorded
+
+
+def check_frames(run: LoadedRun, scene: Scene) -> None:
+    """Refuse to render a run on a scene normalised differently from the one it was trained on, e.g. a
+    `poster` run of the stand-in once the real capture is present: every map would be silently wrong."""
+    trained_on = run.config.data.data
+    fix = ("pass --data with the scene it was trained on" if trained_on != "poster" else
+           "pass --data with the poster it was trained on (the built-in stand-in or the real capture, "
+           "whichever `poster` found then; the stand-in is in the splatu cache)")
+    for frame in run.frames:
+        require_same_frame(frame, scene, f"in {run.run_dir}", fix)
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:
@@ -96,6 +111,7 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
                  fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
     """The renderer of `method` for this run; visibility and Fisher look at the scene's training views."""
     check_method(method, run)
+    check_frames(run, scene)
     degree = run.config.model.sh_degree
     background = eval_background(run.config)
     model = run.models[0]

@@ -222,6 +222,28 @@ def test_load_uses_the_recorded_scene_and_split_and_says_how_to_pass_a_moved_one
     assert len(json.loads((tmp_path / "render" / "render.json").read_text())["per_view"]) == 4
 
 
+def test_a_scene_normalised_unlike_the_training_one_is_refused_in_one_line(tiny_run, tmp_path, capsys):
+    """E.g. a `poster` run of the stand-in, loaded once the real capture is present: the cameras would not fit."""
+    from splatu.checkpoint import list_checkpoints, read_checkpoint
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    path = list_checkpoints(run)[-1]
+    state = read_checkpoint(path)
+    state["world_transform"]["scale"] *= 1.5  # as if trained on a scene normalised differently
+    torch.save(state, path)
+    for command in (["eval-ause", "--load", str(run)], ["render-uncertainty", "--load", str(run)]):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exc:
+            entrypoint(command)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err  # after the line that says which poster `--data poster` found
+        errors = [line for line in err.splitlines() if line.startswith("error")]
+        assert len(errors) == 1 and "normalisation differs" in errors[0] and "stand-in" in errors[0], err
+        assert "Traceback" not in err
+    assert not list(run.glob("ause_*"))
+
+
 def _folder_names(root) -> set[str]:
     return {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file()}
 

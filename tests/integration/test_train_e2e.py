@@ -33,5 +33,5 @@ def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
     held_out = [r for r in evals if r["event"] == "eval" and r["set"] == "eval"]
     assert "psnr_observed" in held_out[-1]
     assert (tmp_path / "outputs" / "poster" / "splatu" / "latest" / "splat.ply").is_file()
-    loaded_config, model = load_run(run_dir)
+    loaded_config, model, _ = load_run(run_dir)
     assert loaded_config == config and len(model) > 0

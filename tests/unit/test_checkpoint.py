@@ -20,7 +20,7 @@ def test_save_then_load_run_round_trips_config_and_model(tmp_path):
     config = TrainConfig(steps=7, seed=3)
     state = _state(config, 0)
     ckpt.save_checkpoint(tmp_path, 5, state)
-    loaded_config, model = ckpt.load_run(tmp_path)
+    loaded_config, model, _ = ckpt.load_run(tmp_path)
     assert loaded_config == config
     for name, value in state["model"].items():
         assert torch.equal(model.state_dict()[name], value)

@@ -132,8 +132,7 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
     full, resumed = losses_of(full_dir), losses_of(resumed_dir)
     assert sorted(resumed) == list(range(1, 13))
     assert resumed == full  # bit-identical losses, step for step
-    _, model_a = load_run(full_dir)
-    _, model_b = load_run(resumed_dir)
+    model_a, model_b = load_run(full_dir).model, load_run(resumed_dir).model
     assert len(model_a) != len(scene.points)  # densification happened, so its state was resumed too
     for name in GaussianModel.PARAM_NAMES:
         assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
@@ -207,7 +206,7 @@ def test_the_uncertainty_loss_never_changes_the_geometry(tmp_path, scene):
         config = tiny_config(tmp_path / kind, checkpoint_every=0)
         config = dataclasses.replace(config, uncertainty=dataclasses.replace(
             config.uncertainty, off=kind == "off", kind="antipodal" if kind == "off" else kind))
-        models[kind] = load_run(trainer.train(config))[1]
+        models[kind] = load_run(trainer.train(config)).model
     reference = models.pop("off")
     assert len(reference) != len(scene.points)  # densification ran, so its random draws were compared too
     for kind, model in models.items():
@@ -225,22 +224,22 @@ def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path
     base = dataclasses.replace(base, model=dataclasses.replace(base.model, u_sh_degree=2),
                                uncertainty=dataclasses.replace(base.uncertainty, extra_heads=heads))
     run_dir = trainer.train(base)
-    _, own = load_run(run_dir)
+    own = load_run(run_dir).model
     assert own.u_sh.shape[1:] == (9, 5)
     for head in (None, *heads):
-        head_config, head_model = load_run(run_dir, head)
+        head_config, head_model, _ = load_run(run_dir, head)
         u_sh = head_model.u_sh[..., :1]  # the own head (head None) is channel 0; a selected head is its channel
         alone = dataclasses.replace(tiny_config(tmp_path / f"alone-{head}", checkpoint_every=0),
                                     model=head_config.model, uncertainty=dataclasses.replace(
                                         head_config.uncertainty, extra_heads=()))
-        _, separate = load_run(trainer.train(alone))
+        separate = load_run(trainer.train(alone)).model
         # equal up to float32 rounding: fused Adam rounds the few elements in its scalar tail differently from its
         # vector lanes, and where an element falls depends on the tensor's size (measured: one element, 4.7e-10)
         torch.testing.assert_close(u_sh, separate.u_sh, rtol=1e-6, atol=1e-8, msg=str(head))
         for name in GaussianModel.PARAM_NAMES[:-1]:
             assert torch.equal(getattr(head_model, name), getattr(separate, name)), (head, name)
-    respelled = load_run(run_dir, "threshold=0.2, kind=antipodal")[1]  # found by its settings, not its spelling
-    assert torch.equal(respelled.u_sh, load_run(run_dir, "kind=antipodal,threshold=0.2")[1].u_sh)
+    respelled = load_run(run_dir, "threshold=0.2, kind=antipodal").model  # found by its settings, not its spelling
+    assert torch.equal(respelled.u_sh, load_run(run_dir, "kind=antipodal,threshold=0.2").model.u_sh)
     for missing in ("lam=0.2", "lam"):
         with pytest.raises(SplatuError, match=rf"no uncertainty head '{missing}'.*'degree=1'"):
             load_run(run_dir, missing)
@@ -252,7 +251,7 @@ def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
     run_dir = trainer.train(config)
     record = json.loads((run_dir / "ensemble.json").read_text())
     assert record["members"] == ["members/0", "members/1"] and record["wall_seconds"] > 0
-    (config_0, model_0), (config_1, model_1) = (load_run(run_dir / m) for m in record["members"])
+    (config_0, model_0, _), (config_1, model_1, _) = (load_run(run_dir / m) for m in record["members"])
     assert (config_0.seed, config_1.seed) == (0, 1)
     assert dataclasses.replace(config_0, seed=1) == config_1
     assert not torch.equal(model_0.means, model_1.means)
@@ -417,7 +416,7 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
     assert record["wall_seconds"] == pytest.approx(sum(record["session_seconds"]))
     for member in record["members"]:
         assert losses_of(run_dir / member) == losses_of(full_dir / member), member
-        (_, model_a), (_, model_b) = load_run(full_dir / member), load_run(run_dir / member)
+        model_a, model_b = load_run(full_dir / member).model, load_run(run_dir / member).model
         for name in GaussianModel.PARAM_NAMES:
             assert torch.equal(getattr(model_a, name), getattr(model_b, name)), (member, name)
 
@@ -428,7 +427,7 @@ def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation
     checkpoint = read_checkpoint(list_checkpoints(run_dir)[-1])
     saved = checkpoint["world_transform"]
     assert saved["scale"] == 4.0 and torch.equal(saved["translation"].float(), scene.center)
-    _, model = load_run(run_dir)
+    model = load_run(run_dir).model
     exported = load_ply(run_dir / "splat.ply", ModelConfig())
     torch.testing.assert_close(exported.means, model.means * 4.0 + scene.center)
     torch.testing.assert_close(exported.log_scales, model.log_scales + math.log(4.0))
