@@ -1,6 +1,6 @@
 """Benchmark `splatu.rasterizer.rasterize` against a straightforward dense per-tile torch rasterizer.
 
-    python benchmarks/rasterizer.py [--quick] [--json PATH] [--compile]
+    python benchmarks/rasterizer.py [--quick] [--json PATH] [--compile] [--malloc-defaults]
 
 Scenes (fixed seeds) look like trained ones: footprint radii spread log-uniformly over ~1–30 px
 (2D std 1/3–10 px) and opacities over (0, 1). Each (case, implementation) runs in its own
@@ -8,6 +8,8 @@ subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock me
 `contributing_pairs` counts pixel–Gaussian pairs with α ≥ 1/255 reached before termination, as
 the 3DGS rules define them (our rasterizer matches a brute-force reference on this count).
 `speedup_vs_reference` = (reference forward + backward) / (ours forward + backward).
+Both run with glibc malloc's thresholds fixed as every splatu command fixes them
+(splatu.allocator), unless --malloc-defaults.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from pathlib import Path
 
 import torch
 from torch import Tensor
+
+from splatu.allocator import keep_freed_memory
 
 REPO = Path(__file__).resolve().parents[1]
 TILE = 16
@@ -146,12 +150,15 @@ def time_runs(case: Case, implementation: str, runs: int) -> dict:
     }
 
 
-def run_worker(case_index: int, implementation: str, runs: int, compile_kernels: bool, threads: int) -> dict:
+def run_worker(case_index: int, implementation: str, runs: int, compile_kernels: bool, threads: int,
+               malloc_defaults: bool) -> dict:
     """Measure one (case, implementation) in a fresh subprocess; returns its JSON result (case -1: quick)."""
     cmd = [sys.executable, __file__, "--worker", implementation, "--case", str(case_index), "--runs", str(runs),
            "--threads", str(threads)]
     if compile_kernels:
         cmd.append("--compile")
+    if malloc_defaults:
+        cmd.append("--malloc-defaults")
     done = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=REPO)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -167,6 +174,8 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=3, help="timed runs per measurement (after one warm-up)")
     parser.add_argument("--threads", type=int, default=0,
                         help="torch threads in each measurement (0: torch's default); 1 is steadier on a busy machine")
+    parser.add_argument("--malloc-defaults", action="store_true",
+                        help="leave glibc malloc's thresholds at their defaults (splatu's commands fix them)")
     parser.add_argument("--worker", choices=["ours", "reference"], help=argparse.SUPPRESS)
     parser.add_argument("--case", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -174,6 +183,8 @@ def main() -> None:
     if args.worker:
         if args.threads:
             torch.set_num_threads(args.threads)
+        if not args.malloc_defaults:
+            keep_freed_memory()  # as in training and every splatu command
         if args.compile:
             from splatu.rasterizer.kernels import set_compile
 
@@ -188,11 +199,12 @@ def main() -> None:
     runs = 0 if args.quick else args.runs
     results = []
     for index, case in cases:
-        ours = run_worker(index, "ours", runs, args.compile, args.threads)
+        ours = run_worker(index, "ours", runs, args.compile, args.threads, args.malloc_defaults)
         ours_total = ours["ms_forward"] + ours["ms_backward"]
         reference = None
         if index <= 0 or args.reference_all:
-            reference = run_worker(index, "reference", 0 if args.quick else 1, False, args.threads)
+            reference = run_worker(index, "reference", 0 if args.quick else 1, False, args.threads,
+                                   args.malloc_defaults)
         results.append({
             "name": case.name,
             "gaussians": case.gaussians,
@@ -209,6 +221,7 @@ def main() -> None:
                 reference["ms_forward"] + reference["ms_backward"], 1),
             "reference_peak_rss_mb": None if reference is None else round(reference["peak_rss_mb"], 1),
             "kernels": "torch.compile" if args.compile else "eager",
+            "malloc": "glibc defaults" if args.malloc_defaults else "splatu.allocator",
             "threads": args.threads or torch.get_num_threads(),
             "first_call_seconds": round(ours["seconds_total"] - (runs * ours_total) / 1e3, 1),
         })

@@ -107,8 +107,8 @@ def main(args: Args) -> None:
             continue
         for preset in args.presets:
             for sh_degree in args.sh_degrees or [None]:
-                print(f"training {scene} with preset {preset}, colour-SH degree {sh_degree or 'of the preset'} ...",
-                      flush=True)
+                degree = "of the preset" if sh_degree is None else sh_degree
+                print(f"training {scene} with preset {preset}, colour-SH degree {degree} ...", flush=True)
                 rows.append(run_one(scene, preset, sh_degree, data, args.output_dir))
                 print(json.dumps(rows[-1]), flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -26,6 +26,7 @@ import hashlib
 import json
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -229,7 +230,8 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     to_train = variants(args.ensemble_size, heads_run)
     warm_up = None
     if config.compile_kernels and any(not (root / v.name / "study_wall_seconds.json").is_file() for v in to_train):
-        warm_up = warm_up_kernels(config, scene, root / "kernel-warm-up")
+        with tempfile.TemporaryDirectory() as scratch:
+            warm_up = warm_up_kernels(config, scene, Path(scratch))
         print(f"  compiled the rasterizer kernels in an untimed warm-up training: {warm_up:.1f} s")
     for variant in to_train:
         wall = train_variant(variant, config, scene, root / variant.name)

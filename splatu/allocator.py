@@ -3,10 +3,11 @@
 A training step allocates and frees tens of MB of tensors whose sizes change every step (each camera
 sees a different number of Gaussians). glibc's malloc starts by giving such blocks back to the kernel
 (mmap'd blocks above a dynamic threshold, and the heap's top beyond a trim threshold), so the next step
-faults fresh zeroed pages in again. Measured on the poster stand-in (`fast` preset, steps 450–600 of a
-fresh process, 2 cores): ~14,000 page faults and ~45 ms of kernel time per step, 305 ms per step with
-the defaults against 243 ms with the thresholds fixed as below. glibc raises its threshold by itself
-only after it has seen large frees, so the first training of a process paid this and later ones did not.
+faults fresh zeroed pages in again. Measured by `python benchmarks/allocator.py --steps 500 --measured 100`
+(poster stand-in, `fast` preset, fresh processes, 2 cores): 12,000–18,000 page faults and 40–60 ms of kernel
+time per step with glibc's defaults, none with the thresholds fixed as below; 293 → 249 ms per step with the
+uncertainty loss, 298 → 244 without. glibc raises its thresholds by itself only after it has seen large
+frees, so the first training of a process paid this and later ones did not.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import ctypes
 import os
 import platform
+from collections.abc import Mapping
 
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
@@ -22,8 +24,6 @@ MMAP_THRESHOLD_BYTES = 32 << 20
 heap and are reused; a fixed value also stops the threshold from moving."""
 TRIM_THRESHOLD_BYTES = 1 << 30
 """Free memory at the heap's top kept before returning it to the kernel; a step's peak is well below it."""
-USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")
-"""Environment variables with which a user has tuned malloc already; then it is left alone."""
 
 _tuned = False
 
@@ -36,9 +36,15 @@ def keep_freed_memory() -> bool:
     global _tuned
     if _tuned:
         return True
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc" or any(v in os.environ for v in USER_SETTINGS):
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc" or user_tuned_malloc(os.environ):
         return False
     libc = ctypes.CDLL(None)
     _tuned = bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(
         libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
     return _tuned
+
+
+def user_tuned_malloc(environment: Mapping[str, str]) -> bool:
+    """Whether malloc was tuned through the environment (MALLOC_* variables, or glibc.malloc.* tunables)."""
+    return (any(name.startswith("MALLOC_") for name in environment)
+            or "glibc.malloc." in environment.get("GLIBC_TUNABLES", ""))

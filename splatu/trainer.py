@@ -327,7 +327,7 @@ def uncertainty_generators(seed: int, heads: int) -> list[torch.Generator]:
 def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> TrainState:
     """The checkpointed state; refuses a scene whose normalisation moved (its cameras would not fit the model)."""
     to_world = scene_frame(scene)
-    require_same_frame(saved_frame(checkpoint), scene, f"in {config.data.data}",
+    require_same_frame(saved_frame(checkpoint), to_world, f"in {config.data.data}",
                        "resume with the scene as it was, or start a new run")
     model = model_from_state(checkpoint, config)
     extent = float(checkpoint["scene_extent"])

@@ -66,11 +66,11 @@ def scene_frame(scene: Scene) -> WorldTransform:
     return WorldTransform.from_normalization(scene.center, scene.scale)
 
 
-def require_same_frame(saved: WorldTransform | None, scene: Scene, where: str, fix: str) -> None:
-    """Refuse a scene whose normalisation differs from the one a model was trained in: its cameras would not
-    fit the model, and every render would be silently wrong. `saved` is None for checkpoints older than
+def require_same_frame(saved: WorldTransform | None, scene: WorldTransform, where: str, fix: str) -> None:
+    """Refuse a scene (its `scene_frame`) normalised unlike the one a model was trained in: its cameras would
+    not fit the model, and every render would be silently wrong. `saved` is None for checkpoints older than
     the record, which are let through."""
-    if saved is not None and not saved.matches(scene_frame(scene)):
+    if saved is not None and not saved.matches(scene):
         raise SplatuError("the scene's normalisation differs from the one this run was trained in "
                           "(cameras added, removed or moved, or another scene)", where, fix)
 

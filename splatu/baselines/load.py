@@ -21,7 +21,7 @@ from splatu.data.scene import Scene
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig
-from splatu.world_frame import WorldTransform, require_same_frame
+from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 
 @dataclass
@@ -86,7 +86,7 @@ def check_frames(run: LoadedRun, scene: Scene) -> None:
            "pass --data with the poster it was trained on (the built-in stand-in or the real capture, "
            "whichever `poster` found then; the stand-in is in the splatu cache)")
     for frame in run.frames:
-        require_same_frame(frame, scene, f"in {run.run_dir}", fix)
+        require_same_frame(frame, scene_frame(scene), f"in {run.run_dir}", fix)
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:

@@ -222,17 +222,24 @@ def test_load_uses_the_recorded_scene_and_split_and_says_how_to_pass_a_moved_one
     assert len(json.loads((tmp_path / "render" / "render.json").read_text())["per_view"]) == 4
 
 
-def test_a_scene_normalised_unlike_the_training_one_is_refused_in_one_line(tiny_run, tmp_path, capsys):
+@pytest.mark.parametrize("kind", ["run", "ensemble"])
+def test_a_scene_normalised_unlike_the_training_one_is_refused_in_one_line(tiny_run, tmp_path, capsys, kind):
     """E.g. a `poster` run of the stand-in, loaded once the real capture is present: the cameras would not fit."""
     from splatu.checkpoint import list_checkpoints, read_checkpoint
 
-    run = tmp_path / "run"
-    shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
-    path = list_checkpoints(run)[-1]
+    run = tmp_path / kind
+    members = [run] if kind == "run" else [run / "members" / str(k) for k in range(2)]
+    for member in members:
+        shutil.copytree(tiny_run, member, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    if kind == "ensemble":
+        (run / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"], "wall_seconds": 1.0}))
+    path = list_checkpoints(members[-1])[-1]  # the ensemble's second member only
     state = read_checkpoint(path)
     state["world_transform"]["scale"] *= 1.5  # as if trained on a scene normalised differently
     torch.save(state, path)
-    for command in (["eval-ause", "--load", str(run)], ["render-uncertainty", "--load", str(run)]):
+    method = "ours" if kind == "run" else "ensemble"
+    for command in (["eval-ause", "--load", str(run), "--method", method],
+                    ["render-uncertainty", "--load", str(run), "--method", method]):
         capsys.readouterr()
         with pytest.raises(SystemExit) as exc:
             entrypoint(command)
