@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import time
 
 from splatu import trainer
 from splatu.checkpoint import load_run
@@ -24,12 +25,15 @@ def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
         densify=DensifyConfig(warmup_length=10, refine_every=10, stop_split_at=40, stop_screen_size_at=20,
                               max_gaussians=2000),
     )
+    started = time.perf_counter()
     run_dir = trainer.train(config)
+    seconds = time.perf_counter() - started
 
     evals = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     interp = [r for r in evals if r["event"] == "eval" and r["set"] == "interp"]
     assert [r["step"] for r in interp] == [10, 20, 30, 40]
     assert interp[-1]["psnr"] > interp[0]["psnr"] + 1.0, interp  # it learns
+    assert seconds < 60, f"the tiny end-to-end run took {seconds:.0f} s (issue 5: under 60 s)"
     held_out = [r for r in evals if r["event"] == "eval" and r["set"] == "eval"]
     assert "psnr_observed" in held_out[-1]
     assert (tmp_path / "outputs" / "poster" / "splatu" / "latest" / "splat.ply").is_file()

@@ -198,6 +198,34 @@ def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(
     assert all(torch.isfinite(v).all() for v in state["model"].values())
 
 
+def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, monkeypatch):
+    """The other direction, through the trainer's own step: with L_u scaled to 0, u_sh gets an all-zero
+    gradient, so a render that let u leak into the colour (and so into the photometric loss) fails here."""
+    scene = tiny_scene(n_train=2)
+    config = tiny_config(tmp_path, resolution_levels=0)
+    state = trainer.fresh_state(config, scene)
+    with torch.no_grad():  # u_sh away from its initial value, so a leak would have a non-zero gradient
+        state.model.u_sh.normal_(generator=torch.Generator().manual_seed(3))
+    real_loss, check = trainer.uncertainty_loss, trainer._nonfinite
+    grads: list[tuple[torch.Tensor, torch.Tensor]] = []
+
+    def zero_uncertainty_loss(*args, **kwargs):
+        return real_loss(*args, **kwargs) * 0.0  # the graph is kept: u_sh still takes part in the backward
+
+    def recording_check(loss, model, raster):
+        grads.append((model.u_sh.grad.clone(), model.sh_dc.grad.clone()))
+        return check(loss, model, raster)
+
+    monkeypatch.setattr(trainer, "uncertainty_loss", zero_uncertainty_loss)
+    monkeypatch.setattr(trainer, "_nonfinite", recording_check)
+    for _ in range(3):
+        assert trainer.train_step(state, config, trainer.TrainImages(scene.train)).skipped is None
+        state.step += 1
+    for u_grad, colour_grad in grads:
+        assert colour_grad.abs().sum() > 0  # the photometric loss did flow, to the colours
+        assert torch.count_nonzero(u_grad) == 0
+
+
 def test_the_uncertainty_loss_never_changes_the_geometry(tmp_path, scene):
     """Every L_u kind, and none, train the same Gaussians: L_u reaches only u_sh and draws from its own stream,
     so the study's rows (and visibility / Fisher on top of them) compare uncertainty on one reconstruction."""
