@@ -221,6 +221,7 @@ def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, 
     for _ in range(3):
         assert trainer.train_step(state, config, trainer.TrainImages(scene.train)).skipped is None
         state.step += 1
+    assert len(grads) == 3
     for u_grad, colour_grad in grads:
         assert colour_grad.abs().sum() > 0  # the photometric loss did flow, to the colours
         assert torch.count_nonzero(u_grad) == 0
