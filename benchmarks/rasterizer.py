@@ -8,6 +8,8 @@ subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock me
 `contributing_pairs` counts pixel–Gaussian pairs with α ≥ 1/255 reached before termination, as
 the 3DGS rules define them (our rasterizer matches a brute-force reference on this count).
 `speedup_vs_reference` = (reference forward + backward) / (ours forward + backward).
+`ms_footprint` is the part of our forward spent listing each block's Gaussians (footprint.py), the
+rest of it being the compositing.
 Both run with glibc malloc's thresholds fixed as every splatu command fixes them
 (splatu.allocator), unless --malloc-defaults.
 """
@@ -15,6 +17,7 @@ Both run with glibc malloc's thresholds fixed as every splatu command fixes them
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import resource
@@ -121,12 +124,28 @@ def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_c
 # ---------------------------------------------------------------------------------------------
 
 
+def record_footprint_times() -> list[float]:
+    """Make the rasterizer record the wall time of each footprint pass (block_entries) into the returned list."""
+    module = importlib.import_module("splatu.rasterizer.rasterize")
+    block_entries, spent = module.block_entries, []
+
+    def timed(*args):
+        start = time.perf_counter()
+        entries = block_entries(*args)
+        spent.append(time.perf_counter() - start)
+        return entries
+
+    module.block_entries = timed
+    return spent
+
+
 def time_runs(case: Case, implementation: str, runs: int) -> dict:
-    """Median forward/backward wall times of `runs` renders after one warm-up (runs=0: the one render itself),
-    and this process's peak RSS."""
+    """Median forward/backward (and, for ours, footprint) wall times of `runs` renders after one warm-up
+    (runs=0: the one render itself), and this process's peak RSS."""
     from splatu.rasterizer import rasterize
 
     scene = make_scene(case)
+    footprint_seconds = record_footprint_times() if implementation == "ours" else []
     forward_ms, backward_ms, pairs = [], [], 0
     for run in range(runs + 1):
         leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(scene)]
@@ -142,9 +161,11 @@ def time_runs(case: Case, implementation: str, runs: int) -> dict:
         if run > 0 or runs == 0:
             forward_ms.append(1e3 * (middle - start))
             backward_ms.append(1e3 * (end - middle))
+    timed_footprints = footprint_seconds[1:] if runs else footprint_seconds
     return {
         "ms_forward": statistics.median(forward_ms),
         "ms_backward": statistics.median(backward_ms),
+        "ms_footprint": 1e3 * statistics.median(timed_footprints) if timed_footprints else None,
         "contributing_pairs": pairs,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
@@ -212,6 +233,7 @@ def main() -> None:
             "height": case.height,
             "ms_forward": round(ours["ms_forward"], 1),
             "ms_backward": round(ours["ms_backward"], 1),
+            "ms_footprint": round(ours["ms_footprint"], 1),
             "contributing_pairs": ours["contributing_pairs"],
             "ns_per_pair": round(1e6 * ours_total / max(ours["contributing_pairs"], 1), 1),
             "speedup_vs_reference": None if reference is None else round(
@@ -227,7 +249,8 @@ def main() -> None:
         })
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"cases": results}, indent=2) + "\n")
-    keys = ["ms_forward", "ms_backward", "contributing_pairs", "ns_per_pair", "speedup_vs_reference", "peak_rss_mb"]
+    keys = ["ms_forward", "ms_footprint", "ms_backward", "contributing_pairs", "ns_per_pair", "speedup_vs_reference",
+            "peak_rss_mb"]
     print(f"{'case':<28}" + "".join(f"{k:>22}" for k in keys))
     for r in results:
         print(f"{r['name']:<28}" + "".join(f"{r[k]!s:>22}" for k in keys))

@@ -3,12 +3,14 @@
     .venv/bin/python benchmarks/train_presets.py                      # poster + fox, fast + quality
     .venv/bin/python benchmarks/train_presets.py --scenes poster --presets fast
     .venv/bin/python benchmarks/train_presets.py --scenes poster --presets fast --sh-degrees 0 1 3
+    .venv/bin/python benchmarks/train_presets.py --scenes fox --presets fast --sh-degrees 0 1 3 --seeds 0 1 2
 
 Each row is one full `splatu train` run through the Python API (data loading included in the
 wall time; the image/stand-in cache may already be warm, which the table says). `--sh-degrees`
 trains each preset once per colour-SH degree, to measure which degree a scene needs (the
-preset's own degree when not given). fox is read from ../shared/data/fox with a contiguous
-eval block and is skipped with a message when absent.
+preset's own degree when not given). `--seeds` repeats every configuration per seed, because on fox
+one seed's held-out PSNR spreads by about 3 dB, more than the degrees differ. fox is read from
+../shared/data/fox with a contiguous eval block and is skipped with a message when absent.
 Writes benchmarks/results/train_presets.json and .md.
 """
 
@@ -40,6 +42,8 @@ class Args:
     """Presets to compare."""
     sh_degrees: list[int] = field(default_factory=list)
     """Colour-SH degrees to train each preset at (empty: the preset's own)."""
+    seeds: list[int] = field(default_factory=lambda: [0])
+    """Seeds to train each configuration with."""
     fox_downscale: int = 8
     """fox is 1080x1920; 8 gives 135x240, about the stand-in's 144x256."""
     output_dir: Path = Path("outputs/benchmarks")
@@ -56,8 +60,8 @@ def data_config(scene: str, fox_downscale: int) -> DataConfig | None:
     return DataConfig(data=str(path), eval_split="contiguous", downscale=fox_downscale)
 
 
-def run_one(scene: str, preset: str, sh_degree: int | None, data: DataConfig, output_dir: Path) -> dict:
-    config = dataclasses.replace(preset_config(preset), data=data, output_dir=output_dir, progress=False)
+def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: DataConfig, output_dir: Path) -> dict:
+    config = dataclasses.replace(preset_config(preset), data=data, output_dir=output_dir, progress=False, seed=seed)
     if sh_degree is not None:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, sh_degree=sh_degree))
     started = time.perf_counter()
@@ -65,7 +69,8 @@ def run_one(scene: str, preset: str, sh_degree: int | None, data: DataConfig, ou
     wall = time.perf_counter() - started
     summary = json.loads((run_dir / "summary.json").read_text())
     uncertainty = "off" if config.uncertainty.off else f"{config.uncertainty.kind}, u-SH {config.model.u_sh_degree}"
-    row = {"scene": scene, "preset": preset, "sh_degree": config.model.sh_degree, "uncertainty": uncertainty,
+    row = {"scene": scene, "preset": preset, "sh_degree": config.model.sh_degree, "seed": seed,
+           "uncertainty": uncertainty,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "wall_seconds": wall, "train_seconds": summary["train_seconds"], "run_dir": str(run_dir)}
     for set_name, metrics in summary["eval"].items():
@@ -76,7 +81,7 @@ def run_one(scene: str, preset: str, sh_degree: int | None, data: DataConfig, ou
 
 
 def markdown(rows: list[dict]) -> str:
-    cols = ["scene", "preset", "sh_degree", "uncertainty", "steps", "gaussians", "wall_seconds", "eval_psnr",
+    cols = ["scene", "preset", "sh_degree", "seed", "uncertainty", "steps", "gaussians", "wall_seconds", "eval_psnr",
             "eval_psnr_observed", "eval_ssim", "interp_psnr", "interp_ssim"]
     lines = ["PSNR (dB, mean over images) on the contiguous held-out block (`eval`), on its observed pixels",
              "(built-in scene only) and on every-8th held-out path frames (`interp`, built-in only); wall time",
@@ -89,14 +94,15 @@ def markdown(rows: list[dict]) -> str:
 
 
 def merged_with_previous(rows: list[dict], path: Path) -> list[dict]:
-    """Keep earlier rows for (scene, preset, colour-SH degree) this invocation did not rerun."""
+    """Keep earlier rows for (scene, preset, colour-SH degree, seed) this invocation did not rerun."""
     previous = json.loads(path.read_text()) if path.is_file() else []
     done = {_key(r) for r in rows}
     return [r for r in previous if _key(r) not in done] + rows
 
 
-def _key(row: dict) -> tuple[str, str, int]:
-    return row["scene"], row["preset"], row.get("sh_degree", 3)  # rows from before the sweep used degree 3
+def _key(row: dict) -> tuple[str, str, int, int]:
+    # rows from before the sweep used degree 3 and seed 0
+    return row["scene"], row["preset"], row.get("sh_degree", 3), row.get("seed", 0)
 
 
 def main(args: Args) -> None:
@@ -106,11 +112,13 @@ def main(args: Args) -> None:
         if data is None:
             continue
         for preset in args.presets:
-            for sh_degree in args.sh_degrees or [None]:
-                degree = "of the preset" if sh_degree is None else sh_degree
-                print(f"training {scene} with preset {preset}, colour-SH degree {degree} ...", flush=True)
-                rows.append(run_one(scene, preset, sh_degree, data, args.output_dir))
-                print(json.dumps(rows[-1]), flush=True)
+            for seed in args.seeds:
+                for sh_degree in args.sh_degrees or [None]:
+                    degree = "of the preset" if sh_degree is None else sh_degree
+                    print(f"training {scene} with preset {preset}, colour-SH degree {degree}, seed {seed} ...",
+                          flush=True)
+                    rows.append(run_one(scene, preset, sh_degree, seed, data, args.output_dir))
+                    print(json.dumps(rows[-1]), flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
     rows = merged_with_previous(rows, RESULTS / "train_presets.json")
     (RESULTS / "train_presets.json").write_text(json.dumps(rows, indent=2))

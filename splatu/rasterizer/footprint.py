@@ -4,16 +4,20 @@ A Gaussian can only pass the α ≥ 1/255 test where σ ≤ ln(255·o), an ellip
 into exact per-row x-intervals, then into blocks of `block_width` pixels of one row. The entries
 (block, Gaussian) are ordered by depth round (an equal slab of the depth order), then block, then
 depth. Entries are far fewer than pixel–Gaussian pairs (about one per row per `block_width`
-pixels), so this one sort is cheap. Rounds let the compositor skip the deeper part of a block's
-list once all of its pixels have terminated, which in a deep scene is most of it.
+pixels), and they are sorted one round at a time, by block alone (see block_entries). Rounds let
+the compositor skip the deeper part of a block's list once all of its pixels have terminated,
+which in a deep scene is most of it.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from splatu.rasterizer.kernels import kernel
 
 ALPHA_MIN = 1.0 / 255.0
 """3DGS skips a Gaussian at a pixel where its α is below this."""
@@ -68,41 +72,43 @@ def block_entries(
         ry = torch.sqrt(2.0 * s * cyy)
         y_lo = torch.ceil((my - ry - 0.5).clamp(-1.0, height + 1.0)).clamp(0, height).long()
         y_hi = torch.floor((my + ry - 0.5).clamp(-2.0, height)).clamp(-1, height - 1).long()
-        rows_per = (y_hi - y_lo + 1).clamp_min(0)
-        rec_g, rec_local = _expand(rows_per)
-        y = y_lo.index_select(0, rec_g) + rec_local
+        rec_g, y = _expand(y_lo, (y_hi - y_lo + 1).clamp_min(0))
+        j_lo, blocks_per = kernel("row_block_spans")(
+            y, rec_g, mx, my, 2.0 * s * cyy, det_g / cyy.square(), cxy / cyy, width, block_width
+        )
 
-        # Exact x-interval of the ellipse on each row (index_select: ~10x faster than x[idx] on CPU).
-        per_row = torch.stack([mx, my, 2.0 * s * cyy, det_g / cyy.square(), cxy / cyy], 1).index_select(0, rec_g)
-        row_mx, row_my, extent, det_over_c2, shear = per_row.unbind(1)
-        dy = y.to(f64) + 0.5 - row_my
-        half = torch.sqrt(((extent - dy * dy) * det_over_c2).clamp_min(0.0))
-        xc = row_mx + shear * dy
-        x_lo = torch.ceil((xc - half - 0.5).clamp(-1.0, width + 1.0)).clamp(0, width).long()
-        x_hi = torch.floor((xc + half - 0.5).clamp(-2.0, width)).clamp(-1, width - 1).long()
-        j_lo = torch.div(x_lo, block_width, rounding_mode="floor")
-        j_hi = torch.div(x_hi, block_width, rounding_mode="floor")
-        blocks_per = torch.where(x_hi >= x_lo, j_hi - j_lo + 1, torch.zeros_like(j_lo))
-        ent_rec, ent_local = _expand(blocks_per)
-
-        # One sort of (round, block, depth rank) packed in an int64: sorted keys carry the block and the
-        # Gaussian, so no random gather by a permutation is needed (~2x faster than argsort + gathers).
-        num_blocks = height * blocks_per_row
-        rounds = max(1, min(MAX_ROUNDS, ent_rec.numel() // ROUND_MIN_ENTRIES))
+        # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable
+        # sort of each round by block alone leaves every block's list front to back. Block ids fit
+        # int32, for which torch's CPU sort is a parallel radix sort (4 byte passes; 8 for int64),
+        # and one round's keys fit in cache: 16 sorts of ~400k random int32 keys take about half the
+        # time of one sort of 6.3M (measured, torch 2.13 CPU, 2 threads).
+        rounds = max(1, min(MAX_ROUNDS, int(blocks_per.sum()) // ROUND_MIN_ENTRIES))
         depth_round = torch.div(torch.arange(ids.numel(), device=ids.device) * rounds, max(1, ids.numel()),
                                 rounding_mode="floor")
-        record_key = ((depth_round.index_select(0, rec_g) * num_blocks + y * blocks_per_row + j_lo) << 32) | rec_g
-        key = torch.sort((record_key.index_select(0, ent_rec) + (ent_local << 32)), stable=True).values
-        round_starts = (torch.arange(rounds + 1, device=key.device) * num_blocks) << 32
+        per_round = torch.zeros(rounds, dtype=torch.long, device=ids.device)
+        per_round.index_add_(0, depth_round.index_select(0, rec_g), blocks_per)
+        round_bounds = [0, *torch.cumsum(per_round, 0).tolist()]
+        ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
+        unsorted_gaussian = ids.int().index_select(0, rec_g).index_select(0, ent_rec)
+        block = torch.empty(round_bounds[-1], dtype=torch.long, device=ids.device)
+        gaussian = torch.empty_like(block)
+        for begin, end in itertools.pairwise(round_bounds):
+            sorted_block, order = torch.sort(unsorted_block[begin:end], stable=True)
+            block[begin:end] = sorted_block
+            gaussian[begin:end] = unsorted_gaussian[begin:end].index_select(0, order)
     return BlockEntries(
-        gaussian=ids.index_select(0, key & 0xFFFFFFFF), block=(key >> 32) % num_blocks,
-        round_bounds=torch.searchsorted(key, round_starts).tolist(),
-        block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=num_blocks,
+        gaussian=gaussian, block=block, round_bounds=round_bounds,
+        block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=height * blocks_per_row,
     )
 
 
-def _expand(counts: Tensor) -> tuple[Tensor, Tensor]:
-    """For counts (M,), the owner index and the 0-based position within the owner of each of sum(counts) items."""
-    owner = torch.repeat_interleave(torch.arange(counts.numel(), device=counts.device), counts)
-    first = torch.cumsum(counts, 0) - counts
-    return owner, torch.arange(owner.numel(), device=counts.device) - first.index_select(0, owner)
+def _expand(start: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
+    """Ranges start[m], start[m] + 1, … of counts[m] items each, concatenated: (owner m, value) per item.
+
+    The value is start[owner] + (item − first item of owner), computed as one gather of start − first
+    plus the item index, in start's dtype.
+    """
+    total = int(counts.sum())
+    owner = torch.repeat_interleave(torch.arange(counts.numel(), device=counts.device), counts, output_size=total)
+    shifted = (start - (torch.cumsum(counts, 0) - counts)).to(start.dtype)
+    return owner, shifted.index_select(0, owner) + torch.arange(total, dtype=start.dtype, device=start.device)

@@ -1,7 +1,8 @@
-"""The dense per-entry math of the compositor, as pure functions of (B, Q) tensors.
+"""The dense elementwise math of the rasterizer, as pure functions: the compositor's per-entry work
+on (B, Q) tensors, and the footprint's per-row spans.
 
 Each function is one fusable stretch of elementwise work between the steps eager torch must do
-itself (cumulative sums, scatter-adds into pixels or Gaussians). They run as plain torch, or,
+itself (cumulative sums, sorts, scatter-adds into pixels or Gaussians). They run as plain torch, or,
 after `set_compile(True)`, through `torch.compile`, which fuses each into one loop.
 
 Layout: an entry q is one Gaussian on one block of B pixels of a row; element [x, q] is that
@@ -118,8 +119,29 @@ def entry_gradients(
     return torch.cat([grad_features_ext, rest], dim=1)
 
 
+def row_block_spans(
+    row: Tensor, owner: Tensor, mx: Tensor, my: Tensor, extent: Tensor, det_over_c2: Tensor, shear: Tensor,
+    width: int, block_width: int,
+) -> tuple[Tensor, Tensor]:
+    """First block and number of blocks of each footprint row record (float64 math, int64 results).
+
+    The α ≥ 1/255 ellipse σ ≤ s of Gaussian `owner` meets pixel row `row` (centre dy from the mean) in
+    the x-interval xc ± half, xc = mx + (c_xy/c_yy)·dy, half = sqrt((2 s c_yy − dy²)·det/c_yy²); the
+    pixels whose centres lie in it, cut into blocks of `block_width`. Per-Gaussian inputs are (N,).
+    """
+    dy = row.to(torch.float64) + 0.5 - my.index_select(0, owner)
+    half = torch.sqrt(((extent.index_select(0, owner) - dy * dy) * det_over_c2.index_select(0, owner)).clamp_min(0.0))
+    xc = mx.index_select(0, owner) + shear.index_select(0, owner) * dy
+    x_lo = torch.ceil((xc - half - 0.5).clamp(-1.0, width + 1.0)).clamp(0, width).long()
+    x_hi = torch.floor((xc + half - 0.5).clamp(-2.0, width)).clamp(-1, width - 1).long()
+    j_lo = torch.div(x_lo, block_width, rounding_mode="floor")
+    j_hi = torch.div(x_hi, block_width, rounding_mode="floor")
+    return j_lo, torch.where(x_hi >= x_lo, j_hi - j_lo + 1, torch.zeros_like(j_lo))
+
+
 _EAGER: dict[str, Callable] = {
-    fn.__name__: fn for fn in (alpha_and_log_one_minus, blend, upstream_per_weight, entry_gradients)
+    fn.__name__: fn
+    for fn in (alpha_and_log_one_minus, blend, upstream_per_weight, entry_gradients, row_block_spans)
 }
 _compiled: dict[str, Callable] = {}
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
