@@ -8,8 +8,8 @@ subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock me
 `contributing_pairs` counts pixel–Gaussian pairs with α ≥ 1/255 reached before termination, as
 the 3DGS rules define them (our rasterizer matches a brute-force reference on this count).
 `speedup_vs_reference` = (reference forward + backward) / (ours forward + backward).
-`ms_footprint` is the part of our forward spent listing each block's Gaussians (footprint.py), the
-rest of it being the compositing.
+`ms_footprint` is the part of our forward spent listing each block's Gaussians (footprint.py); the
+rest of it is the projection and the compositing.
 Both run with glibc malloc's thresholds fixed as every splatu command fixes them
 (splatu.allocator), unless --malloc-defaults.
 """
@@ -233,7 +233,7 @@ def main() -> None:
             "height": case.height,
             "ms_forward": round(ours["ms_forward"], 1),
             "ms_backward": round(ours["ms_backward"], 1),
-            "ms_footprint": round(ours["ms_footprint"], 1),
+            "ms_footprint": None if ours["ms_footprint"] is None else round(ours["ms_footprint"], 1),
             "contributing_pairs": ours["contributing_pairs"],
             "ns_per_pair": round(1e6 * ours_total / max(ours["contributing_pairs"], 1), 1),
             "speedup_vs_reference": None if reference is None else round(

@@ -1,6 +1,6 @@
 """Front-to-back alpha compositing over block entries, with an analytic backward.
 
-Entries (see footprint.py) are sorted by (block, depth). Evaluating every entry at the
+Entries (see footprint.py) are sorted by (depth round, block, depth). Evaluating every entry at the
 `block_width` pixels of its block gives a (B, Q) matrix whose row x, over a block's entries, is
 exactly that pixel's depth-ordered Gaussian list. Transmittance is then a segmented exclusive
 cumulative sum of log(1 − α) along q (float64, so long lists keep precision), and 3DGS's early

@@ -79,16 +79,17 @@ def block_entries(
 
         # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable
         # sort of each round by block alone leaves every block's list front to back. Block ids fit
-        # int32, for which torch's CPU sort is a parallel radix sort (4 byte passes; 8 for int64),
-        # and one round's keys fit in cache: 16 sorts of ~400k random int32 keys take about half the
-        # time of one sort of 6.3M (measured, torch 2.13 CPU, 2 threads).
-        rounds = max(1, min(MAX_ROUNDS, int(blocks_per.sum()) // ROUND_MIN_ENTRIES))
+        # int32, for which torch's CPU sort of a 1-D tensor of ≥ 32,768 elements is a parallel radix
+        # sort of 4 byte passes (8 for int64), and one round's keys fit in cache: 16 sorts of 394k
+        # random int32 keys take about half the time of one sort of 6.3M (measured, torch 2.13 CPU,
+        # 2 threads; the 100k benchmark case has 6.3M entries in 16 rounds).
+        ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
+        rounds = max(1, min(MAX_ROUNDS, ent_rec.numel() // ROUND_MIN_ENTRIES))
         depth_round = torch.div(torch.arange(ids.numel(), device=ids.device) * rounds, max(1, ids.numel()),
                                 rounding_mode="floor")
         per_round = torch.zeros(rounds, dtype=torch.long, device=ids.device)
         per_round.index_add_(0, depth_round.index_select(0, rec_g), blocks_per)
         round_bounds = [0, *torch.cumsum(per_round, 0).tolist()]
-        ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
         unsorted_gaussian = ids.int().index_select(0, rec_g).index_select(0, ent_rec)
         block = torch.empty(round_bounds[-1], dtype=torch.long, device=ids.device)
         gaussian = torch.empty_like(block)

@@ -5,8 +5,9 @@ Each function is one fusable stretch of elementwise work between the steps eager
 itself (cumulative sums, sorts, scatter-adds into pixels or Gaussians). They run as plain torch, or,
 after `set_compile(True)`, through `torch.compile`, which fuses each into one loop.
 
-Layout: an entry q is one Gaussian on one block of B pixels of a row; element [x, q] is that
-Gaussian at column x of the block. Columns come first so that the running sums down each
+Compositor layout (row_block_spans instead takes 1-D per-row-record inputs): an entry q is one
+Gaussian on one block of B pixels of a row; element [x, q] is that Gaussian at column x of the
+block. Columns come first so that the running sums down each
 pixel's list (along q) are contiguous: torch's cumsum is ~10× faster along the contiguous dim.
 u_q = x0_q + 0.5 − mean_x and dy_q = row_q + 0.5 − mean_y, so the offset of pixel centre from
 mean is (t, dy) with t = x + u_q. A pair is valid when σ ≥ 0, α ≥ 1/255 and the pixel is inside

@@ -2,8 +2,10 @@
 
 The compositor reads each block's Gaussians as one contiguous run per depth round, front to back; a
 missing entry would drop a pair and a misordered one would blend out of order. The exactness tests
-see both only through the rendered values; these check the list itself against a brute-force pass
-over every pixel, with one and with several depth rounds.
+see both only through the rendered values. These check the list itself, with one and with several
+depth rounds: it holds every pair a brute-force pass over the pixels finds passing the α test, each
+listed entry has a pixel within the footprint's rounding slack of passing, and the order is
+(round, block, depth).
 """
 
 from __future__ import annotations
@@ -20,60 +22,90 @@ from tests.reference_rasterizer import random_scene
 
 BLOCK_WIDTH = 8
 WIDTH, HEIGHT = 37, 23  # not a multiple of the block width
+BLOCKS_PER_ROW = -(-WIDTH // BLOCK_WIDTH)
 
 
-def listed(seed: int, n: int = 80):
-    scene = random_scene(seed, n, WIDTH, HEIGHT, opacity_range=(0.002, 0.99))
-    proj = project_gaussians(scene.means, scene.quats, scene.scales, scene.world_to_camera, scene.K, WIDTH, HEIGHT,
+def listed(seed: int, n: int = 80, width: int = WIDTH, height: int = HEIGHT):
+    scene = random_scene(seed, n, width, height, opacity_range=(0.002, 0.99))
+    proj = project_gaussians(scene.means, scene.quats, scene.scales, scene.world_to_camera, scene.K, width, height,
                              scene.near, scene.far, False)
     entries = block_entries(proj.means2d, proj.cov2d, proj.det, scene.opacities, proj.depths, proj.visible,
-                            WIDTH, HEIGHT, BLOCK_WIDTH)
+                            width, height, BLOCK_WIDTH)
     return scene, proj, entries
+
+
+def sigma_at(proj, x: torch.Tensor, y: torch.Tensor, gaussian: torch.Tensor) -> torch.Tensor:
+    """σ of Gaussian(s) `gaussian` at the pixel centres (x + 0.5, y + 0.5); shapes broadcast."""
+    dx = x + 0.5 - proj.means2d[gaussian, 0]
+    dy = y + 0.5 - proj.means2d[gaussian, 1]
+    a, b, c = proj.conics[gaussian].unbind(-1)
+    return 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
 
 
 def passing_pairs(scene, proj) -> set[tuple[int, int]]:
     """(block, Gaussian) for every pixel centre where a visible Gaussian has σ ≥ 0 and α ≥ 1/255."""
     ys, xs = torch.meshgrid(torch.arange(HEIGHT), torch.arange(WIDTH), indexing="ij")
-    dx = xs.reshape(-1, 1) + 0.5 - proj.means2d[:, 0]
-    dy = ys.reshape(-1, 1) + 0.5 - proj.means2d[:, 1]
-    a, b, c = proj.conics.unbind(-1)
-    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+    everyone = torch.arange(scene.opacities.numel())
+    sigma = sigma_at(proj, xs.reshape(-1, 1), ys.reshape(-1, 1), everyone)
     alpha = (scene.opacities * torch.exp(-sigma)).clamp(max=0.99)
     passes = (sigma >= 0) & (alpha >= ALPHA_MIN) & proj.visible
     pixel, gaussian = torch.nonzero(passes).unbind(1)
-    blocks_per_row = -(-WIDTH // BLOCK_WIDTH)
-    block = (pixel // WIDTH) * blocks_per_row + (pixel % WIDTH) // BLOCK_WIDTH
+    block = (pixel // WIDTH) * BLOCKS_PER_ROW + (pixel % WIDTH) // BLOCK_WIDTH
     return set(zip(block.tolist(), gaussian.tolist(), strict=True))
+
+
+def assert_round_block_depth_order(proj, entries, rounds: int) -> None:
+    """Entries sorted by (round, block, depth rank); rounds are consecutive slabs of the depth order."""
+    depth_rank = torch.empty(proj.depths.numel(), dtype=torch.long)
+    order = torch.sort(proj.depths, stable=True).indices  # front to back, ties by index (the reference's)
+    depth_rank[order] = torch.arange(order.numel())
+    rank = depth_rank[entries.gaussian]
+    bounds = entries.round_bounds
+    assert len(bounds) == rounds + 1 and bounds[0] == 0 and bounds[-1] == entries.block.numel()
+    round_of = torch.repeat_interleave(torch.arange(rounds), torch.tensor(bounds).diff())
+    key = (round_of * entries.num_blocks + entries.block) * (order.numel() + 1) + rank
+    assert bool((key[1:] > key[:-1]).all()), "entries are not strictly ordered by (round, block, depth)"
+    used = [(b, e) for b, e in itertools.pairwise(bounds) if e > b]
+    deepest = [int(rank[b:e].max()) for b, e in used]
+    shallowest = [int(rank[b:e].min()) for b, e in used]
+    assert all(d < s for d, s in zip(deepest[:-1], shallowest[1:], strict=True)), "rounds overlap in depth"
+    if rounds > 1:
+        assert len(used) > 1, "only one round was used"
 
 
 @pytest.mark.parametrize("rounds", [1, 5])
 @pytest.mark.parametrize("seed", range(6))
-def test_entries_cover_every_passing_pair_in_round_block_depth_order(seed, rounds, monkeypatch):
+def test_entries_are_every_passing_pair_in_round_block_depth_order(seed, rounds, monkeypatch):
     monkeypatch.setattr(footprint, "MAX_ROUNDS", rounds)
     monkeypatch.setattr(footprint, "ROUND_MIN_ENTRIES", 1)
     scene, proj, entries = listed(seed)
-    pairs = list(zip(entries.block.tolist(), entries.gaussian.tolist(), strict=True))
-    assert len(set(pairs)) == len(pairs), "an entry is listed twice"
+    pairs = set(zip(entries.block.tolist(), entries.gaussian.tolist(), strict=True))
+    assert len(pairs) == entries.block.numel(), "an entry is listed twice"
     needed = passing_pairs(scene, proj)
     assert needed, "the scene should have passing pairs"
-    assert needed <= set(pairs), f"missing entries: {sorted(needed - set(pairs))[:5]}"
+    assert needed <= pairs, f"missing entries: {sorted(needed - pairs)[:5]}"
 
-    # Front to back = by depth, ties by index (the reference's stable order).
-    depth_rank = torch.empty_like(entries.gaussian)
-    order = torch.sort(proj.depths, stable=True).indices
-    depth_rank[order] = torch.arange(order.numel())
-    rank = depth_rank[entries.gaussian]
-    bounds = entries.round_bounds
-    assert len(bounds) == rounds + 1 and bounds[0] == 0 and bounds[-1] == len(pairs)
-    round_of = torch.repeat_interleave(torch.arange(rounds), torch.tensor(bounds).diff())
-    key = [(int(r), b, int(k)) for r, (b, _), k in zip(round_of, pairs, rank, strict=True)]
-    assert key == sorted(key), "entries are not ordered by (round, block, depth)"
-    # A round is a slab of the depth order: all of a Gaussian's entries share one, deeper ones come later.
-    deepest = [int(rank[b:e].max()) for b, e in itertools.pairwise(bounds) if e > b]
-    shallowest = [int(rank[b:e].min()) for b, e in itertools.pairwise(bounds) if e > b]
-    assert all(d < s for d, s in zip(deepest[:-1], shallowest[1:], strict=True))
-    if rounds > 1:
-        assert sum(e > b for b, e in itertools.pairwise(bounds)) > 1, "only one round was used"
+    # No junk: each entry's block holds an in-image pixel centre inside the footprint σ ≤ ln(255·o),
+    # up to the footprint's relative rounding slack.
+    assert bool(((entries.block >= 0) & (entries.block < entries.num_blocks)).all())
+    row = entries.block // BLOCKS_PER_ROW
+    x = (entries.block % BLOCKS_PER_ROW)[:, None] * BLOCK_WIDTH + torch.arange(BLOCK_WIDTH)
+    sigma = sigma_at(proj, x, row[:, None], entries.gaussian[:, None])
+    sigma = torch.where(x < WIDTH, sigma, torch.inf).amin(1)
+    reach = torch.log(255.0 * scene.opacities[entries.gaussian]).clamp_min(0.0)
+    assert bool((sigma <= reach * (1 + 1e-3) + 1e-3).all()), "an entry's block has no pixel in the footprint"
+
+    assert_round_block_depth_order(proj, entries, rounds)
+
+
+@pytest.mark.parametrize("rounds", [1, 3])
+def test_order_holds_on_lists_long_enough_for_the_radix_sort(rounds, monkeypatch):
+    """torch sorts 1-D integer tensors of ≥ 32,768 elements with a different (radix) algorithm."""
+    monkeypatch.setattr(footprint, "MAX_ROUNDS", rounds)
+    monkeypatch.setattr(footprint, "ROUND_MIN_ENTRIES", 1)
+    _, proj, entries = listed(7, n=15_000, width=200, height=150)
+    assert min(e - b for b, e in itertools.pairwise(entries.round_bounds)) >= 32_768
+    assert_round_block_depth_order(proj, entries, rounds)
 
 
 def test_no_candidates_give_an_empty_list():
