@@ -4,7 +4,8 @@
 
 Scenes (fixed seeds) look like trained ones: footprint radii spread log-uniformly over ~1–30 px
 (2D std 1/3–10 px) and opacities over (0, 1). Each (case, implementation) runs in its own
-subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock medians of the runs.
+subprocess so that `peak_rss_mb` is that run's own peak. Times are wall-clock medians of the runs
+(`--runs` of them for ours and the baseline alike, after one warm-up).
 `contributing_pairs` counts pixel–Gaussian pairs with α ≥ 1/255 reached before termination, as
 the 3DGS rules define them (our rasterizer matches a brute-force reference on this count).
 `speedup_vs_reference` = (reference forward + backward) / (ours forward + backward).
@@ -224,7 +225,7 @@ def main() -> None:
         ours_total = ours["ms_forward"] + ours["ms_backward"]
         reference = None
         if index <= 0 or args.reference_all:
-            reference = run_worker(index, "reference", 0 if args.quick else 1, False, args.threads,
+            reference = run_worker(index, "reference", runs, False, args.threads,
                                    args.malloc_defaults)
         results.append({
             "name": case.name,

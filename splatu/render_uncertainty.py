@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from splatu.baselines import UncertaintyMethod, UncertaintyRender, UncertaintySource
+from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRender, UncertaintySource, method_list
 from splatu.camera import Camera
 from splatu.data.scene import Views, on_background
 from splatu.errors import SplatuError, writable_dir
@@ -56,9 +56,10 @@ class RenderUncertaintyConfig:
     data: str | None = None
     """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
     method: UncertaintyMethod = "ours"
-    """Which uncertainty to render: ours, ensemble, visibility, fisher, random, spread or ours-spread."""
+    """Which uncertainty to render (see splatu.baselines): ours, ensemble, visibility, fisher, random, spread,
+    ours-spread, residual or ours-residual."""
     head: str | None = None
-    """With --method ours or ours-spread: one of the run's extra uncertainty heads (its spec, as given to
+    """With --method ours, ours-spread or ours-residual: one of the run's extra uncertainty heads (its spec, as given to
     --uncertainty.extra-heads); default: the run's own."""
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
@@ -244,9 +245,9 @@ def _load(load: Path, method: UncertaintyMethod, head: str | None):
     """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
     from splatu.baselines.load import check_method, load_any_run
 
-    if head is not None and method not in ("ours", "ours-spread"):
+    if head is not None and method not in METHODS_WITH_OURS:
         raise SplatuError(f"--head picks an uncertainty head of ours; --method {method} has none",
-                          "in the command's options", "drop --head, or use --method ours or ours-spread")
+                          "in the command's options", f"drop --head, or use --method {method_list(METHODS_WITH_OURS)}")
     run = load_any_run(load, head)
     check_method(method, run)
     return run

@@ -9,19 +9,31 @@ and AUSE treat them identically:
 - fisher: a FisherRF-like diagonal Fisher information per Gaussian, rendered as a feature;
 - random: seeded uniform noise, the floor any method must beat;
 - spread: the std of the colours each pixel blends, training-free (`model_sources.colour_spread`);
-- ours-spread: ours OR spread, 1 − (1 − U)(1 − S).
+- ours-spread: ours OR spread, 1 − (1 − U)(1 − S);
+- residual: how badly each Gaussian fits the training views it shows up in (`residual.training_residuals`);
+- ours-residual: ours OR residual, 1 − (1 − U)(1 − R).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, get_args
 
 from torch import Tensor
 
 from splatu.camera import Camera
 
-UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random", "spread", "ours-spread"]
+UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random", "spread", "ours-spread", "residual",
+                            "ours-residual"]
+
+UNCERTAINTY_METHODS: tuple[str, ...] = get_args(UncertaintyMethod)
+METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual")
+"""The methods that read the run's uncertainty SH, so they need a run trained with the loss and accept --head."""
+
+
+def method_list(methods: tuple[str, ...] = UNCERTAINTY_METHODS) -> str:
+    """'a, b or c', for messages and help texts."""
+    return ", ".join(methods[:-1]) + " or " + methods[-1]
 
 
 @dataclass
@@ -41,3 +53,8 @@ class UncertaintySource(Protocol):
     background: Tensor
 
     def render(self, camera: Camera) -> UncertaintyRender: ...
+
+
+def or_combine(ours: Tensor, other: Tensor) -> Tensor:
+    """1 − (1 − U)(1 − X): uncertain where either map says so, for maps in [0, 1]."""
+    return 1.0 - (1.0 - ours) * (1.0 - other)

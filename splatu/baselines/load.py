@@ -10,10 +10,11 @@ from pathlib import Path
 
 import torch
 
-from splatu.baselines import UncertaintyMethod, UncertaintySource
+from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintySource, method_list
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal, fisher_feature
 from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource, SpreadSource
+from splatu.baselines.residual import ResidualSource, training_residuals
 from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
@@ -102,7 +103,7 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
     if method == "ensemble" and len(run.models) < 2:
         raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
                           "train one with `splatu train --method ensemble --ensemble 10`")
-    if method in ("ours", "ours-spread") and run.config.uncertainty.off:
+    if method in METHODS_WITH_OURS and run.config.uncertainty.off:
         raise SplatuError(f"--method {method} needs a run trained with the uncertainty loss; this one had it off",
                           f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
 
@@ -131,7 +132,9 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
         source = RandomSource(model, degree, background, seed)
     elif method in ("spread", "ours-spread"):
         source = SpreadSource(model, degree, background, with_ours=method == "ours-spread")
+    elif method in ("residual", "ours-residual"):
+        residuals = training_residuals(model, scene.train, degree, background)
+        source = ResidualSource(model, degree, background, residuals, with_ours=method == "ours-residual")
     else:
-        raise SplatuError(f"unknown uncertainty method {method!r}", "in --method",
-                          "use ours, ensemble, visibility, fisher, random, spread or ours-spread")
+        raise SplatuError(f"unknown uncertainty method {method!r}", "in --method", f"use {method_list()}")
     return BuiltMethod(source, time.perf_counter() - started)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from splatu.baselines import UncertaintyRender
+from splatu.baselines import UncertaintyRender, or_combine
 from splatu.camera import Camera
 from splatu.model import GaussianModel
 
@@ -69,7 +69,7 @@ class SpreadSource:
         out = self.model.render(camera, self.sh_degree, self.background, with_uncertainty=self.with_ours,
                                 extra_features=features)
         spread = colour_spread(out.extra, out.alpha)
-        uncertainty = 1.0 - (1.0 - out.uncertainty) * (1.0 - spread) if out.uncertainty is not None else spread
+        uncertainty = spread if out.uncertainty is None else or_combine(out.uncertainty, spread)
         return UncertaintyRender(out.rgb, out.depth, out.alpha, uncertainty)
 
 
