@@ -1,12 +1,13 @@
 """The uncertainty study (issue 6): ours against ensemble-10 and baselines, with ablations.
 
-    .venv/bin/python benchmarks/uncertainty_study.py --quick       # tiny budgets, minutes
-    .venv/bin/python benchmarks/uncertainty_study.py               # the `fast` preset, hours
+    .venv/bin/python benchmarks/uncertainty_study.py --quick             # tiny budgets, minutes
+    .venv/bin/python benchmarks/uncertainty_study.py                     # the `fast` preset, hours
+    .venv/bin/python benchmarks/uncertainty_study.py --preset quality    # the `quality` preset, longer
 
 Scenes: the built-in poster stand-in (contiguous eval block) and fox (../shared/data/fox,
 contiguous eval block; skipped with a message when absent). Every training goes through the
 trainer's Python API (`splatu.trainer.train_run` / `train_ensemble`) on one loaded scene, with
-one budget for all (the `fast` preset, or tiny overrides of it with --quick), so wall times compare.
+one budget for all (a preset, or tiny overrides of `fast` with --quick), so wall times compare.
 
 Rows: ours (antipodal, mean, weighted losses), ensemble-N (plain 3DGS members differing only
 in seed), visibility count, Fisher diagonal, colour spread, training residual and random, all on the ours
@@ -16,8 +17,10 @@ cost of one run of ours); ours-mean, ours-weighted and the ablations (every scen
 the weighted loss, the supervision threshold on the antipodal loss, which has one) are
 uncertainty heads of ONE more training.
 Every AUSE sits beside the random baseline and the oracle on the same images; the caption
-states grid, normalisation and aggregation. Writes benchmarks/results/uncertainty_study.{md,json}
-and plots (curves and speed against error) next to them.
+states grid, normalisation and aggregation. Writes benchmarks/results/uncertainty_study.{md,json} (the
+`fast` budget; uncertainty_study_<budget>.* for the others) and the curve plots next to them. A scene not run
+this time keeps its earlier entry, stamped with when and on which CPU it was measured. The speed-against-error
+figure of a scene puts every budget measured for it on one plot, a marker per budget.
 """
 
 from __future__ import annotations
@@ -26,13 +29,14 @@ import dataclasses
 import hashlib
 import json
 import os
+import platform
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -46,8 +50,9 @@ from splatu.data.config import DataConfig
 from splatu.data.poster import PosterConfig
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene
+from splatu.errors import SplatuError
 from splatu.eval_ause import score_entries
-from splatu.figures import plot_sparsification, plot_speed_against_error
+from splatu.figures import SpeedPoint, plot_sparsification, plot_speed_against_error
 from splatu.losses import psnr
 from splatu.render_uncertainty import RenderUncertaintyConfig, map_entries, render_views, view_spec
 from splatu.train_config import TrainConfig, apply_values, preset_config
@@ -61,8 +66,9 @@ class Budget:
     """One training budget for every run of a study, so times and errors compare."""
 
     name: str
+    preset: str
     overrides: dict[str, Any]
-    """Values applied over the `fast` preset (nested dicts for nested configs)."""
+    """Values applied over the preset (nested dicts for nested configs)."""
     poster: PosterConfig
     fox_downscale: int
     lams: tuple[float, ...]
@@ -71,7 +77,7 @@ class Budget:
 
 
 QUICK = Budget(
-    name="quick",
+    name="quick", preset="fast",
     # splatfacto_schedule breaks down this short (refine every step), so the quick schedule keeps the
     # tiny end-to-end test's proportions: refine every 10 steps, split until 2/3 of the run.
     overrides={"steps": 60, "resolution_interval": 20,
@@ -80,15 +86,21 @@ QUICK = Budget(
                            "stop_screen_size_at": 20, "max_gaussians": 2500}},
     poster=PosterConfig(width=48, height=80, frames=24, eval_block=5, interp_every=6, points=2000),
     fox_downscale=16, lams=(0.1,), thresholds=(0.2,), u_degrees=(0, 3))
-# u-SH degree 1: the default when this study was run (its ablation is why the default is now 3)
-FULL = Budget(name="fast", overrides={"model": {"u_sh_degree": 1}}, poster=PosterConfig(), fox_downscale=8,
-              lams=(0.05, 0.1, 0.2, 0.4, 0.45), thresholds=(0.01, 0.02, 0.1, 0.2), u_degrees=(0, 2, 3))
+# u-SH degree 1: the default when this study was first run (its ablation is why the default is now 3); kept so
+# that every budget's rows compare
+FAST = Budget(name="fast", preset="fast", overrides={"model": {"u_sh_degree": 1}}, poster=PosterConfig(),
+              fox_downscale=8, lams=(0.05, 0.1, 0.2, 0.4, 0.45), thresholds=(0.01, 0.02, 0.1, 0.2),
+              u_degrees=(0, 2, 3))
+QUALITY = dataclasses.replace(FAST, name="quality", preset="quality")
+BUDGETS = {b.name: b for b in (QUICK, FAST, QUALITY)}
 
 
 @dataclass
 class Args:
     quick: bool = False
-    """Tiny budgets (a small stand-in, 300 steps): the whole study in minutes."""
+    """Tiny budgets (a small stand-in, 60 steps): the whole study in minutes."""
+    preset: Literal["fast", "quality"] = "fast"
+    """Without --quick: the training preset every run of the study uses."""
     scenes: list[str] = field(default_factory=lambda: ["poster", "fox"])
     """poster (built-in stand-in) and/or fox (../shared/data/fox)."""
     ensemble_size: int = 10
@@ -154,8 +166,8 @@ def head_rows(budget: Budget, default_degree: int, ablations: bool) -> tuple[Var
 
 
 def base_config(budget: Budget, data: DataConfig) -> TrainConfig:
-    """The `fast` preset with the budget's overrides, on `data`, without checkpoints or progress bars."""
-    config = apply_values(preset_config("fast"), budget.overrides, f"the {budget.name} study budget")
+    """The budget's preset with its overrides, on `data`, without checkpoints or progress bars."""
+    config = apply_values(preset_config(budget.preset), budget.overrides, f"the {budget.name} study budget")
     return dataclasses.replace(config, data=data, progress=False, checkpoint_every=0, eval_every_steps=0,
                                preset=f"study-{budget.name}")
 
@@ -225,7 +237,7 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     print(f"{scene_name}: {len(scene.train)} train / {len(scene.eval)} eval views, {width}x{height}, "
           f"loaded in {time.perf_counter() - started:.1f} s")
     config = base_config(budget, data)
-    root = args.output_dir / ("quick" if args.quick else "full") / scene_name
+    root = args.output_dir / budget.name / scene_name
     rows: dict[str, dict[str, Any]] = {}
     heads_run, rows_of_heads = head_rows(budget, config.model.u_sh_degree, args.ablations)
     to_train = variants(args.ensemble_size, heads_run)
@@ -261,9 +273,24 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
             rows[f"{name}-{suffix}"] = {**row, "train_seconds": rows[name]["train_seconds"] + extra_seconds,
                                         "method": method, "head": rows_of_heads[name]}
             print(f"  {name}-{suffix}: AUSE-MAE {row['mean']['ause_mae']:.3f}")
-    return {"rows": rows, "kernel_warm_up_seconds": warm_up,
+    return {"rows": rows, "kernel_warm_up_seconds": warm_up, "measured": measured_on(),
             "views": {"train": len(scene.train), "eval": len(scene.eval)},
             "size": [int(scene.train.images.shape[2]), int(scene.train.images.shape[1])]}
+
+
+def cpu_name() -> str:
+    """The CPU's model name (Linux), else what platform knows: times from different hosts do not compare."""
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
+def measured_on() -> dict[str, Any]:
+    return {"date": time.strftime("%Y-%m-%d"), "cpu": cpu_name(), "threads": torch.get_num_threads(),
+            "torch": torch.__version__}
 
 
 def targets(scene_name: str, rows: dict[str, dict[str, Any]], ensemble: str) -> list[tuple[str, float, str, bool]]:
@@ -292,11 +319,12 @@ def _cell(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) -> str:
+def markdown(results: dict[str, Any], args: Args, budget: Budget) -> str:
     ensemble = f"ensemble-{args.ensemble_size}"
-    lines = [f"# Uncertainty study ({'quick' if args.quick else 'full'})", "",
-             f"Reproduce: `{command}`. 2 CPU cores shared with other jobs: times are noisy, compare ratios.",
-             f"Budget `{budget.name}`: the `fast` preset with {budget.overrides or 'no changes'}.", "",
+    lines = [f"# Uncertainty study (budget `{budget.name}`)", "",
+             "Each scene says the command that measured it, when and on which CPU. 2 CPU cores shared with other "
+             "jobs: times are noisy, compare ratios within one scene's table.",
+             f"Budget `{budget.name}`: the `{budget.preset}` preset with {budget.overrides or 'no changes'}.", "",
              f"AUSE caption: {A.CAPTION}; per-pixel error summed over RGB; random = mean over "
              f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = AUSC-MAE, the area under "
              "the oracle curve (its AUSE is 0 by construction); "
@@ -311,8 +339,12 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
     all_targets = []
     for scene_name, scene in results["scenes"].items():
         rows = scene["rows"]
+        measured = scene.get("measured") or {}
         lines += [f"## {scene_name} ({scene['size'][0]}x{scene['size'][1]}, {scene['views']['train']} train / "
                   f"{scene['views']['eval']} eval views, contiguous eval block)", "",
+                  f"Measured {measured.get('date', 'before measurements were stamped')} on "
+                  f"{measured.get('cpu', 'an unrecorded CPU')} by `{measured.get('command', 'an earlier version')}`.",
+                  "",
                   "| method | AUSE-MAE | AUSE-RMSE | random AUSE-MAE | oracle AUSC-MAE | AUSE-MAE start-norm "
                   "(random) | AUROC-unobserved | PSNR dB | train s | render s/view |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
@@ -327,8 +359,8 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
         if warm_up is not None:
             lines += ["", f"Before the timed trainings of this invocation, an untimed warm-up training compiled the "
                       f"rasterizer kernels ({warm_up:.0f} s), so no timed training pays the compile."]
-        lines += ["", f"Curves: `uncertainty_study_{scene_name}_curves.png`; speed against error: "
-                  f"`uncertainty_study_{scene_name}_speed.png`.", ""]
+        lines += ["", f"Curves: `{results_stem(budget.name)}_{scene_name}_curves.png`; speed against error, every "
+                  f"budget: `uncertainty_study_{scene_name}_speed.png`.", ""]
         all_targets += targets(scene_name, rows, ensemble) if "ours-antipodal" in rows else []
     lines += ["## Targets (issue 6)", "", "| figure | measured | target | reached |", "|---|---|---|---|"]
     lines += [f"| {what} | {value:.3f} | {target} | {'yes' if ok else 'no'} |"
@@ -336,45 +368,82 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget, command: str) 
     return "\n".join(lines) + "\n"
 
 
+def results_stem(budget: str) -> str:
+    return "uncertainty_study" if budget == FAST.name else f"uncertainty_study_{budget}"
+
+
+def speed_points(rows: dict[str, dict[str, Any]]) -> dict[str, SpeedPoint]:
+    """Every non-ablation row as a point; the baselines on ours' Gaussians share its PSNR, so they get none."""
+    return {n: SpeedPoint(r["train_seconds"], r["mean"]["ause_mae"] / r["mean"]["random_ause_mae"],
+                          None if n in BASELINES_ON_OURS else r["psnr"])
+            for n, r in rows.items() if not n.startswith("ablation-")}
+
+
 def plots(results: dict[str, Any], out_dir: Path) -> None:
+    """Curves of the scenes run now; the speed figure of every scene with every budget measured for it."""
+    budgets = {name: json.loads(path.read_text())["scenes"] for name in BUDGETS
+               if (path := out_dir / f"{results_stem(name)}.json").is_file()}
+    budgets[results["budget"]["name"]] = results["scenes"]
     for scene_name, scene in results["scenes"].items():
         rows = scene["rows"]
-        main = {n: r["curve"] for n, r in rows.items() if not n.startswith("ablation-")}
-        plot_sparsification(out_dir / f"uncertainty_study_{scene_name}_curves.png", main,
-                            f"{scene_name}: {A.CAPTION}, curves / O(0)", "mae")
-        methods = {n: r for n, r in rows.items() if not n.startswith("ablation-")}
-        # the baselines on ours' Gaussians share its PSNR: one point for it in the PSNR panel, not one each
-        trained = {n: r for n, r in methods.items() if n not in BASELINES_ON_OURS}
+        if all("curve" in r for r in rows.values()):  # a scene kept from an earlier invocation has no curves
+            main = {n: r["curve"] for n, r in rows.items() if not n.startswith("ablation-")}
+            plot_sparsification(out_dir / f"{results_stem(results['budget']['name'])}_{scene_name}_curves.png", main,
+                                f"{scene_name}: {A.CAPTION}, curves / O(0)", "mae")
+        measured = {b: scenes[scene_name] for b in BUDGETS if scene_name in (scenes := budgets.get(b, {}))}
+        stamps = "; ".join(f"{b}: {s['size'][0]}x{s['size'][1]}, {s.get('measured', {}).get('date', 'unstamped')}"
+                           for b, s in measured.items())
         plot_speed_against_error(out_dir / f"uncertainty_study_{scene_name}_speed.png",
-                                 {n: r["train_seconds"] for n, r in methods.items()},
-                                 {n: r["mean"]["ause_mae"] for n, r in methods.items()},
-                                 {n: r["psnr"] for n, r in trained.items()},
-                                 f"{scene_name}: train time (baselines: ours + their own cost) vs error")
+                                 {b: speed_points(s["rows"]) for b, s in measured.items()},
+                                 f"{scene_name}: train time (baselines: ours + their own cost) vs error; each budget "
+                                 f"scores its own eval images ({stamps})")
 
 
-def write_results(results: dict[str, Any], args: Args, budget: Budget, command: str) -> None:
+def write_results(results: dict[str, Any], args: Args, budget: Budget) -> None:
     """Plots, JSON (curves left out) and the markdown table; called after every scene."""
     args.results.mkdir(parents=True, exist_ok=True)
     plots(results, args.results)
     plain = {**results, "scenes": {name: {**scene, "rows": {n: {k: v for k, v in r.items() if k != "curve"}
                                                             for n, r in scene["rows"].items()}}
                                    for name, scene in results["scenes"].items()}}
-    (args.results / "uncertainty_study.json").write_text(json.dumps(plain, indent=2, default=str))
-    (args.results / "uncertainty_study.md").write_text(markdown(results, args, budget, command))
+    stem = results_stem(budget.name)
+    (args.results / f"{stem}.json").write_text(json.dumps(plain, indent=2, default=str))
+    (args.results / f"{stem}.md").write_text(markdown(results, args, budget))
+
+
+def earlier_scenes(path: Path, budget: Budget) -> dict[str, Any]:
+    """The scenes an earlier invocation of this budget measured, kept beside the ones run now."""
+    if not path.is_file():
+        return {}
+    earlier = json.loads(path.read_text())
+    settings = json.loads(json.dumps(dataclasses.asdict(budget), default=str))  # as the file stores them
+    if earlier.get("budget") != settings:
+        raise SplatuError(f"{path} holds a study with other {budget.name} settings", "in the results folder",
+                          "move it aside (or pass --results DIR) before running this budget")
+    return earlier["scenes"]
 
 
 def main(args: Args) -> None:
-    budget = QUICK if args.quick else FULL
+    if args.quick and args.preset != "fast":
+        raise SplatuError("--quick is a tiny budget over the `fast` preset", "in the study's options",
+                          "drop --preset, or drop --quick")
+    budget = QUICK if args.quick else BUDGETS[args.preset]
     command = " ".join(["python benchmarks/uncertainty_study.py", *sys.argv[1:]])
-    results: dict[str, Any] = {"quick": args.quick, "budget": dataclasses.asdict(budget), "caption": A.CAPTION,
-                               "scenes": {}}
+    stem = results_stem(budget.name)
+    results: dict[str, Any] = {"budget": dataclasses.asdict(budget), "caption": A.CAPTION,
+                               "scenes": earlier_scenes(args.results / f"{stem}.json", budget)}
     for scene_name in args.scenes:
         data = data_config(scene_name, budget)
         if data is not None:
-            results["scenes"][scene_name] = study_scene(scene_name, data, args, budget)
-            write_results(results, args, budget, command)
-    print((args.results / "uncertainty_study.md").read_text())
+            scene = study_scene(scene_name, data, args, budget)
+            scene["measured"]["command"] = command
+            results["scenes"][scene_name] = scene
+            write_results(results, args, budget)
+    print((args.results / f"{stem}.md").read_text())
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    try:
+        main(tyro.cli(Args))
+    except SplatuError as err:  # a bad option or results folder: one line, as every splatu command prints it
+        sys.exit(f"error: {err}")

@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
+from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
 from splatu.ause import FRACTIONS, Curves
 
@@ -122,23 +123,65 @@ def plot_sparsification(path: Path, curves: Mapping[str, Curves], title: str, me
     plt.close(fig)
 
 
-def plot_speed_against_error(path: Path, train_seconds: Mapping[str, float], ause: Mapping[str, float],
-                             psnr: Mapping[str, float], title: str) -> None:
-    """Two panels: train time against AUSE, and train time against PSNR, one point per method."""
-    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0))
-    for name, seconds in train_seconds.items():
-        if name in ause:
-            axes[0].scatter(seconds, ause[name])
-            axes[0].annotate(name, (seconds, ause[name]), fontsize=7)
-        if name in psnr:
-            axes[1].scatter(seconds, psnr[name])
-            axes[1].annotate(name, (seconds, psnr[name]), fontsize=7)
-    for ax, label in zip(axes, ("AUSE-MAE (lower is better)", "PSNR dB (higher is better)"), strict=True):
+@dataclass(frozen=True)
+class SpeedPoint:
+    """One method at one training budget: what it cost and what it scored."""
+
+    train_seconds: float
+    ause_ratio: float
+    """AUSE-MAE ÷ the random baseline on the same images: budgets score different images, so raw AUSE does not
+    compare across them."""
+    psnr: float | None
+    """None where the PSNR is another point's (a baseline rendered on ours' Gaussians)."""
+
+
+BUDGET_MARKERS = ("o", "s", "^", "D", "v")
+
+
+def method_lines(budgets: Mapping[str, Mapping[str, SpeedPoint]], field: str) -> dict[str, list[tuple[float, float]]]:
+    """Per method, its (train seconds, `field`) points over the budgets that have one, cheapest first."""
+    lines: dict[str, list[tuple[float, float]]] = {}
+    for points in budgets.values():
+        for method, point in points.items():
+            value = getattr(point, field)
+            if value is not None:
+                lines.setdefault(method, []).append((point.train_seconds, value))
+    return {method: sorted(points) for method, points in lines.items()}
+
+
+def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, SpeedPoint]], title: str) -> None:
+    """Two panels, train time against AUSE and against PSNR: a colour per method, a marker per budget
+    (preset), and a line joining one method's budgets, so what more training buys each method reads directly."""
+    methods = list(dict.fromkeys(m for points in budgets.values() for m in points))
+    palette = [*plt.get_cmap("tab10").colors, *plt.get_cmap("Dark2").colors]  # neighbours stay distinct
+    colours = {m: palette[k % len(palette)] for k, m in enumerate(methods)}
+    fig, axes = plt.subplots(1, 2, figsize=(12.0, 4.8))
+    for ax, field in zip(axes, ("ause_ratio", "psnr"), strict=True):
+        for method, points in method_lines(budgets, field).items():
+            if len(points) > 1:
+                ax.plot(*zip(*points, strict=True), color=colours[method], lw=0.8, alpha=0.6)
+        for points, marker in zip(budgets.values(), BUDGET_MARKERS, strict=False):
+            for method, point in points.items():
+                if getattr(point, field) is not None:
+                    ax.scatter(point.train_seconds, getattr(point, field), color=colours[method], marker=marker,
+                               edgecolors="black", linewidths=0.4, zorder=3)
+    seconds = [p.train_seconds for points in budgets.values() for p in points.values()]
+    subs = (1.0, 2.0, 5.0) if seconds and max(seconds) <= 100.0 * min(seconds) else (1.0,)
+    method_keys = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=m) for m in methods]
+    budget_keys = [plt.Line2D([], [], color="white", markeredgecolor="black", marker=mk, ls="",
+                              label=f"budget: {b}")
+                   for b, mk in zip(budgets, BUDGET_MARKERS, strict=False)]
+    fig.legend(handles=method_keys + budget_keys, loc="center right", fontsize=7, frameon=False)
+    labels = ("AUSE-MAE ÷ random, same images (lower is better)", "PSNR dB (higher is better)")
+    for ax, label in zip(axes, labels, strict=True):
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(subs=subs))  # labelled ticks only where they fit
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("train time, s (log)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    fig.suptitle(textwrap.fill(title, 100), fontsize=9)
-    fig.tight_layout()
+    fig.suptitle(textwrap.fill(title, 120), fontsize=9)
+    fig.tight_layout(rect=(0.0, 0.0, 0.8, 1.0))
     fig.savefig(path, dpi=110)
     plt.close(fig)
