@@ -11,7 +11,8 @@ trains each preset once per colour-SH degree, to measure which degree a scene ne
 preset's own degree when not given). `--seeds` repeats every configuration per seed, because on fox
 one seed's held-out PSNR spreads by about 3 dB, more than the degrees differ. fox is read from
 ../shared/data/fox with a contiguous eval block and is skipped with a message when absent.
-Writes benchmarks/results/train_presets.json and .md.
+Writes benchmarks/results/train_presets.json and .md, keeping rows this invocation did not rerun; each new row
+records its date and CPU.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import tyro
 
 from splatu import trainer
 from splatu.data.config import DataConfig
+from splatu.provenance import measured_on
 from splatu.train_config import preset_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -72,7 +74,8 @@ def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: Dat
     row = {"scene": scene, "preset": preset, "sh_degree": config.model.sh_degree, "seed": seed,
            "uncertainty": uncertainty,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
-           "wall_seconds": wall, "train_seconds": summary["train_seconds"], "run_dir": str(run_dir)}
+           "wall_seconds": wall, "train_seconds": summary["train_seconds"], "run_dir": str(run_dir),
+           **{k: v for k, v in measured_on().items() if k in ("date", "cpu")}}
     for set_name, metrics in summary["eval"].items():
         for key, value in metrics.items():
             if key != "num_images":
@@ -82,10 +85,11 @@ def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: Dat
 
 def markdown(rows: list[dict]) -> str:
     cols = ["scene", "preset", "sh_degree", "seed", "uncertainty", "steps", "gaussians", "wall_seconds", "eval_psnr",
-            "eval_psnr_observed", "eval_ssim", "interp_psnr", "interp_ssim"]
+            "eval_psnr_observed", "eval_ssim", "interp_psnr", "interp_ssim", "date", "cpu"]
     lines = ["PSNR (dB, mean over images) on the contiguous held-out block (`eval`), on its observed pixels",
              "(built-in scene only) and on every-8th held-out path frames (`interp`, built-in only); wall time",
-             "includes data loading (cached stand-in/images when warm). 2 shared CPU cores.", "",
+             "includes data loading (cached stand-in/images when warm). 2 shared CPU cores; wall times compare only",
+             "between rows of one CPU.", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for row in rows:
         cells = [f"{row[c]:.2f}" if isinstance(row.get(c), float) else str(row.get(c, "-")) for c in cols]

@@ -29,7 +29,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -54,6 +53,7 @@ from splatu.errors import SplatuError
 from splatu.eval_ause import score_entries
 from splatu.figures import SpeedPoint, plot_sparsification, plot_speed_against_error
 from splatu.losses import psnr
+from splatu.provenance import measured_on
 from splatu.render_uncertainty import RenderUncertaintyConfig, map_entries, render_views, view_spec
 from splatu.train_config import TrainConfig, apply_values, preset_config
 
@@ -81,13 +81,13 @@ QUICK = Budget(
     # splatfacto_schedule breaks down this short (refine every step), so the quick schedule keeps the
     # tiny end-to-end test's proportions: refine every 10 steps, split until 2/3 of the run.
     overrides={"steps": 60, "resolution_interval": 20,
-               "model": {"sh_degree_interval": 15, "random_init_points": 2500},
+               "model": {"sh_degree_interval": 15, "random_init_points": 2500, "u_sh_degree": 1},
                "densify": {"warmup_length": 10, "refine_every": 10, "stop_split_at": 40,
                            "stop_screen_size_at": 20, "max_gaussians": 2500}},
     poster=PosterConfig(width=48, height=80, frames=24, eval_block=5, interp_every=6, points=2000),
     fox_downscale=16, lams=(0.1,), thresholds=(0.2,), u_degrees=(0, 3))
-# u-SH degree 1: the default when this study was first run (its ablation is why the default is now 3); kept so
-# that every budget's rows compare
+# u-SH degree 1 in every budget: the default when this study was first run (its ablation is why the default is
+# now 3); kept so that a method's rows compare across budgets
 FAST = Budget(name="fast", preset="fast", overrides={"model": {"u_sh_degree": 1}}, poster=PosterConfig(),
               fox_downscale=8, lams=(0.05, 0.1, 0.2, 0.4, 0.45), thresholds=(0.01, 0.02, 0.1, 0.2),
               u_degrees=(0, 2, 3))
@@ -110,7 +110,7 @@ class Args:
     output_dir: Path = Path("outputs/uncertainty_study")
     """Where the study's training runs go; finished runs found there are reused, not retrained."""
     results: Path = REPO / "benchmarks" / "results"
-    """Where uncertainty_study.md, .json and the plots are written."""
+    """Where uncertainty_study[_<budget>].md, .json and the plots are written."""
 
 
 @dataclass(frozen=True)
@@ -183,7 +183,8 @@ def data_config(scene: str, budget: Budget) -> DataConfig | None:
 
 
 def train_variant(variant: Variant, config: TrainConfig, scene: Scene, run_dir: Path) -> float:
-    """Train (or reuse) one variant; returns its wall seconds, measured here around the trainer call."""
+    """Train (or reuse) one variant; returns its wall seconds, measured here around the trainer call (or by the
+    invocation that trained it: `trained_before` says which)."""
     timing = run_dir / "study_wall_seconds.json"
     if timing.is_file():
         return float(json.loads(timing.read_text())["wall_seconds"])
@@ -242,7 +243,8 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     heads_run, rows_of_heads = head_rows(budget, config.model.u_sh_degree, args.ablations)
     to_train = variants(args.ensemble_size, heads_run)
     warm_up = None
-    if config.compile_kernels and any(not (root / v.name / "study_wall_seconds.json").is_file() for v in to_train):
+    reused = [v.name for v in to_train if (root / v.name / "study_wall_seconds.json").is_file()]
+    if config.compile_kernels and len(reused) < len(to_train):
         with tempfile.TemporaryDirectory() as scratch:
             warm_up = warm_up_kernels(config, scene, Path(scratch))
         print(f"  compiled the rasterizer kernels in an untimed warm-up training: {warm_up:.1f} s")
@@ -273,24 +275,9 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
             rows[f"{name}-{suffix}"] = {**row, "train_seconds": rows[name]["train_seconds"] + extra_seconds,
                                         "method": method, "head": rows_of_heads[name]}
             print(f"  {name}-{suffix}: AUSE-MAE {row['mean']['ause_mae']:.3f}")
-    return {"rows": rows, "kernel_warm_up_seconds": warm_up, "measured": measured_on(),
+    return {"rows": rows, "kernel_warm_up_seconds": warm_up, "measured": measured_on(), "trained_before": reused,
             "views": {"train": len(scene.train), "eval": len(scene.eval)},
             "size": [int(scene.train.images.shape[2]), int(scene.train.images.shape[1])]}
-
-
-def cpu_name() -> str:
-    """The CPU's model name (Linux), else what platform knows: times from different hosts do not compare."""
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine()
-
-
-def measured_on() -> dict[str, Any]:
-    return {"date": time.strftime("%Y-%m-%d"), "cpu": cpu_name(), "threads": torch.get_num_threads(),
-            "torch": torch.__version__}
 
 
 def targets(scene_name: str, rows: dict[str, dict[str, Any]], ensemble: str) -> list[tuple[str, float, str, bool]]:
@@ -319,11 +306,10 @@ def _cell(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def markdown(results: dict[str, Any], args: Args, budget: Budget) -> str:
-    ensemble = f"ensemble-{args.ensemble_size}"
+def markdown(results: dict[str, Any], budget: Budget) -> str:
     lines = [f"# Uncertainty study (budget `{budget.name}`)", "",
-             "Each scene says the command that measured it, when and on which CPU. 2 CPU cores shared with other "
-             "jobs: times are noisy, compare ratios within one scene's table.",
+             "Each scene says the command that measured it, when and on which CPU. The machines are shared: times "
+             "are noisy, compare ratios within one scene's table.",
              f"Budget `{budget.name}`: the `{budget.preset}` preset with {budget.overrides or 'no changes'}.", "",
              f"AUSE caption: {A.CAPTION}; per-pixel error summed over RGB; random = mean over "
              f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = AUSC-MAE, the area under "
@@ -340,11 +326,15 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget) -> str:
     for scene_name, scene in results["scenes"].items():
         rows = scene["rows"]
         measured = scene.get("measured") or {}
+        stamp = (f"Measured {measured.get('date', 'before measurements were stamped')} on "
+                 f"{measured.get('cpu', 'an unrecorded CPU')} by `{measured.get('command', 'an earlier version')}`.")
+        if measured.get("note"):
+            stamp += f" {measured['note']}"
+        if scene.get("trained_before"):
+            stamp += (f" Trainings reused from an earlier invocation in the same output folder (their times are "
+                      f"that invocation's): {', '.join(scene['trained_before'])}.")
         lines += [f"## {scene_name} ({scene['size'][0]}x{scene['size'][1]}, {scene['views']['train']} train / "
-                  f"{scene['views']['eval']} eval views, contiguous eval block)", "",
-                  f"Measured {measured.get('date', 'before measurements were stamped')} on "
-                  f"{measured.get('cpu', 'an unrecorded CPU')} by `{measured.get('command', 'an earlier version')}`.",
-                  "",
+                  f"{scene['views']['eval']} eval views, contiguous eval block)", "", stamp, "",
                   "| method | AUSE-MAE | AUSE-RMSE | random AUSE-MAE | oracle AUSC-MAE | AUSE-MAE start-norm "
                   "(random) | AUROC-unobserved | PSNR dB | train s | render s/view |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
@@ -357,10 +347,11 @@ def markdown(results: dict[str, Any], args: Args, budget: Budget) -> str:
                          f"{row['render_seconds_per_view']:.2f} |")
         warm_up = scene.get("kernel_warm_up_seconds")
         if warm_up is not None:
-            lines += ["", f"Before the timed trainings of this invocation, an untimed warm-up training compiled the "
-                      f"rasterizer kernels ({warm_up:.0f} s), so no timed training pays the compile."]
+            lines += ["", f"An untimed warm-up training compiled the rasterizer kernels ({warm_up:.0f} s) before the "
+                      "trainings timed in the same invocation, so none of them pays the compile."]
         lines += ["", f"Curves: `{results_stem(budget.name)}_{scene_name}_curves.png`; speed against error, every "
                   f"budget: `uncertainty_study_{scene_name}_speed.png`.", ""]
+        ensemble = next((n for n in rows if n.startswith("ensemble-")), "ensemble")
         all_targets += targets(scene_name, rows, ensemble) if "ours-antipodal" in rows else []
     lines += ["## Targets (issue 6)", "", "| figure | measured | target | reached |", "|---|---|---|---|"]
     lines += [f"| {what} | {value:.3f} | {target} | {'yes' if ok else 'no'} |"
@@ -391,7 +382,7 @@ def plots(results: dict[str, Any], out_dir: Path) -> None:
             plot_sparsification(out_dir / f"{results_stem(results['budget']['name'])}_{scene_name}_curves.png", main,
                                 f"{scene_name}: {A.CAPTION}, curves / O(0)", "mae")
         measured = {b: scenes[scene_name] for b in BUDGETS if scene_name in (scenes := budgets.get(b, {}))}
-        stamps = "; ".join(f"{b}: {s['size'][0]}x{s['size'][1]}, {s.get('measured', {}).get('date', 'unstamped')}"
+        stamps = "; ".join(f"{b}: {s['size'][0]}x{s['size'][1]}, {(s.get('measured') or {}).get('date', 'unstamped')}"
                            for b, s in measured.items())
         plot_speed_against_error(out_dir / f"uncertainty_study_{scene_name}_speed.png",
                                  {b: speed_points(s["rows"]) for b, s in measured.items()},
@@ -400,15 +391,16 @@ def plots(results: dict[str, Any], out_dir: Path) -> None:
 
 
 def write_results(results: dict[str, Any], args: Args, budget: Budget) -> None:
-    """Plots, JSON (curves left out) and the markdown table; called after every scene."""
+    """JSON (curves left out) and the markdown table, then the plots; called after every scene, so a plotting
+    failure never loses a scene's hours of training."""
     args.results.mkdir(parents=True, exist_ok=True)
-    plots(results, args.results)
     plain = {**results, "scenes": {name: {**scene, "rows": {n: {k: v for k, v in r.items() if k != "curve"}
                                                             for n, r in scene["rows"].items()}}
                                    for name, scene in results["scenes"].items()}}
     stem = results_stem(budget.name)
     (args.results / f"{stem}.json").write_text(json.dumps(plain, indent=2, default=str))
-    (args.results / f"{stem}.md").write_text(markdown(results, args, budget))
+    (args.results / f"{stem}.md").write_text(markdown(results, budget))
+    plots(results, args.results)
 
 
 def earlier_scenes(path: Path, budget: Budget) -> dict[str, Any]:
@@ -439,6 +431,8 @@ def main(args: Args) -> None:
             scene["measured"]["command"] = command
             results["scenes"][scene_name] = scene
             write_results(results, args, budget)
+    if not results["scenes"]:
+        sys.exit("error: no scene was studied, in --scenes, pass poster and/or a scene present in ../shared/data")
     print((args.results / f"{stem}.md").read_text())
 
 

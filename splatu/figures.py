@@ -135,7 +135,14 @@ class SpeedPoint:
     """None where the PSNR is another point's (a baseline rendered on ours' Gaussians)."""
 
 
-BUDGET_MARKERS = ("o", "s", "^", "D", "v")
+BUDGET_MARKERS = {"quick": "o", "fast": "s", "quality": "^"}
+"""A fixed marker per budget, so one budget looks the same on every figure; other names take OTHER_MARKERS."""
+OTHER_MARKERS = ("D", "v", "P", "X")
+
+
+def budget_markers(budgets: Sequence[str]) -> dict[str, str]:
+    others = iter(OTHER_MARKERS * len(budgets))
+    return {b: BUDGET_MARKERS.get(b) or next(others) for b in budgets}
 
 
 def method_lines(budgets: Mapping[str, Mapping[str, SpeedPoint]], field: str) -> dict[str, list[tuple[float, float]]]:
@@ -150,27 +157,28 @@ def method_lines(budgets: Mapping[str, Mapping[str, SpeedPoint]], field: str) ->
 
 
 def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, SpeedPoint]], title: str) -> None:
-    """Two panels, train time against AUSE and against PSNR: a colour per method, a marker per budget
+    """Two panels, train time against AUSE ÷ random and against PSNR: a colour per method, a marker per budget
     (preset), and a line joining one method's budgets, so what more training buys each method reads directly."""
     methods = list(dict.fromkeys(m for points in budgets.values() for m in points))
     palette = [*plt.get_cmap("tab10").colors, *plt.get_cmap("Dark2").colors]  # neighbours stay distinct
     colours = {m: palette[k % len(palette)] for k, m in enumerate(methods)}
+    markers = budget_markers(list(budgets))
     fig, axes = plt.subplots(1, 2, figsize=(12.0, 4.8))
     for ax, field in zip(axes, ("ause_ratio", "psnr"), strict=True):
         for method, points in method_lines(budgets, field).items():
             if len(points) > 1:
                 ax.plot(*zip(*points, strict=True), color=colours[method], lw=0.8, alpha=0.6)
-        for points, marker in zip(budgets.values(), BUDGET_MARKERS, strict=False):
+        for budget, points in budgets.items():
             for method, point in points.items():
-                if getattr(point, field) is not None:
-                    ax.scatter(point.train_seconds, getattr(point, field), color=colours[method], marker=marker,
+                if (value := getattr(point, field)) is not None:
+                    ax.scatter(point.train_seconds, value, color=colours[method], marker=markers[budget],
                                edgecolors="black", linewidths=0.4, zorder=3)
     seconds = [p.train_seconds for points in budgets.values() for p in points.values()]
     subs = (1.0, 2.0, 5.0) if seconds and max(seconds) <= 100.0 * min(seconds) else (1.0,)
     method_keys = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=m) for m in methods]
     budget_keys = [plt.Line2D([], [], color="white", markeredgecolor="black", marker=mk, ls="",
                               label=f"budget: {b}")
-                   for b, mk in zip(budgets, BUDGET_MARKERS, strict=False)]
+                   for b, mk in markers.items()]
     fig.legend(handles=method_keys + budget_keys, loc="center right", fontsize=7, frameon=False)
     labels = ("AUSE-MAE ÷ random, same images (lower is better)", "PSNR dB (higher is better)")
     for ax, label in zip(axes, labels, strict=True):

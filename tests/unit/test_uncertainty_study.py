@@ -1,0 +1,70 @@
+"""The study's bookkeeping (benchmarks/uncertainty_study.py): budgets' files, kept scenes, speed points.
+
+No training here: small made-up rows stand in for a study's scored methods.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from splatu.errors import SplatuError
+
+STUDY_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "uncertainty_study.py"
+
+
+@pytest.fixture(scope="module")
+def study():
+    spec = importlib.util.spec_from_file_location("uncertainty_study", STUDY_PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["uncertainty_study"] = module  # dataclasses resolve their module's annotations through it
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules["uncertainty_study"]
+
+
+def row(ause: float, random: float, train_seconds: float, psnr: float = 23.0, method: str = "ours") -> dict:
+    mean = {"ause_mae": ause, "random_ause_mae": random, "ause_rmse": ause, "oracle_ausc_mae": 0.03,
+            "ause_mae_start_norm": ause, "random_ause_mae_start_norm": random, "auroc_unobserved": 0.9}
+    return {"mean": mean, "psnr": psnr, "train_seconds": train_seconds, "render_seconds_per_view": 0.05,
+            "method": method}
+
+
+def scene(date: str) -> dict:
+    rows = {"ours-antipodal": row(0.45, 0.69, 220.0), "ablation-u-degree-0": row(0.43, 0.69, 291.0),
+            "ensemble-4": row(0.20, 0.70, 880.0, 23.7, "ensemble"), "random": row(0.69, 0.69, 220.0, method="random")}
+    return {"rows": rows, "kernel_warm_up_seconds": None, "trained_before": ["ensemble-4"],
+            "measured": {"date": date, "cpu": "test CPU", "command": "python benchmarks/uncertainty_study.py"},
+            "views": {"train": 10, "eval": 3}, "size": [48, 80]}
+
+
+def test_speed_points_are_ratios_to_random_and_leave_out_ablations(study) -> None:
+    points = study.speed_points(scene("2026-01-01")["rows"])
+    assert set(points) == {"ours-antipodal", "ensemble-4", "random"}
+    assert points["ours-antipodal"].ause_ratio == pytest.approx(0.45 / 0.69)
+    assert points["random"].psnr is None and points["ensemble-4"].psnr == 23.7  # baselines share ours' PSNR
+
+
+def test_results_are_written_per_budget_and_kept_scenes_survive(study, tmp_path: Path) -> None:
+    args = study.Args(results=tmp_path, ensemble_size=10)  # the kept scene's own ensemble row is still found
+    fast = {"budget": study.dataclasses.asdict(study.FAST), "caption": "c", "scenes": {"fox": scene("2026-01-01")}}
+    study.write_results(fast, args, study.FAST)
+    quick = {"budget": study.dataclasses.asdict(study.QUICK), "caption": "c", "scenes": {"poster": scene("2026-01-02")}}
+    study.write_results(quick, args, study.QUICK)
+
+    assert (tmp_path / "uncertainty_study.json").is_file() and (tmp_path / "uncertainty_study_quick.json").is_file()
+    assert (tmp_path / "uncertainty_study_fox_speed.png").is_file()  # drawn with the one budget that has fox
+    assert (tmp_path / "uncertainty_study_poster_speed.png").is_file()
+    table = (tmp_path / "uncertainty_study.md").read_text()
+    assert "Measured 2026-01-01 on test CPU" in table and "reused from an earlier invocation" in table
+    assert "fox: best ours (ablation-u-degree-0) AUSE-MAE ÷ ensemble-4" in table
+
+    kept = study.earlier_scenes(tmp_path / "uncertainty_study.json", study.FAST)
+    assert kept["fox"]["measured"]["date"] == "2026-01-01"
+    with pytest.raises(SplatuError, match="other quality settings"):
+        study.earlier_scenes(tmp_path / "uncertainty_study.json", study.QUALITY)
+    assert json.loads((tmp_path / "uncertainty_study_quick.json").read_text())["budget"]["name"] == "quick"
