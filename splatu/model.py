@@ -33,7 +33,7 @@ class ModelConfig:
     u_sh_degree: int = 3
     """Uncertainty SH degree (0-3). Measured on the poster stand-in (benchmarks/uncertainty_study.py, one training
     with a head per degree): AUSE-MAE 0.442 / 0.396 / 0.362 / 0.323 for degrees 0 / 1 / 2 / 3, so the cheapest
-    degree that holds accuracy is 3; compare on your scene with --uncertainty.extra-heads degree=1 degree=2."""
+    degree that holds accuracy is 3; --degree-choice.on picks it (and the colour degree) per scene."""
     u_init_logit: float = 2.0
     """Initial uncertainty logit: u starts at sigmoid(2) ≈ 0.88 everywhere (unseen means uncertain)."""
     init_opacity: float = 0.1

@@ -7,6 +7,7 @@ of step, a Gaussian would be updated with another one's momentum. `replace_rows`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -103,19 +104,26 @@ class Optimizers:
             if len(counts) != 1:
                 raise ValueError(f"appended rows differ in count across parameters: {counts}")
         for name in GaussianModel.PARAM_NAMES:
-            old = getattr(model, name)
-            optimizer = self.optimizers[name]
-            state = optimizer.state.pop(old, {})
-            extra = None if append is None else append[name].detach().to(old)
-            new = torch.nn.Parameter(self._edit(old.detach(), keep, extra))
-            for key in ("exp_avg", "exp_avg_sq"):
-                if key in state:
-                    zeros = None if extra is None else torch.zeros_like(extra)
-                    state[key] = self._edit(state[key], keep, zeros)
-            if state:
-                optimizer.state[new] = state
-            optimizer.param_groups[0]["params"] = [new]
-            setattr(model, name, new)
+            extra = None if append is None else append[name].detach().to(getattr(model, name))
+            zeros = None if extra is None else torch.zeros_like(extra)
+            self.edit_parameter(model, name, lambda rows, extra=extra: self._edit(rows, keep, extra),
+                                lambda moment, zeros=zeros: self._edit(moment, keep, zeros))
+
+    def edit_parameter(self, model: GaussianModel, name: str, edit: Callable[[Tensor], Tensor],
+                       edit_moment: Callable[[Tensor], Tensor] | None = None) -> None:
+        """Replace parameter `name` by `edit(parameter)` and its Adam moments by `edit_moment` (default: the
+        same edit), e.g. to keep fewer SH coefficients: each kept coefficient keeps its own momentum."""
+        old = getattr(model, name)
+        optimizer = self.optimizers[name]
+        state = optimizer.state.pop(old, {})
+        new = torch.nn.Parameter(edit(old.detach()).contiguous())
+        for key in ("exp_avg", "exp_avg_sq"):
+            if key in state:
+                state[key] = (edit_moment or edit)(state[key]).contiguous()
+        if state:
+            optimizer.state[new] = state
+        optimizer.param_groups[0]["params"] = [new]
+        setattr(model, name, new)
 
     @staticmethod
     def _edit(rows: Tensor, keep: Tensor | None, extra: Tensor | None) -> Tensor:

@@ -23,6 +23,7 @@ import tyro
 import yaml
 
 from splatu.data.config import DataConfig
+from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
 from splatu.errors import SplatuError
 from splatu.losses import UncertaintyLossConfig
@@ -48,6 +49,8 @@ class TrainConfig:
     """Adam learning rates per parameter group."""
     uncertainty: UncertaintyLossConfig = field(default_factory=UncertaintyLossConfig)
     """The view-dependent uncertainty loss (`--uncertainty.off` trains plain 3DGS)."""
+    degree_choice: DegreeChoiceConfig = field(default_factory=DegreeChoiceConfig)
+    """Choose the colour and u-SH degrees per scene on held-out views (`--degree-choice.on`)."""
     method: str = "splatu"
     """Registered method (splatu, splatfacto, ensemble); it sets defaults before the other flags."""
     preset: str = "none"

@@ -50,6 +50,14 @@ from splatu.checkpoint import (
 )
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views, on_background
+from splatu.degree_choice import (
+    apply_choice,
+    decision_step,
+    score_degrees,
+    split_for_choice,
+    training_views,
+    with_choice_heads,
+)
 from splatu.densify import DensityController
 from splatu.errors import SplatuError
 from splatu.losses import photometric_loss, psnr, ssim, uncertainty_heads, uncertainty_loss
@@ -256,11 +264,16 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     return metrics
 
 
+def eval_background(config: TrainConfig) -> torch.Tensor:
+    """Evaluation renders on black, or on white when training composited on white."""
+    return torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
+
+
 def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
     """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
-    background = torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
     sets = {"eval": scene.eval, **scene.extra_eval}
-    return {name: evaluate_views(model, views, config.model.sh_degree, background) for name, views in sets.items()}
+    return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config))
+            for name, views in sets.items()}
 
 
 # --- run bookkeeping -------------------------------------------------------------------------
@@ -381,9 +394,12 @@ def _progress(enabled: bool) -> Progress:
 # --- the loop --------------------------------------------------------------------------------
 
 def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path,
-             hooks: Sequence[StepHook] = ()) -> TrainState:
-    """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C handling."""
-    images = TrainImages(scene.train)
+             hooks: Sequence[StepHook] = ()) -> tuple[TrainState, TrainConfig]:
+    """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C handling.
+
+    Returns the config too: choosing the SH degrees mid-run (`--degree-choice.on`) changes it.
+    """
+    images = TrainImages(training_views(scene.train, config, state.step))
     log = MetricsLog(run_dir / "metrics.jsonl")
     log.drop_after(state.step)
     smoothed_psnr = float("nan")
@@ -402,6 +418,10 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 in_step = False
                 session_steps += 1
                 _account(state, config, outcome, log, run_dir)
+                if (config.degree_choice.on
+                        and state.step == decision_step(config.degree_choice, config.steps)):
+                    config = choose_degrees(state, config, scene, log, run_dir)
+                    images = TrainImages(scene.train)
                 if outcome.skipped is None:
                     smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
                                      else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
@@ -418,7 +438,34 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     raise KeyboardInterrupt
         except KeyboardInterrupt:
             raise _interrupted(state, config, run_dir, mid_step=in_step) from None
-    return state
+    return state, config
+
+
+DEGREE_CHOICE_FILE = "degree_choice.json"
+
+
+def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog,
+                   run_dir: Path) -> TrainConfig:
+    """Score the SH degrees on the held-out block, keep the chosen ones (see splatu.degree_choice), record why.
+
+    Its time counts as training time: it is part of what the run costs.
+    """
+    started = time.perf_counter()
+    fitted_on, held_out = split_for_choice(scene.train, config.degree_choice.held_out)
+    scores = score_degrees(state.model, held_out, fitted_on, config, eval_background(config))
+    config, state.uncertainty_generators = apply_choice(state.model, state.optimizers,
+                                                        state.uncertainty_generators, config, scores)
+    choice = scores.record
+    seconds = time.perf_counter() - started
+    state.train_seconds += seconds
+    record = {"step": state.step, "event": "degree_choice", **choice, "seconds": seconds}
+    log.write(record)
+    atomic_write_text(run_dir / DEGREE_CHOICE_FILE, json.dumps(record, indent=2))
+    save_config(config, run_dir / "config.yml")
+    u_part = f", u-SH degree {choice['u_sh_degree']}" if "u_sh_degree" in choice else ""
+    console.print(f"step {state.step}: chose colour SH degree {choice['sh_degree']}{u_part} "
+                  f"on {choice['held_out_views']} held-out views (scores in {run_dir / DEGREE_CHOICE_FILE})")
+    return config
 
 
 def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: MetricsLog, run_dir: Path) -> None:
@@ -468,8 +515,11 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
     results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
     save_ply(state.model, run_dir / "splat.ply", state.to_world)
     summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
-               "num_gaussians": len(state.model), "train_seconds": state.train_seconds,
+               "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
+               "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - wall_start, "eval": results}
+    if (run_dir / DEGREE_CHOICE_FILE).is_file():
+        summary["degree_choice"] = json.loads((run_dir / DEGREE_CHOICE_FILE).read_text())
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
@@ -481,10 +531,12 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)
     keep_freed_memory()  # likewise: without it the first training of a process page-faults ~20% of its time away
+    if checkpoint is None and config.degree_choice.on:
+        config = with_choice_heads(config)
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
-    run_loop(state, config, scene, run_dir, hooks)
+    state, config = run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir, wall_start)
 
 
@@ -569,6 +621,8 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         run_dir = run_dir_of(path)
         train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)
         return run_dir
+    if config.degree_choice.on:
+        config = with_choice_heads(config)
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)  # a bad head fails before the scene loads
     scene = load_scene(config.data)
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)

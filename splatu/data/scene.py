@@ -34,6 +34,17 @@ class Views:
     def __len__(self) -> int:
         return len(self.cameras)
 
+    def subset(self, indices: list[int]) -> Views:
+        """The views at `indices`, in that order, with every per-image tensor sliced alike."""
+        index = torch.as_tensor(indices, dtype=torch.long)
+
+        def pick(t: Tensor | None) -> Tensor | None:
+            return None if t is None else t[index]
+
+        return Views([self.cameras[i] for i in indices], self.images[index], [self.names[i] for i in indices],
+                     pick(self.masks), pick(self.depths), pick(self.observed), pick(self.alphas),
+                     self.alpha_background)
+
 
 def on_background(images: Tensor, alphas: Tensor, composited_on: tuple[float, float, float] | Tensor,
                   background: Tensor) -> Tensor:

@@ -1,0 +1,262 @@
+"""Choose the colour and uncertainty SH degrees per scene, from views the model has not yet seen.
+
+A degree is only worth its coefficients if it helps on views the model was not fitted to: on the poster
+stand-in colour degree 3 buys about 1 dB over degree 0, on fox it buys nothing measurable, and the same holds
+for the u-SH degree. So with `--degree-choice.on` the trainer holds a contiguous block of training views out
+(a contiguous block, because an unseen *angle* is what higher SH bands extrapolate to, and what the
+uncertainty must flag), trains colour at the configured degree and one uncertainty head per u-SH degree
+(L_u never moves the geometry, so the heads cost almost nothing), and at step `at · steps` scores every
+degree on the held-out block:
+
+- colour: PSNR of the render with the colour SH refitted to each degree (see `refit_colour`);
+- uncertainty: AUSE-MAE of each head's map against the error of that render.
+
+It keeps the smallest degree within tolerance of the best (cheaper to store and to render, and no less
+accurate on unseen views), gives the model that colour, drops the other coefficients and heads together with
+their Adam moments, and trains on every view, the held-out block included, for the remaining steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+import torch
+
+from splatu.ause import score_image
+from splatu.data.scene import Views, on_background
+from splatu.errors import SplatuError
+from splatu.losses import psnr, uncertainty_heads
+from splatu.model import GaussianModel
+from splatu.optim import Optimizers
+from splatu.sh import eval_sh, num_sh_bases, safe_normalize, sh_basis
+
+if TYPE_CHECKING:
+    from splatu.train_config import TrainConfig
+
+MIN_HELD_OUT = 2
+"""Fewer held-out views than this would score degrees on one viewpoint."""
+
+
+@dataclass
+class DegreeChoiceConfig:
+    on: bool = False
+    """Choose the colour and u-SH degrees for this scene (up to --model.sh-degree and --model.u-sh-degree): hold
+    a contiguous block of training views out until step at·steps, score each degree there, keep the smallest
+    within tolerance of the best, then train on every view."""
+    held_out: float = 0.125
+    """Fraction of the training views held out (a contiguous block from the middle of the sequence)."""
+    at: float = 0.4
+    """Decide after this fraction of the steps: late enough that colour has reached its full degree and the
+    scores settle, early enough that the held-out views still take part in densification."""
+    psnr_tolerance: float = 0.05
+    """Keep a lower colour degree if its held-out PSNR is within this many dB of the best degree's (0.1 kept
+    degree 2 on poster, which then ended 0.3 dB below degree 3: a lead measured at `at` grows later)."""
+    ause_tolerance: float = 0.02
+    """Keep a lower u-SH degree if its held-out AUSE-MAE is within this fraction of the best degree's."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        if not 0.0 < self.held_out < 1.0 or not 0.0 < self.at < 1.0:
+            raise SplatuError(f"held_out = {self.held_out} and at = {self.at} must both be in (0, 1)",
+                              "--degree-choice.held-out / --degree-choice.at", "use e.g. 0.125 and 0.4")
+        if not (math.isfinite(self.psnr_tolerance) and self.psnr_tolerance >= 0
+                and math.isfinite(self.ause_tolerance) and self.ause_tolerance >= 0):
+            raise SplatuError("degree-choice tolerances must be finite and non-negative",
+                              "--degree-choice.psnr-tolerance / --degree-choice.ause-tolerance",
+                              "use e.g. 0.05 and 0.02")
+
+
+def held_out_block(num_views: int, fraction: float) -> list[int]:
+    """Indices of the contiguous middle block of `fraction` of the views (at least MIN_HELD_OUT)."""
+    count = max(MIN_HELD_OUT, round(fraction * num_views))
+    if count >= num_views:
+        raise SplatuError(f"choosing degrees holds out {count} of only {num_views} training views",
+                          "--degree-choice.on", "train with fixed degrees (drop --degree-choice.on) on so few views")
+    start = (num_views - count) // 2
+    return list(range(start, start + count))
+
+
+def decision_step(cfg: DegreeChoiceConfig, steps: int) -> int:
+    """The step after which the degrees are chosen (at least 1, before the last)."""
+    return min(max(1, round(cfg.at * steps)), max(1, steps - 1))
+
+
+def with_choice_heads(config: TrainConfig) -> TrainConfig:
+    """A TrainConfig that also trains one uncertainty head per lower u-SH degree, for the choice to compare
+    (unchanged when it already does)."""
+    config.degree_choice.validate()
+    full_colour_at = config.model.sh_degree * config.model.sh_degree_interval
+    if decision_step(config.degree_choice, config.steps) <= full_colour_at:
+        raise SplatuError(f"the degrees would be chosen at step {decision_step(config.degree_choice, config.steps)}, "
+                          f"before colour SH reaches degree {config.model.sh_degree} (step {full_colour_at})",
+                          "--degree-choice.at", "raise --degree-choice.at or --steps, or lower "
+                          "--model.sh-degree-interval")
+    if config.uncertainty.off:
+        return config
+    heads = tuple(f"degree={d}" for d in range(config.model.u_sh_degree))
+    if config.uncertainty.extra_heads == heads:
+        return config
+    if config.uncertainty.extra_heads:
+        raise SplatuError("--degree-choice.on trains its own uncertainty heads, one per u-SH degree",
+                          "--uncertainty.extra-heads", "drop --uncertainty.extra-heads, or --degree-choice.on")
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, extra_heads=heads))
+
+
+def split_for_choice(train: Views, fraction: float) -> tuple[Views, Views]:
+    """The training views the model is fitted on until the choice, and the held-out block it is scored on."""
+    held = held_out_block(len(train), fraction)
+    return train.subset([i for i in range(len(train)) if i not in held]), train.subset(held)
+
+
+def training_views(train: Views, config: TrainConfig, step: int) -> Views:
+    """The views a step at `step` trains on: all of them, except the held-out block until the choice is made."""
+    if not config.degree_choice.on or step >= decision_step(config.degree_choice, config.steps):
+        return train
+    return split_for_choice(train, config.degree_choice.held_out)[0]
+
+
+def smallest_within(scores: dict[int, float], tolerance: float, higher_is_better: bool) -> int:
+    """The smallest degree whose score is within `tolerance` of the best (absolute for higher-is-better PSNR,
+    relative for lower-is-better AUSE)."""
+    if higher_is_better:
+        best = max(scores.values())
+        return min(d for d, s in scores.items() if s >= best - tolerance)
+    best = min(scores.values())
+    return min(d for d, s in scores.items() if s <= best * (1.0 + tolerance))
+
+
+FIT_RIDGE = 1e-3
+"""Pull of a refitted colour towards the truncated one, relative to a Gaussian's (normalised) view weights:
+it decides only for Gaussians that the training views barely see, which keep their truncated colour."""
+
+
+@torch.no_grad()
+def seen_directions(model: GaussianModel, views: Views, background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(N, V, 3) unit directions from each training camera to each Gaussian, and (N, V) how much each view
+    sees it (its blend weight summed over the view's pixels, normalised over views)."""
+    dirs, weights = [], []
+    for camera in views.cameras:
+        dirs.append(safe_normalize(model.view_dirs(camera)))
+        weights.append(model.render(camera, 0, background).raster.contrib_sum)
+    weight = torch.stack(weights, dim=1)
+    return torch.stack(dirs, dim=1), weight / weight.sum(1, keepdim=True).clamp_min(1e-12)
+
+
+def refit_colour(coeffs: torch.Tensor, dirs: torch.Tensor, weights: torch.Tensor, degree: int) -> torch.Tensor:
+    """(N, K_degree, 3) colour SH of `degree` closest, over the directions each Gaussian was trained from, to
+    the full `coeffs` (N, K, 3): the colour a model trained at that degree would have learnt, near enough.
+
+    Merely cutting the higher bands off would not be: the DC term of a degree-3 model was learnt together with
+    them, so a cut model is worse than one trained at the lower degree, and the choice would never go lower.
+    Weighted least squares per Gaussian, min Σ_v w_v |Y(d_v)·c − f(d_v)|² + ridge·|c − c_cut|².
+    """
+    k = num_sh_bases(degree)
+    full = sh_basis(dirs, round(math.sqrt(coeffs.shape[1])) - 1).to(coeffs)  # (N, V, K)
+    target = full @ coeffs  # (N, V, 3): the colour function seen along each training direction
+    basis = full[..., :k]
+    weighted = basis.transpose(1, 2) * weights.unsqueeze(1)  # (N, k, V)
+    normal = weighted @ basis + FIT_RIDGE * torch.eye(k, dtype=coeffs.dtype)
+    cut = coeffs[:, :k]
+    return torch.linalg.solve(normal, weighted @ target + FIT_RIDGE * cut)
+
+
+def with_colour(model: GaussianModel, coeffs: torch.Tensor) -> GaussianModel:
+    """The same Gaussians with colour SH `coeffs` (N, K, 3) and the degree K implies (a view, no copies)."""
+    degree = round(math.sqrt(coeffs.shape[1])) - 1
+    return GaussianModel(model.means.detach(), model.quats.detach(), model.log_scales.detach(),
+                         model.opacity_logits.detach(), coeffs[:, :1], coeffs[:, 1:], model.u_sh.detach(),
+                         dataclasses.replace(model.cfg, sh_degree=degree))
+
+
+class DegreeScores(NamedTuple):
+    record: dict[str, Any]
+    """What was measured and chosen (JSON-ready)."""
+    colour: torch.Tensor
+    """(N, K, 3) colour SH of the chosen degree: refitted, or the model's own at its full degree."""
+
+
+@torch.no_grad()
+def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, config: TrainConfig,
+                  background: torch.Tensor) -> DegreeScores:
+    """Held-out PSNR per colour degree, and AUSE-MAE (with its random baseline) per u-SH degree.
+
+    Each lower colour degree is refitted on the directions the `fitted_on` views see each Gaussian from (see
+    `refit_colour`). The uncertainty heads are scored against the error of the render at the chosen colour
+    degree, the model that training continues with.
+    """
+    full_degree = config.model.sh_degree
+    coeffs = torch.cat([model.sh_dc, model.sh_rest], dim=1).detach()
+    colours = {full_degree: coeffs}
+    if full_degree > 0:
+        dirs, weights = seen_directions(model, fitted_on, background)
+        colours.update({d: refit_colour(coeffs, dirs, weights, d) for d in range(full_degree)})
+    heads = [] if config.uncertainty.off else uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+    renders: dict[int, list[torch.Tensor]] = {d: [] for d in sorted(colours)}
+    maps: list[np.ndarray] = []
+    targets: list[torch.Tensor] = []
+    for i, camera in enumerate(held_out.cameras):
+        gt = held_out.images[i]
+        if held_out.alphas is not None:
+            gt = on_background(gt, held_out.alphas[i], held_out.alpha_background, background)
+        targets.append(gt)
+        head_u = None
+        if heads:
+            dirs_i = model.view_dirs(camera)
+            head_u = torch.stack([torch.sigmoid(eval_sh(model.u_sh[:, :num_sh_bases(h.degree), c:c + 1], dirs_i,
+                                                        h.degree)).squeeze(-1)
+                                  for c, h in enumerate(heads)], dim=-1)
+        for degree in renders:
+            render = with_colour(model, colours[degree]).render(
+                camera, degree, background, extra_features=head_u if degree == 0 else None)
+            renders[degree].append(render.rgb.clamp(0, 1))
+            if render.extra is not None:
+                maps.append(render.extra.numpy())
+    colour = {d: float(np.mean([psnr(rgb, gt) for rgb, gt in zip(renders[d], targets, strict=True)]))
+              for d in renders}
+    chosen_colour = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
+    record: dict[str, Any] = {"held_out_views": len(held_out), "colour_psnr": colour, "sh_degree": chosen_colour}
+    if heads:
+        per_head: dict[int, list[float]] = {h.degree: [] for h in heads}
+        randoms = []
+        for i, (rgb, gt) in enumerate(zip(renders[chosen_colour], targets, strict=True)):
+            valid = None if held_out.masks is None else held_out.masks[i].numpy() > 0
+            for c, head in enumerate(heads):
+                scores = score_image(rgb.numpy(), gt.numpy(), maps[i][..., c], valid, metrics=("mae",))
+                per_head[head.degree].append(float(scores["ause_mae"]))
+            randoms.append(float(scores["random_ause_mae"]))
+        ause = {d: float(np.mean(per_head[d])) for d in sorted(per_head)}
+        record.update(u_ause_mae=ause, random_ause_mae=float(np.mean(randoms)),
+                      u_sh_degree=smallest_within(ause, config.degree_choice.ause_tolerance, higher_is_better=False))
+    return DegreeScores(record, colours[chosen_colour])
+
+
+def apply_choice(model: GaussianModel, optimizers: Optimizers, generators: list[torch.Generator],
+                 config: TrainConfig, scores: DegreeScores) -> tuple[TrainConfig, list[torch.Generator]]:
+    """Give the model the chosen colour (and cut its Adam moments to match) and keep only the chosen uncertainty
+    head; returns the config that matches and the kept head's random stream.
+
+    The kept uncertainty head becomes the run's own (channel 0), with its settings; the rest are dropped.
+    """
+    choice, colour = scores.record, scores.colour
+    sh_degree = int(choice["sh_degree"])
+    keep = num_sh_bases(sh_degree) - 1
+    optimizers.edit_parameter(model, "sh_dc", lambda t: colour[:, :1].to(t), lambda moment: moment)
+    optimizers.edit_parameter(model, "sh_rest", lambda t: colour[:, 1:].to(t), lambda moment: moment[:, :keep])
+    model_cfg = dataclasses.replace(config.model, sh_degree=sh_degree)
+    uncertainty = config.uncertainty
+    if "u_sh_degree" in choice:
+        u_degree = int(choice["u_sh_degree"])
+        heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+        channel = next(c for c, h in enumerate(heads) if h.degree == u_degree)
+        optimizers.edit_parameter(model, "u_sh", lambda t: t[:, :num_sh_bases(u_degree), channel:channel + 1])
+        model_cfg = dataclasses.replace(model_cfg, u_sh_degree=u_degree)
+        uncertainty = heads[channel].loss
+        generators = [generators[channel]]
+    model.cfg = model_cfg
+    return dataclasses.replace(config, model=model_cfg, uncertainty=uncertainty), generators

@@ -1,0 +1,238 @@
+"""Choosing the colour and u-SH degrees per scene on a held-out block (`--degree-choice.on`)."""
+
+import dataclasses
+import json
+
+import pytest
+import torch
+
+from splatu import trainer
+from splatu.checkpoint import load_run
+from splatu.data.scene import Views
+from splatu.degree_choice import (
+    FIT_RIDGE,
+    DegreeChoiceConfig,
+    DegreeScores,
+    apply_choice,
+    decision_step,
+    held_out_block,
+    refit_colour,
+    score_degrees,
+    smallest_within,
+    training_views,
+    with_choice_heads,
+)
+from splatu.errors import SplatuError
+from splatu.losses import uncertainty_heads
+from splatu.model import GaussianModel, ModelConfig
+from splatu.optim import OptimConfig, Optimizers
+from splatu.sh import C0, safe_normalize, sh_basis
+from tests.unit.test_trainer import losses_of, tiny_config, tiny_scene
+
+
+def choice_config(tmp_path, **changes):
+    """A tiny run that chooses among colour degrees 0-2 and u-SH degrees 0-2 after step 9 of 16."""
+    config = tiny_config(tmp_path, steps=16, checkpoint_every=0,
+                         model=ModelConfig(sh_degree=2, u_sh_degree=2, sh_degree_interval=3),
+                         degree_choice=DegreeChoiceConfig(on=True, held_out=0.25, at=0.55))
+    return dataclasses.replace(config, **changes)
+
+
+@pytest.fixture
+def scene(monkeypatch):
+    scene = tiny_scene(n_train=8)
+    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    return scene
+
+
+def test_the_held_out_block_is_contiguous_in_the_middle_and_leaves_views_to_train_on():
+    assert held_out_block(16, 0.125) == [7, 8]
+    assert held_out_block(10, 0.05) == [4, 5]  # never fewer than two views
+    assert held_out_block(67, 0.25) == list(range(25, 42))
+    with pytest.raises(SplatuError, match="holds out 2 of only 2 training views"):
+        held_out_block(2, 0.125)
+
+
+def test_the_smallest_degree_within_tolerance_of_the_best_is_kept():
+    psnr = {0: 20.0, 1: 21.0, 2: 21.05, 3: 20.9}
+    assert smallest_within(psnr, 0.1, higher_is_better=True) == 1
+    assert smallest_within(psnr, 0.0, higher_is_better=True) == 2
+    ause = {0: 0.50, 1: 0.40, 2: 0.39, 3: 0.395}
+    assert smallest_within(ause, 0.02, higher_is_better=False) == 2  # 0.40 is 2.6% above the best
+    assert smallest_within(ause, 0.03, higher_is_better=False) == 1
+
+
+def test_choice_settings_are_validated_before_training(tmp_path):
+    with pytest.raises(SplatuError, match="must both be in"):
+        DegreeChoiceConfig(at=1.0)
+    with pytest.raises(SplatuError, match="tolerances"):
+        DegreeChoiceConfig(psnr_tolerance=float("nan"))
+    late = choice_config(tmp_path, model=ModelConfig(sh_degree=2, sh_degree_interval=5))
+    with pytest.raises(SplatuError, match="before colour SH reaches degree 2"):
+        with_choice_heads(late)
+    own = choice_config(tmp_path)
+    own = dataclasses.replace(own, uncertainty=dataclasses.replace(own.uncertainty, extra_heads=("lam=0.1",)))
+    with pytest.raises(SplatuError, match="trains its own uncertainty heads"):
+        with_choice_heads(own)
+
+
+def test_one_head_per_lower_u_degree_is_added_once(tmp_path):
+    config = with_choice_heads(choice_config(tmp_path))
+    assert [h.degree for h in uncertainty_heads(config.uncertainty, config.model.u_sh_degree)] == [2, 0, 1]
+    assert with_choice_heads(config) == config
+    off = choice_config(tmp_path, uncertainty=dataclasses.replace(config.uncertainty, off=True, extra_heads=()))
+    assert with_choice_heads(off).uncertainty.extra_heads == ()
+
+
+def test_the_held_out_views_are_withheld_until_the_decision_step(tmp_path):
+    views = tiny_scene(n_train=8).train
+    config = choice_config(tmp_path)
+    at = decision_step(config.degree_choice, config.steps)
+    assert at == 9
+    assert training_views(views, config, at - 1).names == ["t0", "t1", "t2", "t5", "t6", "t7"]
+    assert training_views(views, config, at) is views
+    off = dataclasses.replace(config, degree_choice=DegreeChoiceConfig())
+    assert training_views(views, off, 0) is views
+
+
+def _model_with_heads(config, seed: int = 0) -> GaussianModel:
+    scene = tiny_scene()
+    heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+    model = GaussianModel.from_points(scene.points, scene.point_colors, config.model,
+                                      torch.Generator().manual_seed(seed), len(heads))
+    g = torch.Generator().manual_seed(seed + 1)
+    with torch.no_grad():
+        model.sh_rest.copy_(0.3 * torch.randn(model.sh_rest.shape, generator=g))
+        model.u_sh.copy_(torch.randn(model.u_sh.shape, generator=g))
+    return model
+
+
+def test_applying_a_choice_cuts_coefficients_heads_and_adam_moments_alike(tmp_path):
+    config = with_choice_heads(choice_config(tmp_path, uncertainty=dataclasses.replace(
+        choice_config(tmp_path).uncertainty, kind="mean")))
+    model = _model_with_heads(config)
+    optimizers = Optimizers(model, OptimConfig(), 1.0, 10)
+    (model.sh_rest.square().sum() + model.u_sh.pow(3).sum()).backward()
+    optimizers.step(0)
+    rest_before, u_before = model.sh_rest.detach().clone(), model.u_sh.detach().clone()
+    moments = {name: {k: v.clone() for k, v in optimizers.optimizers[name].state[getattr(model, name)].items()}
+               for name in ("sh_rest", "u_sh")}
+    generators = [torch.Generator().manual_seed(k) for k in range(3)]
+
+    refitted = torch.randn(len(model), 4, 3)
+    chosen, kept = apply_choice(model, optimizers, generators, config,
+                                DegreeScores({"sh_degree": 1, "u_sh_degree": 1}, refitted))
+
+    assert chosen.model.sh_degree == 1 and chosen.model.u_sh_degree == 1 and model.cfg == chosen.model
+    assert chosen.uncertainty.extra_heads == () and chosen.uncertainty.kind == "mean"
+    assert kept == [generators[2]]  # channels: own (degree 2), degree=0, degree=1
+    assert torch.equal(model.sh_dc, refitted[:, :1]) and torch.equal(model.sh_rest, refitted[:, 1:])
+    assert model.sh_rest.shape == rest_before[:, :3].shape
+    assert torch.equal(model.u_sh, u_before[:, :4, 2:3])
+    for name, cut in (("sh_rest", lambda t: t[:, :3]), ("u_sh", lambda t: t[:, :4, 2:3])):
+        state = optimizers.optimizers[name].state[getattr(model, name)]
+        for key in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(state[key], cut(moments[name][key])), (name, key)
+    (model.sh_rest.sum() + model.u_sh.sum()).backward()
+    optimizers.step(1)  # the optimizers now hold the cut parameters
+    assert model.u_sh.shape == (len(model), 4, 1)
+
+
+def _views_rendered_by(model: GaussianModel, views: Views, degree: int) -> Views:
+    """`views` with images rendered by `model`, and masks that keep only pixels the Gaussians cover (empty
+    background has no error for any map to find)."""
+    with torch.no_grad():
+        renders = [model.render(c, degree, torch.zeros(3)) for c in views.cameras]
+    return dataclasses.replace(views, images=torch.stack([r.rgb.clamp(0, 1) for r in renders]),
+                               masks=torch.stack([(r.alpha > 0.5).float() for r in renders]))
+
+
+def test_refitting_recovers_a_lower_degree_colour_exactly_and_is_weighted_least_squares():
+    g = torch.Generator().manual_seed(3)
+    n, views = 5, 9
+    dirs = safe_normalize(torch.randn(n, views, 3, generator=g, dtype=torch.float64))
+    weights = torch.rand(n, views, generator=g, dtype=torch.float64)
+    weights = weights / weights.sum(1, keepdim=True)
+    coeffs = torch.randn(n, 16, 3, generator=g, dtype=torch.float64)
+    low = coeffs.clone()
+    low[:, 4:] = 0.0  # a degree-1 colour stored at degree 3
+    torch.testing.assert_close(refit_colour(low, dirs, weights, 1), low[:, :4], rtol=0, atol=1e-12)
+    fitted = refit_colour(coeffs, dirs, weights, 1)
+    for i in range(n):  # brute force: the same weighted, ridged least squares, stacked as one system
+        root = weights[i].sqrt().unsqueeze(-1)
+        a = torch.cat([root * sh_basis(dirs[i], 3)[:, :4], FIT_RIDGE**0.5 * torch.eye(4, dtype=torch.float64)])
+        b = torch.cat([root * (sh_basis(dirs[i], 3) @ coeffs[i]), FIT_RIDGE**0.5 * coeffs[i, :4]])
+        torch.testing.assert_close(fitted[i], torch.linalg.lstsq(a, b).solution, rtol=1e-9, atol=1e-9)
+
+
+def test_scores_pick_the_degree_that_explains_held_out_views(tmp_path):
+    """A colour of degree 1 (stored at degree 2) makes degrees 1 and 2 equal on held-out views and degree 0
+    worse, so degree 1 is kept. The error sits on the Gaussians whose colour was shifted in the targets, and
+    only the degree-1 uncertainty head is told which those are."""
+    config = with_choice_heads(choice_config(tmp_path))
+    model = _model_with_heads(config)
+    train = tiny_scene(n_train=8).train
+    shifted = torch.zeros(len(model), dtype=torch.bool)
+    shifted[::2] = True
+    with torch.no_grad():
+        model.sh_rest[:, 3:] = 0.0
+        model.sh_dc[shifted] += 0.4
+        targets = _views_rendered_by(model, train.subset([0, 3, 6]), 2)
+        model.sh_dc[shifted] -= 0.4
+        model.u_sh.zero_()
+        model.u_sh[:, 0, 2] = torch.where(shifted, 2.0, -2.0) / C0  # channel 2 is the degree-1 head
+    scores = score_degrees(model, targets, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3))
+    record = scores.record
+    assert record["held_out_views"] == 3
+    assert abs(record["colour_psnr"][1] - record["colour_psnr"][2]) < 1e-3
+    assert record["colour_psnr"][0] < record["colour_psnr"][1] - 0.5
+    assert record["sh_degree"] == 1
+    torch.testing.assert_close(scores.colour, torch.cat([model.sh_dc, model.sh_rest[:, :3]], 1), rtol=0, atol=1e-4)
+    assert list(record["u_ause_mae"]) == [0, 1, 2]
+    assert record["u_ause_mae"][1] < 0.75 * min(record["u_ause_mae"][0], record["u_ause_mae"][2])
+    assert record["u_sh_degree"] == 1
+
+
+def test_a_run_chooses_mid_way_records_why_and_loads_with_the_chosen_degrees(tmp_path, scene, monkeypatch):
+    seen: list[tuple[int, str]] = []
+    real_get = trainer.TrainImages.get
+
+    def record(self, index, level, background=None):
+        camera, target = real_get(self, index, level, background)
+        seen.append((len(seen), self.views.names[index]))
+        return camera, target
+
+    monkeypatch.setattr(trainer.TrainImages, "get", record)
+    run_dir = trainer.train(choice_config(tmp_path))
+    record_file = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
+    assert record_file["step"] == 9 and record_file["held_out_views"] == 2
+    assert set(record_file["colour_psnr"]) == {"0", "1", "2"} and set(record_file["u_ause_mae"]) == {"0", "1", "2"}
+    held = {"t3", "t4"}
+    assert not held & {name for step, name in seen if step < 9}
+    assert held <= {name for step, name in seen if step >= 9}
+    config, model, _ = load_run(run_dir)
+    assert config.model.sh_degree == record_file["sh_degree"]
+    assert config.model.u_sh_degree == record_file["u_sh_degree"]
+    assert model.u_sh.shape[1:] == ((record_file["u_sh_degree"] + 1) ** 2, 1)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["degree_choice"] == record_file
+    assert summary["sh_degree"] == record_file["sh_degree"]
+
+
+@pytest.mark.parametrize("stop_at", [5, 12])
+def test_resume_before_or_after_the_choice_equals_an_uninterrupted_run(tmp_path, scene, stop_at):
+    full_dir = trainer.train(choice_config(tmp_path / "a"))
+
+    def ctrl_c(step, state):
+        if step == stop_at:
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted):
+        trainer.train(choice_config(tmp_path / "b"), hooks=[ctrl_c])
+    interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    resumed_dir = trainer.train(dataclasses.replace(choice_config(tmp_path / "c"), resume=interrupted))
+    assert losses_of(resumed_dir) == losses_of(full_dir)
+    full, resumed = load_run(full_dir).model, load_run(resumed_dir).model
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(full, name), getattr(resumed, name)), name
+    assert json.loads((resumed_dir / trainer.DEGREE_CHOICE_FILE).read_text())["step"] == 9
