@@ -29,10 +29,10 @@ import torch
 from splatu.ause import score_image
 from splatu.data.scene import Views, on_background
 from splatu.errors import SplatuError
-from splatu.losses import psnr, uncertainty_heads
+from splatu.losses import UncertaintyHead, psnr, uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
-from splatu.sh import eval_sh, num_sh_bases, safe_normalize, sh_basis
+from splatu.sh import eval_sh, num_sh_bases, safe_normalize, sh_basis, sh_degree_of
 
 if TYPE_CHECKING:
     from splatu.train_config import TrainConfig
@@ -52,9 +52,10 @@ class DegreeChoiceConfig:
     at: float = 0.4
     """Decide after this fraction of the steps: late enough that colour has reached its full degree and the
     scores settle, early enough that the held-out views still take part in densification."""
-    psnr_tolerance: float = 0.05
-    """Keep a lower colour degree if its held-out PSNR is within this many dB of the best degree's (0.1 kept
-    degree 2 on poster, which then ended 0.3 dB below degree 3: a lead measured at `at` grows later)."""
+    psnr_tolerance: float = 0.0
+    """Keep a lower colour degree if its held-out PSNR is within this many dB of the best degree's. 0: a higher
+    degree's lead measured at `at` grows later (poster: degree 3 led degree 2 by 0.02 dB at 40%, and a run that
+    kept degree 2 ended 0.3 dB lower), so any lead counts; a tie still goes to the lower degree."""
     ause_tolerance: float = 0.02
     """Keep a lower u-SH degree if its held-out AUSE-MAE is within this fraction of the best degree's."""
 
@@ -62,6 +63,7 @@ class DegreeChoiceConfig:
         self.validate()
 
     def validate(self) -> None:
+        """Raise a one-line SplatuError for settings that hold out nothing, or everything, or never decide."""
         if not 0.0 < self.held_out < 1.0 or not 0.0 < self.at < 1.0:
             raise SplatuError(f"held_out = {self.held_out} and at = {self.at} must both be in (0, 1)",
                               "--degree-choice.held-out / --degree-choice.at", "use e.g. 0.125 and 0.4")
@@ -69,7 +71,7 @@ class DegreeChoiceConfig:
                 and math.isfinite(self.ause_tolerance) and self.ause_tolerance >= 0):
             raise SplatuError("degree-choice tolerances must be finite and non-negative",
                               "--degree-choice.psnr-tolerance / --degree-choice.ause-tolerance",
-                              "use e.g. 0.05 and 0.02")
+                              "use e.g. 0 and 0.02")
 
 
 def held_out_block(num_views: int, fraction: float) -> list[int]:
@@ -83,14 +85,18 @@ def held_out_block(num_views: int, fraction: float) -> list[int]:
 
 
 def decision_step(cfg: DegreeChoiceConfig, steps: int) -> int:
-    """The step after which the degrees are chosen (at least 1, before the last)."""
+    """The number of completed steps at which the degrees are chosen: at least 1, and before the last step
+    whenever there are two or more."""
     return min(max(1, round(cfg.at * steps)), max(1, steps - 1))
 
 
 def with_choice_heads(config: TrainConfig) -> TrainConfig:
     """A TrainConfig that also trains one uncertainty head per lower u-SH degree, for the choice to compare
-    (unchanged when it already does)."""
-    config.degree_choice.validate()
+    (unchanged when it already does); refuses settings the choice cannot work with."""
+    if config.ensemble > 1:
+        raise SplatuError("an ensemble's members must differ only in seed, but each would choose its own degrees",
+                          "--degree-choice.on with --ensemble", "choose the degrees with one run, then train the "
+                          "ensemble with --model.sh-degree and --model.u-sh-degree set to what it chose")
     full_colour_at = config.model.sh_degree * config.model.sh_degree_interval
     if decision_step(config.degree_choice, config.steps) <= full_colour_at:
         raise SplatuError(f"the degrees would be chosen at step {decision_step(config.degree_choice, config.steps)}, "
@@ -131,47 +137,64 @@ def smallest_within(scores: dict[int, float], tolerance: float, higher_is_better
     return min(d for d, s in scores.items() if s <= best * (1.0 + tolerance))
 
 
-FIT_RIDGE = 1e-3
-"""Pull of a refitted colour towards the truncated one, relative to a Gaussian's (normalised) view weights:
-it decides only for Gaussians that the training views barely see, which keep their truncated colour."""
+FIT_RIDGE = 1e-4
+"""Pull of a refitted colour towards the cut one (the view weights of a Gaussian sum to 1). It decides the
+coefficients the fitted views leave undetermined: all of them for a Gaussian no fitted view sees, which keeps
+its cut colour, and the unseen directions of one seen from too few. Elsewhere it shifts the fit by ~0.1%."""
+
+
+def normal_equations(dirs: torch.Tensor, weights: torch.Tensor, coeffs: torch.Tensor) -> tuple[torch.Tensor,
+                                                                                                torch.Tensor]:
+    """Σ_v w_v·Y(d_v)ᵀY(d_v) (N, K, K) and Σ_v w_v·Y(d_v)ᵀf(d_v) (N, K, 3) for unit directions `dirs` (N, V, 3),
+    weights (N, V) and the colour function f given by `coeffs` (N, K, 3). Any lower degree's least-squares fit
+    reads the leading block of these, so they are built once, at the full degree."""
+    basis = sh_basis(dirs, sh_degree_of(coeffs.shape[1])).to(coeffs)  # (N, V, K)
+    weighted = basis.transpose(1, 2) * weights.unsqueeze(1)  # (N, K, V)
+    return weighted @ basis, weighted @ (basis @ coeffs)
 
 
 @torch.no_grad()
-def seen_directions(model: GaussianModel, views: Views, background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(N, V, 3) unit directions from each training camera to each Gaussian, and (N, V) how much each view
-    sees it (its blend weight summed over the view's pixels, normalised over views)."""
-    dirs, weights = [], []
+def seen_normal_equations(model: GaussianModel, views: Views, background: torch.Tensor) -> tuple[torch.Tensor,
+                                                                                                   torch.Tensor]:
+    """`normal_equations` of the model's colour over the directions `views` see each Gaussian from, weighted by
+    how much each view sees it (its blend weight summed over the view's pixels) and normalised per Gaussian.
+    Summed one view at a time, so memory stays O(N·K²) whatever the number of views; in float64, because a
+    Gaussian seen from a narrow cone of directions makes these nearly singular."""
+    coeffs = torch.cat([model.sh_dc, model.sh_rest], dim=1).detach().double()
+    normal = coeffs.new_zeros(len(model), coeffs.shape[1], coeffs.shape[1])
+    rhs = torch.zeros_like(coeffs)
+    total = coeffs.new_zeros(len(model))
     for camera in views.cameras:
-        dirs.append(safe_normalize(model.view_dirs(camera)))
-        weights.append(model.render(camera, 0, background).raster.contrib_sum)
-    weight = torch.stack(weights, dim=1)
-    return torch.stack(dirs, dim=1), weight / weight.sum(1, keepdim=True).clamp_min(1e-12)
+        weight = model.render(camera, 0, background).raster.contrib_sum.double()
+        dirs = safe_normalize(model.view_dirs(camera).double())
+        m, r = normal_equations(dirs.unsqueeze(1), weight.unsqueeze(1), coeffs)
+        normal += m
+        rhs += r
+        total += weight
+    scale = (1.0 / total.clamp_min(1e-12)).view(-1, 1, 1)
+    return normal * scale, rhs * scale
 
 
-def refit_colour(coeffs: torch.Tensor, dirs: torch.Tensor, weights: torch.Tensor, degree: int) -> torch.Tensor:
+def refit_colour(normal: torch.Tensor, rhs: torch.Tensor, coeffs: torch.Tensor, degree: int) -> torch.Tensor:
     """(N, K_degree, 3) colour SH of `degree` closest, over the directions each Gaussian was trained from, to
     the full `coeffs` (N, K, 3): the colour a model trained at that degree would have learnt, near enough.
 
     Merely cutting the higher bands off would not be: the DC term of a degree-3 model was learnt together with
     them, so a cut model is worse than one trained at the lower degree, and the choice would never go lower.
-    Weighted least squares per Gaussian, min Σ_v w_v |Y(d_v)·c − f(d_v)|² + ridge·|c − c_cut|².
+    Weighted least squares per Gaussian, min Σ_v w_v |Y(d_v)·c − f(d_v)|² + ridge·|c − c_cut|², from the
+    leading block of the full-degree `normal_equations`.
     """
     k = num_sh_bases(degree)
-    full = sh_basis(dirs, round(math.sqrt(coeffs.shape[1])) - 1).to(coeffs)  # (N, V, K)
-    target = full @ coeffs  # (N, V, 3): the colour function seen along each training direction
-    basis = full[..., :k]
-    weighted = basis.transpose(1, 2) * weights.unsqueeze(1)  # (N, k, V)
-    normal = weighted @ basis + FIT_RIDGE * torch.eye(k, dtype=coeffs.dtype)
-    cut = coeffs[:, :k]
-    return torch.linalg.solve(normal, weighted @ target + FIT_RIDGE * cut)
+    ridge = FIT_RIDGE * torch.eye(k, dtype=normal.dtype)
+    cut = coeffs[:, :k].to(normal)
+    return torch.linalg.solve(normal[:, :k, :k] + ridge, rhs[:, :k] + FIT_RIDGE * cut).to(coeffs)
 
 
 def with_colour(model: GaussianModel, coeffs: torch.Tensor) -> GaussianModel:
-    """The same Gaussians with colour SH `coeffs` (N, K, 3) and the degree K implies (a view, no copies)."""
-    degree = round(math.sqrt(coeffs.shape[1])) - 1
+    """The same Gaussians (shared, not copied) with colour SH `coeffs` (N, K, 3) and the degree K implies."""
     return GaussianModel(model.means.detach(), model.quats.detach(), model.log_scales.detach(),
                          model.opacity_logits.detach(), coeffs[:, :1], coeffs[:, 1:], model.u_sh.detach(),
-                         dataclasses.replace(model.cfg, sh_degree=degree))
+                         dataclasses.replace(model.cfg, sh_degree=sh_degree_of(coeffs.shape[1])))
 
 
 class DegreeScores(NamedTuple):
@@ -179,6 +202,27 @@ class DegreeScores(NamedTuple):
     """What was measured and chosen (JSON-ready)."""
     colour: torch.Tensor
     """(N, K, 3) colour SH of the chosen degree: refitted, or the model's own at its full degree."""
+
+
+def head_maps(model: GaussianModel, heads: list[UncertaintyHead], camera: Any) -> torch.Tensor:
+    """(N, heads) u of every uncertainty head along this camera's view directions."""
+    dirs = model.view_dirs(camera)
+    return torch.stack([torch.sigmoid(eval_sh(model.u_sh[:, :num_sh_bases(h.degree), c:c + 1], dirs, h.degree))
+                        .squeeze(-1) for c, h in enumerate(heads)], dim=-1)
+
+
+def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: list[np.ndarray],
+              heads: list[UncertaintyHead], masks: torch.Tensor | None) -> tuple[dict[int, float], float]:
+    """Mean AUSE-MAE per head's degree over the views, and the random baseline's, on the same errors."""
+    per_head: dict[int, list[float]] = {h.degree: [] for h in heads}
+    randoms = []
+    for i, (rgb, gt) in enumerate(zip(renders, targets, strict=True)):
+        valid = None if masks is None else masks[i].numpy() > 0
+        for c, head in enumerate(heads):
+            scores = score_image(rgb.numpy(), gt.numpy(), maps[i][..., c], valid, metrics=("mae",))
+            per_head[head.degree].append(float(scores["ause_mae"]))
+        randoms.append(float(scores["random_ause_mae"]))
+    return {d: float(np.mean(per_head[d])) for d in sorted(per_head)}, float(np.mean(randoms))
 
 
 @torch.no_grad()
@@ -190,73 +234,62 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
     `refit_colour`). The uncertainty heads are scored against the error of the render at the chosen colour
     degree, the model that training continues with.
     """
-    full_degree = config.model.sh_degree
+    full = config.model.sh_degree
     coeffs = torch.cat([model.sh_dc, model.sh_rest], dim=1).detach()
-    colours = {full_degree: coeffs}
-    if full_degree > 0:
-        dirs, weights = seen_directions(model, fitted_on, background)
-        colours.update({d: refit_colour(coeffs, dirs, weights, d) for d in range(full_degree)})
+    colours = {full: coeffs}
+    if full > 0:
+        normal, rhs = seen_normal_equations(model, fitted_on, background)
+        colours.update({d: refit_colour(normal, rhs, coeffs, d) for d in range(full)})
+    models = {d: with_colour(model, colours[d]) for d in sorted(colours)}
     heads = [] if config.uncertainty.off else uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
-    renders: dict[int, list[torch.Tensor]] = {d: [] for d in sorted(colours)}
+    targets = [held_out.images[i] if held_out.alphas is None else
+               on_background(held_out.images[i], held_out.alphas[i], held_out.alpha_background, background)
+               for i in range(len(held_out))]
+    renders: dict[int, list[torch.Tensor]] = {d: [] for d in models}
     maps: list[np.ndarray] = []
-    targets: list[torch.Tensor] = []
-    for i, camera in enumerate(held_out.cameras):
-        gt = held_out.images[i]
-        if held_out.alphas is not None:
-            gt = on_background(gt, held_out.alphas[i], held_out.alpha_background, background)
-        targets.append(gt)
-        head_u = None
-        if heads:
-            dirs_i = model.view_dirs(camera)
-            head_u = torch.stack([torch.sigmoid(eval_sh(model.u_sh[:, :num_sh_bases(h.degree), c:c + 1], dirs_i,
-                                                        h.degree)).squeeze(-1)
-                                  for c, h in enumerate(heads)], dim=-1)
-        for degree in renders:
-            render = with_colour(model, colours[degree]).render(
-                camera, degree, background, extra_features=head_u if degree == 0 else None)
+    for camera in held_out.cameras:
+        for degree, degree_model in models.items():
+            extra = head_maps(model, heads, camera) if heads and degree == 0 else None
+            render = degree_model.render(camera, degree, background, extra_features=extra)
             renders[degree].append(render.rgb.clamp(0, 1))
             if render.extra is not None:
                 maps.append(render.extra.numpy())
     colour = {d: float(np.mean([psnr(rgb, gt) for rgb, gt in zip(renders[d], targets, strict=True)]))
               for d in renders}
-    chosen_colour = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
-    record: dict[str, Any] = {"held_out_views": len(held_out), "colour_psnr": colour, "sh_degree": chosen_colour}
+    chosen = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
+    record: dict[str, Any] = {"held_out_views": held_out.names, "colour_psnr": colour, "sh_degree": chosen}
     if heads:
-        per_head: dict[int, list[float]] = {h.degree: [] for h in heads}
-        randoms = []
-        for i, (rgb, gt) in enumerate(zip(renders[chosen_colour], targets, strict=True)):
-            valid = None if held_out.masks is None else held_out.masks[i].numpy() > 0
-            for c, head in enumerate(heads):
-                scores = score_image(rgb.numpy(), gt.numpy(), maps[i][..., c], valid, metrics=("mae",))
-                per_head[head.degree].append(float(scores["ause_mae"]))
-            randoms.append(float(scores["random_ause_mae"]))
-        ause = {d: float(np.mean(per_head[d])) for d in sorted(per_head)}
-        record.update(u_ause_mae=ause, random_ause_mae=float(np.mean(randoms)),
+        ause, random = head_ause(renders[chosen], targets, maps, heads, held_out.masks)
+        record.update(u_ause_mae=ause, random_ause_mae=random,
                       u_sh_degree=smallest_within(ause, config.degree_choice.ause_tolerance, higher_is_better=False))
-    return DegreeScores(record, colours[chosen_colour])
+    return DegreeScores(record, colours[chosen])
 
 
 def apply_choice(model: GaussianModel, optimizers: Optimizers, generators: list[torch.Generator],
                  config: TrainConfig, scores: DegreeScores) -> tuple[TrainConfig, list[torch.Generator]]:
     """Give the model the chosen colour (and cut its Adam moments to match) and keep only the chosen uncertainty
-    head; returns the config that matches and the kept head's random stream.
+    head; returns the config that matches, with the choice turned off (made), and the kept head's random stream.
 
     The kept uncertainty head becomes the run's own (channel 0), with its settings; the rest are dropped.
     """
     choice, colour = scores.record, scores.colour
-    sh_degree = int(choice["sh_degree"])
-    keep = num_sh_bases(sh_degree) - 1
+    keep = num_sh_bases(int(choice["sh_degree"])) - 1
     optimizers.edit_parameter(model, "sh_dc", lambda t: colour[:, :1].to(t), lambda moment: moment)
     optimizers.edit_parameter(model, "sh_rest", lambda t: colour[:, 1:].to(t), lambda moment: moment[:, :keep])
-    model_cfg = dataclasses.replace(config.model, sh_degree=sh_degree)
+    model_cfg = dataclasses.replace(config.model, sh_degree=int(choice["sh_degree"]))
     uncertainty = config.uncertainty
     if "u_sh_degree" in choice:
         u_degree = int(choice["u_sh_degree"])
         heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
         channel = next(c for c, h in enumerate(heads) if h.degree == u_degree)
-        optimizers.edit_parameter(model, "u_sh", lambda t: t[:, :num_sh_bases(u_degree), channel:channel + 1])
+
+        def cut(t: torch.Tensor) -> torch.Tensor:
+            return t[:, :num_sh_bases(u_degree), channel:channel + 1]
+
+        optimizers.edit_parameter(model, "u_sh", cut, cut)
         model_cfg = dataclasses.replace(model_cfg, u_sh_degree=u_degree)
         uncertainty = heads[channel].loss
         generators = [generators[channel]]
     model.cfg = model_cfg
-    return dataclasses.replace(config, model=model_cfg, uncertainty=uncertainty), generators
+    made = dataclasses.replace(config.degree_choice, on=False)
+    return dataclasses.replace(config, model=model_cfg, uncertainty=uncertainty, degree_choice=made), generators

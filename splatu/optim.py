@@ -110,16 +110,17 @@ class Optimizers:
                                 lambda moment, zeros=zeros: self._edit(moment, keep, zeros))
 
     def edit_parameter(self, model: GaussianModel, name: str, edit: Callable[[Tensor], Tensor],
-                       edit_moment: Callable[[Tensor], Tensor] | None = None) -> None:
-        """Replace parameter `name` by `edit(parameter)` and its Adam moments by `edit_moment` (default: the
-        same edit), e.g. to keep fewer SH coefficients: each kept coefficient keeps its own momentum."""
+                       edit_moment: Callable[[Tensor], Tensor]) -> None:
+        """Replace parameter `name` by `edit(parameter)` and its Adam moments by `edit_moment(moment)`, e.g. to
+        keep fewer SH coefficients, each with its own momentum. Two edits, because new values (appended rows, a
+        refitted colour) need moments of their own shape but not of their value."""
         old = getattr(model, name)
         optimizer = self.optimizers[name]
         state = optimizer.state.pop(old, {})
         new = torch.nn.Parameter(edit(old.detach()).contiguous())
         for key in ("exp_avg", "exp_avg_sq"):
             if key in state:
-                state[key] = (edit_moment or edit)(state[key]).contiguous()
+                state[key] = edit_moment(state[key]).contiguous()
         if state:
             optimizer.state[new] = state
         optimizer.param_groups[0]["params"] = [new]

@@ -39,6 +39,14 @@ def num_sh_bases(degree: int) -> int:
     return (degree + 1) ** 2
 
 
+def sh_degree_of(num_bases: int) -> int:
+    """The degree whose expansion has `num_bases` coefficients: the inverse of `num_sh_bases`."""
+    degree = round(num_bases**0.5) - 1
+    if num_sh_bases(degree) != num_bases:
+        raise ValueError(f"{num_bases} is not the coefficient count of any SH degree")
+    return degree
+
+
 def safe_normalize(v: Tensor, eps: float = 1e-12) -> Tensor:
     """Unit vectors along the last axis; vectors shorter than `eps` become exactly zero.
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import torch
 import tyro
 import yaml
 
@@ -101,6 +102,11 @@ class TrainConfig:
             if getattr(self, name) < 0:
                 raise SplatuError(f"--{name.replace('_', '-')} must not be negative", "in the training options",
                                   "pass 0 or a positive number")
+
+
+def eval_background(config: TrainConfig) -> torch.Tensor:
+    """The background evaluation renders on: white for white-background runs, else black."""
+    return torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
 
 
 def absolute_data(data: DataConfig) -> DataConfig:

@@ -66,7 +66,7 @@ from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
-from splatu.train_config import TrainConfig, from_dict, load_config, save_config, to_dict
+from splatu.train_config import TrainConfig, eval_background, from_dict, load_config, save_config, to_dict
 from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 console = Console(stderr=True)
@@ -264,11 +264,6 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     return metrics
 
 
-def eval_background(config: TrainConfig) -> torch.Tensor:
-    """Evaluation renders on black, or on white when training composited on white."""
-    return torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
-
-
 def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
     """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
     sets = {"eval": scene.eval, **scene.extra_eval}
@@ -410,7 +405,10 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
         in_step = False
         try:
             while state.step < config.steps:
-                in_step = True
+                in_step = True  # from here until the step is counted, Ctrl-C cannot save a consistent state
+                if config.degree_choice.on and state.step == decision_step(config.degree_choice, config.steps):
+                    config = choose_degrees(state, config, scene, log, run_dir)
+                    images = TrainImages(scene.train)
                 started = time.perf_counter()
                 outcome = train_step(state, config, images)
                 state.step += 1
@@ -418,10 +416,6 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 in_step = False
                 session_steps += 1
                 _account(state, config, outcome, log, run_dir)
-                if (config.degree_choice.on
-                        and state.step == decision_step(config.degree_choice, config.steps)):
-                    config = choose_degrees(state, config, scene, log, run_dir)
-                    images = TrainImages(scene.train)
                 if outcome.skipped is None:
                     smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
                                      else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
@@ -448,7 +442,8 @@ def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: Me
                    run_dir: Path) -> TrainConfig:
     """Score the SH degrees on the held-out block, keep the chosen ones (see splatu.degree_choice), record why.
 
-    Its time counts as training time: it is part of what the run costs.
+    It runs before step `decision_step + 1`, so the checkpoint at the decision step is the model before the
+    choice, and a run interrupted during it resumes by choosing again. Its time counts as training time.
     """
     started = time.perf_counter()
     fitted_on, held_out = split_for_choice(scene.train, config.degree_choice.held_out)
@@ -464,7 +459,7 @@ def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: Me
     save_config(config, run_dir / "config.yml")
     u_part = f", u-SH degree {choice['u_sh_degree']}" if "u_sh_degree" in choice else ""
     console.print(f"step {state.step}: chose colour SH degree {choice['sh_degree']}{u_part} "
-                  f"on {choice['held_out_views']} held-out views (scores in {run_dir / DEGREE_CHOICE_FILE})")
+                  f"on {len(choice['held_out_views'])} held-out views (scores in {run_dir / DEGREE_CHOICE_FILE})")
     return config
 
 

@@ -21,7 +21,7 @@ from splatu.data.config import DataConfig
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
-from splatu.train_config import TrainConfig
+from splatu.train_config import TrainConfig, eval_background
 from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 
@@ -88,11 +88,6 @@ def check_frames(run: LoadedRun, scene: Scene) -> None:
            "whichever `poster` found then; the stand-in is in the splatu cache)")
     for frame in run.frames:
         require_same_frame(frame, scene_frame(scene), f"in {run.run_dir}", fix)
-
-
-def eval_background(config: TrainConfig) -> torch.Tensor:
-    """The background the trainer evaluates on: white for white-background runs, else black."""
-    return torch.full((3,), 1.0 if config.train_background == "white" else 0.0)
 
 
 def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:

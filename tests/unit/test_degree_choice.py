@@ -16,8 +16,10 @@ from splatu.degree_choice import (
     apply_choice,
     decision_step,
     held_out_block,
+    normal_equations,
     refit_colour,
     score_degrees,
+    seen_normal_equations,
     smallest_within,
     training_views,
     with_choice_heads,
@@ -62,7 +64,18 @@ def test_the_smallest_degree_within_tolerance_of_the_best_is_kept():
     assert smallest_within(ause, 0.03, higher_is_better=False) == 1
 
 
-def test_choice_settings_are_validated_before_training(tmp_path):
+def test_choice_settings_are_validated_before_the_scene_loads(tmp_path, monkeypatch):
+    def no_scene(data_config):
+        raise AssertionError("the scene was loaded before the settings were checked")
+
+    monkeypatch.setattr(trainer, "load_scene", no_scene)
+    for changes, message in (({"ensemble": 2}, "members must differ only in seed"),
+                             ({"steps": 8}, "before colour SH reaches degree 2")):
+        with pytest.raises(SplatuError, match=message):
+            trainer.train(choice_config(tmp_path, **changes))
+
+
+def test_bad_choice_settings_are_one_line_errors(tmp_path):
     with pytest.raises(SplatuError, match="must both be in"):
         DegreeChoiceConfig(at=1.0)
     with pytest.raises(SplatuError, match="tolerances"):
@@ -107,35 +120,49 @@ def _model_with_heads(config, seed: int = 0) -> GaussianModel:
     return model
 
 
-def test_applying_a_choice_cuts_coefficients_heads_and_adam_moments_alike(tmp_path):
+@pytest.mark.parametrize(("sh_degree", "u_degree", "channel"), [(1, 1, 2), (0, 2, 0), (2, 0, 1)])
+def test_applying_a_choice_cuts_coefficients_heads_and_adam_moments_alike(tmp_path, sh_degree, u_degree, channel):
+    """Channels: the run's own head (degree 2), then degree=0 and degree=1; degree 0 leaves no sh_rest."""
     config = with_choice_heads(choice_config(tmp_path, uncertainty=dataclasses.replace(
         choice_config(tmp_path).uncertainty, kind="mean")))
     model = _model_with_heads(config)
     optimizers = Optimizers(model, OptimConfig(), 1.0, 10)
-    (model.sh_rest.square().sum() + model.u_sh.pow(3).sum()).backward()
+    (model.sh_dc.pow(3).sum() + model.sh_rest.square().sum() + model.u_sh.pow(3).sum()).backward()
     optimizers.step(0)
-    rest_before, u_before = model.sh_rest.detach().clone(), model.u_sh.detach().clone()
+    u_before = model.u_sh.detach().clone()
     moments = {name: {k: v.clone() for k, v in optimizers.optimizers[name].state[getattr(model, name)].items()}
-               for name in ("sh_rest", "u_sh")}
+               for name in ("sh_dc", "sh_rest", "u_sh")}
     generators = [torch.Generator().manual_seed(k) for k in range(3)]
+    k, ku = (sh_degree + 1) ** 2, (u_degree + 1) ** 2
 
-    refitted = torch.randn(len(model), 4, 3)
+    refitted = torch.randn(len(model), k, 3)
     chosen, kept = apply_choice(model, optimizers, generators, config,
-                                DegreeScores({"sh_degree": 1, "u_sh_degree": 1}, refitted))
+                                DegreeScores({"sh_degree": sh_degree, "u_sh_degree": u_degree}, refitted))
 
-    assert chosen.model.sh_degree == 1 and chosen.model.u_sh_degree == 1 and model.cfg == chosen.model
+    assert (chosen.model.sh_degree, chosen.model.u_sh_degree) == (sh_degree, u_degree) and model.cfg == chosen.model
     assert chosen.uncertainty.extra_heads == () and chosen.uncertainty.kind == "mean"
-    assert kept == [generators[2]]  # channels: own (degree 2), degree=0, degree=1
+    assert not chosen.degree_choice.on  # made: resuming or reusing this config never chooses again
+    assert kept == [generators[channel]]
     assert torch.equal(model.sh_dc, refitted[:, :1]) and torch.equal(model.sh_rest, refitted[:, 1:])
-    assert model.sh_rest.shape == rest_before[:, :3].shape
-    assert torch.equal(model.u_sh, u_before[:, :4, 2:3])
-    for name, cut in (("sh_rest", lambda t: t[:, :3]), ("u_sh", lambda t: t[:, :4, 2:3])):
+    assert torch.equal(model.u_sh, u_before[:, :ku, channel:channel + 1])
+    cuts = {"sh_dc": lambda t: t, "sh_rest": lambda t: t[:, :k - 1], "u_sh": lambda t: t[:, :ku, channel:channel + 1]}
+    for name, cut in cuts.items():
         state = optimizers.optimizers[name].state[getattr(model, name)]
         for key in ("exp_avg", "exp_avg_sq"):
             assert torch.equal(state[key], cut(moments[name][key])), (name, key)
-    (model.sh_rest.sum() + model.u_sh.sum()).backward()
+    (model.sh_dc.sum() + model.sh_rest.sum() + model.u_sh.sum()).backward()
     optimizers.step(1)  # the optimizers now hold the cut parameters
-    assert model.u_sh.shape == (len(model), 4, 1)
+
+
+def test_a_subset_of_views_slices_every_per_image_tensor_alike():
+    views = tiny_scene(n_train=5).train
+    n, h, w = len(views), views.images.shape[1], views.images.shape[2]
+    views = dataclasses.replace(views, masks=torch.rand(n, h, w), depths=torch.rand(n, h, w),
+                                observed=torch.rand(n, h, w) > 0.5, alphas=torch.rand(n, h, w))
+    part = views.subset([3, 1])
+    assert part.names == ["t3", "t1"] and part.cameras == [views.cameras[3], views.cameras[1]]
+    for name in ("images", "masks", "depths", "observed", "alphas"):
+        assert torch.equal(getattr(part, name), getattr(views, name)[[3, 1]]), name
 
 
 def _views_rendered_by(model: GaussianModel, views: Views, degree: int) -> Views:
@@ -156,13 +183,38 @@ def test_refitting_recovers_a_lower_degree_colour_exactly_and_is_weighted_least_
     coeffs = torch.randn(n, 16, 3, generator=g, dtype=torch.float64)
     low = coeffs.clone()
     low[:, 4:] = 0.0  # a degree-1 colour stored at degree 3
-    torch.testing.assert_close(refit_colour(low, dirs, weights, 1), low[:, :4], rtol=0, atol=1e-12)
-    fitted = refit_colour(coeffs, dirs, weights, 1)
+    fitted_low = refit_colour(*normal_equations(dirs, weights, low), low, 1)
+    torch.testing.assert_close(fitted_low, low[:, :4], rtol=0, atol=1e-12)
+    fitted = refit_colour(*normal_equations(dirs, weights, coeffs), coeffs, 1)
     for i in range(n):  # brute force: the same weighted, ridged least squares, stacked as one system
         root = weights[i].sqrt().unsqueeze(-1)
         a = torch.cat([root * sh_basis(dirs[i], 3)[:, :4], FIT_RIDGE**0.5 * torch.eye(4, dtype=torch.float64)])
         b = torch.cat([root * (sh_basis(dirs[i], 3) @ coeffs[i]), FIT_RIDGE**0.5 * coeffs[i, :4]])
         torch.testing.assert_close(fitted[i], torch.linalg.lstsq(a, b).solution, rtol=1e-9, atol=1e-9)
+    unseen = refit_colour(*normal_equations(dirs, torch.zeros(n, views, dtype=torch.float64), coeffs), coeffs, 1)
+    torch.testing.assert_close(unseen, coeffs[:, :4], rtol=0, atol=1e-12)  # nothing seen: the cut colour
+
+
+def test_normal_equations_summed_view_by_view_weigh_views_by_what_they_see(tmp_path):
+    """The trainer's one-view-at-a-time sum equals the batched normal equations over all views, with each
+    Gaussian's weights its summed blend weight per view, normalised over views."""
+    config = with_choice_heads(choice_config(tmp_path))
+    model = _model_with_heads(config)
+    views = tiny_scene(n_train=8).train.subset([0, 2, 5])
+    with torch.no_grad():
+        model.opacity_logits[:10] = -20.0  # below α = 1/255 everywhere: no view sees these
+    normal, rhs = seen_normal_equations(model, views, torch.zeros(3))
+    with torch.no_grad():
+        weights = torch.stack([model.render(c, 0, torch.zeros(3)).raster.contrib_sum for c in views.cameras], 1)
+        dirs = torch.stack([safe_normalize(model.view_dirs(c)) for c in views.cameras], 1)
+        coeffs = torch.cat([model.sh_dc, model.sh_rest], 1)
+        seen = weights.sum(1) > 0
+        expected = normal_equations(dirs.double(), (weights / weights.sum(1, keepdim=True).clamp_min(1e-12)).double(),
+                                    coeffs.double())
+    torch.testing.assert_close(normal, expected[0], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(rhs, expected[1], rtol=1e-5, atol=1e-6)
+    assert int(seen.sum()) == len(model) - 10
+    assert torch.equal(normal[~seen], torch.zeros_like(normal[~seen]))
 
 
 def test_scores_pick_the_degree_that_explains_held_out_views(tmp_path):
@@ -183,7 +235,7 @@ def test_scores_pick_the_degree_that_explains_held_out_views(tmp_path):
         model.u_sh[:, 0, 2] = torch.where(shifted, 2.0, -2.0) / C0  # channel 2 is the degree-1 head
     scores = score_degrees(model, targets, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3))
     record = scores.record
-    assert record["held_out_views"] == 3
+    assert record["held_out_views"] == ["t0", "t3", "t6"]
     assert abs(record["colour_psnr"][1] - record["colour_psnr"][2]) < 1e-3
     assert record["colour_psnr"][0] < record["colour_psnr"][1] - 0.5
     assert record["sh_degree"] == 1
@@ -205,7 +257,7 @@ def test_a_run_chooses_mid_way_records_why_and_loads_with_the_chosen_degrees(tmp
     monkeypatch.setattr(trainer.TrainImages, "get", record)
     run_dir = trainer.train(choice_config(tmp_path))
     record_file = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
-    assert record_file["step"] == 9 and record_file["held_out_views"] == 2
+    assert record_file["step"] == 9 and record_file["held_out_views"] == ["t3", "t4"]
     assert set(record_file["colour_psnr"]) == {"0", "1", "2"} and set(record_file["u_ause_mae"]) == {"0", "1", "2"}
     held = {"t3", "t4"}
     assert not held & {name for step, name in seen if step < 9}
@@ -219,20 +271,54 @@ def test_a_run_chooses_mid_way_records_why_and_loads_with_the_chosen_degrees(tmp
     assert summary["sh_degree"] == record_file["sh_degree"]
 
 
-@pytest.mark.parametrize("stop_at", [5, 12])
-def test_resume_before_or_after_the_choice_equals_an_uninterrupted_run(tmp_path, scene, stop_at):
-    full_dir = trainer.train(choice_config(tmp_path / "a"))
+def mean_loss_choice(root, **changes):
+    """`choice_config` with the `mean` loss, whose heads draw from their own random streams."""
+    config = choice_config(root, **changes)
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, kind="mean"))
+
+
+def assert_same_run(run_dir, reference_dir) -> None:
+    assert losses_of(run_dir) == losses_of(reference_dir)
+    reference, model = load_run(reference_dir).model, load_run(run_dir).model
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(reference, name), getattr(model, name)), name
+    record = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
+    assert record == json.loads((reference_dir / trainer.DEGREE_CHOICE_FILE).read_text()) | {
+        "seconds": record["seconds"]}
+
+
+@pytest.mark.parametrize("stop_at", [5, 9, 12])
+def test_resume_before_at_or_after_the_choice_equals_an_uninterrupted_run(tmp_path, scene, stop_at):
+    """Stopped at step 9, the checkpoint holds the model before the choice, and the resumed run makes it."""
+    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
 
     def ctrl_c(step, state):
         if step == stop_at:
             raise KeyboardInterrupt
 
     with pytest.raises(trainer.TrainingInterrupted):
-        trainer.train(choice_config(tmp_path / "b"), hooks=[ctrl_c])
+        trainer.train(mean_loss_choice(tmp_path / "b"), hooks=[ctrl_c])
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
-    resumed_dir = trainer.train(dataclasses.replace(choice_config(tmp_path / "c"), resume=interrupted))
-    assert losses_of(resumed_dir) == losses_of(full_dir)
-    full, resumed = load_run(full_dir).model, load_run(resumed_dir).model
-    for name in GaussianModel.PARAM_NAMES:
-        assert torch.equal(getattr(full, name), getattr(resumed, name)), name
-    assert json.loads((resumed_dir / trainer.DEGREE_CHOICE_FILE).read_text())["step"] == 9
+    assert (interrupted / trainer.DEGREE_CHOICE_FILE).is_file() == (stop_at > 9)
+    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    assert_same_run(resumed_dir, full_dir)
+
+
+def test_ctrl_c_during_the_choice_resumes_by_choosing_again(tmp_path, scene, monkeypatch):
+    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
+    real_score = trainer.score_degrees
+    calls = []
+
+    def interrupted_once(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        return real_score(*args, **kwargs)
+
+    monkeypatch.setattr(trainer, "score_degrees", interrupted_once)
+    with pytest.raises(trainer.TrainingInterrupted, match="aborted during step 10; the last checkpoint is"):
+        trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
+    interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    assert len(calls) == 2
+    assert_same_run(resumed_dir, full_dir)
