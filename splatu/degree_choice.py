@@ -8,12 +8,13 @@ uncertainty must flag), trains colour at the configured degree and one uncertain
 (L_u never moves the geometry, so the heads cost almost nothing), and at step `at · steps` scores every
 degree on the held-out block:
 
-- colour: PSNR of the render with the colour SH refitted to each degree (see `refit_colour`);
-- uncertainty: AUSE-MAE of each head's map against the error of that render.
+- colour: PSNR of the render with the colour SH refitted to each lower degree (see `refit_colour`);
+- uncertainty: AUSE-MAE of each head's map against the error of the render at the chosen colour degree.
 
 It keeps the smallest degree within tolerance of the best (cheaper to store and to render, and no less
-accurate on unseen views), gives the model that colour, drops the other coefficients and heads together with
-their Adam moments, and trains on every view, the held-out block included, for the remaining steps.
+accurate on unseen views; the colour tolerance is 0, so a tie), gives the model that colour, drops the other
+coefficients and heads together with their Adam moments, and trains on every view, the held-out block
+included, for the remaining steps.
 """
 
 from __future__ import annotations
