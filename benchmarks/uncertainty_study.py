@@ -10,9 +10,9 @@ trainer's Python API (`splatu.trainer.train_run` / `train_ensemble`) on one load
 one budget for all (a preset, or tiny overrides of `fast` with --quick), so wall times compare.
 
 Rows: ours (antipodal, mean, weighted losses), ensemble-N (plain 3DGS members differing only
-in seed), visibility count, Fisher diagonal, colour spread, training residual and random, all on the ours
-(antipodal) Gaussians, which the uncertainty loss never moves, so only the uncertainty differs; and
-ours-weighted OR colour spread, ours-weighted OR training residual. ours-antipodal trains alone (the
+in seed), visibility count, Fisher diagonal, colour spread, training residual, angular gap and random, all on
+the ours (antipodal) Gaussians, which the uncertainty loss never moves, so only the uncertainty differs; and
+ours-weighted OR colour spread, ours-weighted OR training residual (OR angular gap). ours-antipodal trains alone (the
 cost of one run of ours); ours-mean, ours-weighted and the ablations (every scene: λ and u-SH degree on
 the weighted loss, the supervision threshold on the antipodal loss, which has one) are
 uncertainty heads of ONE more training.
@@ -54,6 +54,7 @@ from splatu.eval_ause import score_entries
 from splatu.figures import SpeedPoint, plot_sparsification, plot_speed_against_error
 from splatu.losses import psnr
 from splatu.provenance import measured_on
+from splatu.rasterizer.kernels import set_compile
 from splatu.render_uncertainty import RenderUncertaintyConfig, map_entries, render_views, view_spec
 from splatu.train_config import TrainConfig, apply_values, preset_config
 
@@ -227,7 +228,7 @@ def score(run_dir: Path, method: UncertaintyMethod, scene: Scene, head: str | No
             "psnr": float(np.mean(psnrs))}
 
 
-BASELINES_ON_OURS: tuple[UncertaintyMethod, ...] = ("visibility", "fisher", "spread", "residual", "random")
+BASELINES_ON_OURS: tuple[UncertaintyMethod, ...] = ("visibility", "fisher", "spread", "residual", "angle", "random")
 
 
 def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -> dict[str, Any]:
@@ -248,6 +249,7 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
         with tempfile.TemporaryDirectory() as scratch:
             warm_up = warm_up_kernels(config, scene, Path(scratch))
         print(f"  compiled the rasterizer kernels in an untimed warm-up training: {warm_up:.1f} s")
+    set_compile(config.compile_kernels)  # score with the trainings' kernels, also when every training is reused
     for variant in to_train:
         wall = train_variant(variant, config, scene, root / variant.name)
         method: UncertaintyMethod = "ensemble" if variant.ensemble else "ours"
@@ -262,15 +264,15 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
         rows[method] = {**row, "train_seconds": rows["ours-antipodal"]["train_seconds"] + row["setup_seconds"],
                         "method": method}
         print(f"  {method}: AUSE-MAE {row['mean']['ause_mae']:.3f}")
-    # ours OR colour spread and ours OR training residual, on the default head and every u-SH degree's (each once)
+    # ours OR colour spread, ours OR training residual (OR angular gap), on the default head and every u-SH degree's
     seen_heads: set[str | None] = set()
     for name in ["ours-weighted", *sorted(n for n in rows_of_heads if n.startswith("ablation-u-degree-"))]:
         if rows_of_heads[name] in seen_heads:
             continue
         seen_heads.add(rows_of_heads[name])
-        for method in ("ours-spread", "ours-residual"):
+        for method in ("ours-spread", "ours-residual", "ours-residual-angle"):
             row = score(root / heads_run.name, method, scene, rows_of_heads[name])
-            extra_seconds = row["setup_seconds"] if method == "ours-residual" else 0.0
+            extra_seconds = row["setup_seconds"]  # the spread has none; the residual and angle passes are timed
             suffix = method.removeprefix("ours-")
             rows[f"{name}-{suffix}"] = {**row, "train_seconds": rows[name]["train_seconds"] + extra_seconds,
                                         "method": method, "head": rows_of_heads[name]}
@@ -315,8 +317,9 @@ def markdown(results: dict[str, Any], budget: Budget) -> str:
              f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = AUSC-MAE, the area under "
              "the oracle curve (its AUSE is 0 by construction); "
              "start-norm = curves divided by O(0) instead of the joint max (exposes anti-correlation). "
-             "visibility / Fisher / spread / residual / random use the ours (antipodal) model; their train time "
-             "adds their post-training cost (the *-residual rows: the residual pass over the training views). "
+             "visibility / Fisher / spread / residual / angle / random use the ours (antipodal) model; their train "
+             "time adds their post-training cost (the *-residual rows: the residual pass over the training views; "
+             "*-angle: also the pass that records which training views saw each Gaussian). "
              "PSNR: mean over eval images (ensemble: the members' mean render). "
              "ours-mean, ours-weighted and the ablation rows are uncertainty heads of ONE training (its wall time "
              "in each of those rows; ours-antipodal, trained alone, is what one run of ours costs): L_u never "

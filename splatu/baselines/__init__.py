@@ -11,7 +11,9 @@ and AUSE treat them identically:
 - spread: the std of the colours each pixel blends, training-free (`model_sources.colour_spread`);
 - ours-spread: ours OR spread, 1 − (1 − U)(1 − S);
 - residual: how badly each Gaussian fits the training views it shows up in (`residual.training_residuals`);
-- ours-residual: ours OR residual, 1 − (1 − U)(1 − R).
+- ours-residual: ours OR residual, 1 − (1 − U)(1 − R);
+- angle: the angle from a view to the nearest training view that saw each Gaussian (`angle.angular_gap`);
+- ours-residual-angle: ours OR residual OR angle, 1 − (1 − U)(1 − R)(1 − G).
 """
 
 from __future__ import annotations
@@ -24,10 +26,10 @@ from torch import Tensor
 from splatu.camera import Camera
 
 UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random", "spread", "ours-spread", "residual",
-                            "ours-residual"]
+                            "ours-residual", "angle", "ours-residual-angle"]
 
 UNCERTAINTY_METHODS: tuple[str, ...] = get_args(UncertaintyMethod)
-METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual")
+METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual", "ours-residual-angle")
 """The methods that read the run's uncertainty SH, so they need a run trained with the loss and accept --head."""
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import torch
 
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintySource, method_list
+from splatu.baselines.angle import AngleSource, view_coverage
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal, fisher_feature
 from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource, SpreadSource
@@ -127,9 +128,15 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
         source = RandomSource(model, degree, background, seed)
     elif method in ("spread", "ours-spread"):
         source = SpreadSource(model, degree, background, with_ours=method == "ours-spread")
-    elif method in ("residual", "ours-residual"):
+    elif method == "angle":
+        source = AngleSource(model, degree, background,
+                             view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree))
+    elif method in ("residual", "ours-residual", "ours-residual-angle"):
         residuals = training_residuals(model, scene.train, degree, background)
-        source = ResidualSource(model, degree, background, residuals, with_ours=method == "ours-residual")
+        coverage = (view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
+                    if method == "ours-residual-angle" else None)
+        source = ResidualSource(model, degree, background, residuals, with_ours=method != "residual",
+                                coverage=coverage)
     else:
         raise SplatuError(f"unknown uncertainty method {method!r}", "in --method", f"use {method_list()}")
     return BuiltMethod(source, time.perf_counter() - started)

@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from splatu.baselines import UncertaintyRender, or_combine
+from splatu.baselines.angle import ViewCoverage, angular_gap
 from splatu.camera import Camera
 from splatu.data.scene import Views, on_background
 from splatu.model import GaussianModel
@@ -68,13 +69,15 @@ def residual_map(expected_residual: Tensor, typical: float) -> Tensor:
 
 @dataclass
 class ResidualSource:
-    """The residual map, alone or OR-combined with ours: 1 − (1 − U)·(1 − R)."""
+    """The residual map, alone or OR-combined with ours: 1 − (1 − U)·(1 − R); with `coverage`, also with the
+    angular gap G (`splatu.baselines.angle`): 1 − (1 − U)·(1 − R)·(1 − G)."""
 
     model: GaussianModel
     sh_degree: int
     background: Tensor
     residuals: Tensor  # (N,) from training_residuals
     with_ours: bool
+    coverage: ViewCoverage | None = None
     typical: float = field(init=False)
     feature: Tensor = field(init=False)  # (N, 1) the residuals, 1 for unseen Gaussians
 
@@ -83,8 +86,14 @@ class ResidualSource:
         self.feature = torch.where(torch.isfinite(self.residuals), self.residuals, 1.0).clamp(0.0, 1.0)[:, None]
 
     def render(self, camera: Camera) -> UncertaintyRender:
+        features = self.feature
+        if self.coverage is not None:
+            features = torch.cat([features, angular_gap(self.model.means, self.coverage, camera.center())[:, None]], 1)
         out = self.model.render(camera, self.sh_degree, self.background, with_uncertainty=self.with_ours,
-                                extra_features=self.feature)
-        residual = residual_map(out.extra[..., 0], self.typical)
-        uncertainty = residual if out.uncertainty is None else or_combine(out.uncertainty, residual)
+                                extra_features=features)
+        uncertainty = residual_map(out.extra[..., 0], self.typical)
+        if self.coverage is not None:
+            uncertainty = or_combine(uncertainty, out.extra[..., 1])
+        if out.uncertainty is not None:
+            uncertainty = or_combine(out.uncertainty, uncertainty)
         return UncertaintyRender(out.rgb, out.depth, out.alpha, uncertainty)

@@ -15,14 +15,16 @@ from splatu.model import GaussianModel
 
 
 @torch.no_grad()
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0) -> Tensor:
+    """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`."""
+    background = torch.zeros(3)
+    columns = [model.render(camera, sh_degree, background).raster.contrib_max >= threshold for camera in cameras]
+    return torch.stack(columns, dim=1) if columns else torch.zeros(len(model), 0, dtype=torch.bool)
+
+
 def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0) -> Tensor:
     """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold`."""
-    counts = torch.zeros(len(model))
-    background = torch.zeros(3)
-    for camera in cameras:
-        raster = model.render(camera, sh_degree, background).raster
-        counts += (raster.contrib_max >= threshold).float()
-    return counts
+    return seen_in_views(model, cameras, threshold, sh_degree).sum(dim=1).float()
 
 
 def visibility_feature(counts: Tensor) -> Tensor:

@@ -237,3 +237,13 @@ def test_bad_settings_give_one_line_errors(change, tmp_path):
         build_poster_standin(PosterConfig(**{**TINY.__dict__, **change}), tmp_path)
     assert "\n" not in str(err.value)
     assert not any(tmp_path.iterdir())
+
+
+def test_without_specular_only_the_highlights_go():
+    scene = build_scene()
+    front = _make_camera((0.1, 1.3, 1.1), TARGET)
+    full, matte = render(scene, front, supersample=2), render(scene, front, supersample=2, specular=False)
+    highlight = full.rgb - matte.rgb
+    assert (highlight >= -1e-6).all() and highlight.max() > 0.05  # highlights only add light, and there are some
+    assert (highlight.abs().amax(-1) < 1e-6).float().mean() > 0.3  # matte surfaces are unchanged
+    assert torch.equal(full.depth, matte.depth) and torch.equal(full.box, matte.box)

@@ -6,7 +6,7 @@ camera z = 1, so the hit parameter t is the depth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -45,15 +45,19 @@ def facing_normals(scene: PosterScene, hits: Hits, directions: Tensor) -> Tensor
     return torch.where((dot(normal, directions) > 0)[:, None], -normal, normal)
 
 
-def shade_rays(scene: PosterScene, origin: Tensor, directions: Tensor) -> tuple[Tensor, Hits]:
-    """Colour (N, 3) of the first hit along each ray, and the hits."""
+def shade_rays(scene: PosterScene, origin: Tensor, directions: Tensor, specular: bool = True) -> tuple[Tensor, Hits]:
+    """Colour (N, 3) of the first hit along each ray, and the hits; `specular=False` drops the highlights (the
+    view-independent part of the colour, which `benchmarks/unseen_error.py` compares against)."""
     hits = cast(scene, origin, directions)
     to_camera = -directions / dot(directions, directions).sqrt()[:, None]
-    rgb = shade(surface(scene, hits), facing_normals(scene, hits, directions), to_camera)
+    material = surface(scene, hits)
+    if not specular:
+        material = replace(material, ks=torch.zeros_like(material.ks))
+    rgb = shade(material, facing_normals(scene, hits, directions), to_camera)
     return rgb, hits
 
 
-def render(scene: PosterScene, camera: Camera, supersample: int = 1) -> Rendering:
+def render(scene: PosterScene, camera: Camera, supersample: int = 1, specular: bool = True) -> Rendering:
     """Render one camera; RGB averages supersample^2 stratified rays per pixel, depth uses the centre ray.
 
     Depth and hit points are float64; the anti-aliasing samples are cast and shaded in float32
@@ -63,12 +67,13 @@ def render(scene: PosterScene, camera: Camera, supersample: int = 1) -> Renderin
     h, w = camera.height, camera.width
     centre_dirs = pixel_rays(camera)
     if supersample == 1:
-        rgb, hits = shade_rays(scene, origin, centre_dirs)
+        rgb, hits = shade_rays(scene, origin, centre_dirs, specular)
     else:
         hits = cast(scene, origin, centre_dirs)
         offsets = [(sx + 0.5) / supersample for sx in range(supersample)]
         dirs = torch.cat([pixel_rays(camera, ox, oy) for oy in offsets for ox in offsets]).float()
-        samples = shade_rays(scene.to(torch.float32), origin.float(), dirs)[0].reshape(supersample**2, h * w, 3)
+        samples = shade_rays(scene.to(torch.float32), origin.float(), dirs, specular)[0]
+        samples = samples.reshape(supersample**2, h * w, 3)
         rgb = samples[0]
         for sample in samples[1:]:
             rgb = rgb + sample
