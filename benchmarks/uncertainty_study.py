@@ -54,7 +54,6 @@ from splatu.eval_ause import score_entries
 from splatu.figures import SpeedPoint, plot_sparsification, plot_speed_against_error
 from splatu.losses import psnr
 from splatu.provenance import measured_on
-from splatu.rasterizer.kernels import set_compile
 from splatu.render_uncertainty import RenderUncertaintyConfig, map_entries, render_views, view_spec
 from splatu.train_config import TrainConfig, apply_values, preset_config
 
@@ -245,11 +244,10 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     to_train = variants(args.ensemble_size, heads_run)
     warm_up = None
     reused = [v.name for v in to_train if (root / v.name / "study_wall_seconds.json").is_file()]
-    if config.compile_kernels and len(reused) < len(to_train):
+    if config.compile_kernels:  # also when every training is reused: the scoring renders then run compiled too
         with tempfile.TemporaryDirectory() as scratch:
             warm_up = warm_up_kernels(config, scene, Path(scratch))
         print(f"  compiled the rasterizer kernels in an untimed warm-up training: {warm_up:.1f} s")
-    set_compile(config.compile_kernels)  # score with the trainings' kernels, also when every training is reused
     for variant in to_train:
         wall = train_variant(variant, config, scene, root / variant.name)
         method: UncertaintyMethod = "ensemble" if variant.ensemble else "ours"

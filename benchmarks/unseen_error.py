@@ -5,8 +5,8 @@
 Only the built-in stand-in can answer this, because its generator can re-render every eval view without
 highlights. Over the observed pixels of the eval block (those some training camera saw), it splits the
 squared error of the model's render three ways:
-- by the angular gap of the pixel (`splatu.baselines.angle`, composited, in degrees): how far the view is
-  from the nearest training view that saw the surface;
+- by the angular gap of the pixel (`splatu.baselines.angle`, composited over what the pixel sees, in degrees):
+  how far the view is from the nearest training view that saw the surface;
 - by the texture under the pixel: the ground truth's central-difference gradient magnitude;
 - by whether a highlight lights the pixel (ground truth with and without the specular term differ by more
   than 2/255).
@@ -81,7 +81,7 @@ def main(args: Args) -> None:
     scene, model = load_scene(data), run.models[0]
     background, degree = eval_background(run.config), run.config.model.sh_degree
     world, cameras = build_scene(), {c.name: c for c in camera_path(data.poster)}
-    coverage = view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold)
+    coverage = view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
     errors, gaps, gradients, highlights = [], [], [], []
     for i, camera in enumerate(scene.eval.cameras):
         target = scene.eval.images[i]
@@ -95,7 +95,9 @@ def main(args: Args) -> None:
         out = model.render(camera, degree, background, extra_features=gap[:, None])
         observed = scene.eval.observed[i].reshape(target.shape[:2]).bool()
         errors.append(((out.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
-        gaps.append(out.extra[..., 0][observed] * 180.0)
+        # the gap of what the pixel sees: the composite without its empty-space share, over the coverage
+        seen_gap = (out.extra[..., 0] - (1.0 - out.alpha)) / out.alpha.clamp_min(1e-6)
+        gaps.append(torch.where(out.alpha > 1e-3, seen_gap, 1.0)[observed] * 180.0)
         gradients.append(gradient_magnitude(target)[observed])
         highlights.append(((full.rgb - matte.rgb).abs().mean(-1) > HIGHLIGHT)[observed])
     error = torch.cat(errors)

@@ -37,15 +37,17 @@ class ViewCoverage:
 
 
 def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0) -> ViewCoverage:
-    """The coverage of `model` by the training `cameras` under the uncertainty loss's supervision rule."""
+    """The coverage of `model` by the training `cameras` under the uncertainty loss's supervision rule (a threshold
+    of 0 counts every Gaussian as seen by every camera, even one outside its image)."""
     centres = torch.stack([c.center().to(model.means) for c in cameras]) if cameras else model.means.new_zeros(0, 3)
     return ViewCoverage(seen_in_views(model, cameras, threshold, sh_degree), centres)
 
 
 @torch.no_grad()
 def angular_gap(means: Tensor, coverage: ViewCoverage, viewer: Tensor) -> Tensor:
-    """(N,) g_i in [0, 1] for a camera centred at `viewer` (3,); a zero-length direction (the camera on the mean)
-    has cosine 0 with every training direction, so it reads ½ rather than NaN."""
+    """(N,) g_i in [0, 1] for a camera centred at `viewer` (3,). A zero-length direction (the camera on the mean)
+    has cosine 0 with every training direction, so a seen Gaussian reads ½ rather than NaN (an unseen one, 1).
+    arccos in float32 resolves angles down to about 1e-4 of a half-turn: plenty for a map of uncertainty."""
     looking = safe_normalize(means - viewer.to(means))
     nearest = means.new_full((means.shape[0],), -1.0)  # cosine of the nearest seeing direction; -1: none yet
     for start in range(0, coverage.centres.shape[0], VIEW_CHUNK):

@@ -106,7 +106,8 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
 
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, density_aware: bool = False,
                  fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
-    """The renderer of `method` for this run; visibility and Fisher look at the scene's training views."""
+    """The renderer of `method` for this run; visibility, Fisher, residual and angle look at the scene's training
+    views first (their setup_seconds)."""
     check_method(method, run)
     check_frames(run, scene)
     degree = run.config.model.sh_degree

@@ -21,39 +21,10 @@ from splatu.baselines.residual import (
 from splatu.camera import Camera
 from splatu.data.scene import Views
 from splatu.errors import SplatuError
-from splatu.model import GaussianModel, ModelConfig
+from splatu.model import GaussianModel
 from splatu.rasterizer import rasterize
-from splatu.sh import rgb_to_sh
 from splatu.train_config import preset_config
-
-SIZE = 12
-
-
-def _model(n: int = 6, seed: int = 0) -> GaussianModel:
-    """n overlapping Gaussians in front of the camera, plus one far off to the side that no camera sees."""
-    g = torch.Generator().manual_seed(seed)
-    means = torch.cat([torch.randn(n, 3, generator=g) * torch.tensor([0.3, 0.3, 0.2]) + torch.tensor([0, 0, 3.0]),
-                       torch.tensor([[50.0, 0.0, 3.0]])])
-    quats = torch.randn(n + 1, 4, generator=g)
-    log_scales = torch.log(torch.rand(n + 1, 3, generator=g) * 0.3 + 0.1)
-    logits = torch.logit(torch.rand(n + 1, generator=g) * 0.8 + 0.1)
-    sh_dc = rgb_to_sh(torch.rand(n + 1, 3, generator=g)).unsqueeze(1)
-    cfg = ModelConfig(sh_degree=0, u_sh_degree=0)
-    return GaussianModel(means, quats, log_scales, logits, sh_dc, torch.zeros(n + 1, 0, 3), torch.zeros(n + 1, 1, 1),
-                         cfg)
-
-
-def _cameras() -> list[Camera]:
-    K = torch.tensor([[12.0, 0.0, SIZE / 2], [0.0, 12.0, SIZE / 2], [0.0, 0.0, 1.0]])
-    shifted = torch.eye(4)
-    shifted[0, 3] = 0.2
-    return [Camera(K, torch.eye(4), SIZE, SIZE, name="a"), Camera(K, shifted, SIZE, SIZE, name="b")]
-
-
-def _views(masks: torch.Tensor | None = None) -> Views:
-    g = torch.Generator().manual_seed(1)
-    cameras = _cameras()
-    return Views(cameras, torch.rand(len(cameras), SIZE, SIZE, 3, generator=g), [c.name for c in cameras], masks=masks)
+from tests.small_models import SIZE, noise_views, overlapping_gaussians
 
 
 def _brute_force(model: GaussianModel, views: Views) -> torch.Tensor:
@@ -75,7 +46,7 @@ def _brute_force(model: GaussianModel, views: Views) -> torch.Tensor:
 
 
 def test_residuals_match_the_one_hot_brute_force_and_unseen_gaussians_are_nan():
-    model, views = _model(), _views()
+    model, views = overlapping_gaussians(), noise_views()
     residuals = training_residuals(model, views, 0, torch.zeros(3))
     expected = _brute_force(model, views)
     assert math.isnan(float(residuals[-1])) and math.isnan(float(expected[-1]))
@@ -88,18 +59,18 @@ def test_masked_pixels_count_neither_in_the_error_nor_in_the_weight(soft):
     """A zero mask value drops a pixel; any non-zero one (an RGBA alpha's edge) counts it fully, as eval-ause does."""
     masks = torch.zeros(2, SIZE, SIZE)
     masks[:, :, : SIZE // 2] = torch.linspace(0.05, 1.0, SIZE // 2) if soft else 1.0
-    model, views = _model(seed=3), _views(masks)
+    model, views = overlapping_gaussians(seed=3), noise_views(masks)
     residuals = training_residuals(model, views, 0, torch.zeros(3))
     expected = _brute_force(model, views)
     seen = torch.isfinite(expected)
     assert torch.equal(torch.isfinite(residuals), seen)
     torch.testing.assert_close(residuals[seen].double(), expected[seen], atol=1e-6, rtol=1e-4)
-    unmasked = training_residuals(model, _views(), 0, torch.zeros(3))
+    unmasked = training_residuals(model, noise_views(), 0, torch.zeros(3))
     assert not torch.allclose(residuals[seen], unmasked[seen])  # the mask did change something
 
 
 def test_a_perfect_fit_has_zero_residual():
-    model, views = _model(seed=2), _views()
+    model, views = overlapping_gaussians(seed=2), noise_views()
     with torch.no_grad():
         views.images.copy_(torch.stack([model.render(c, 0, torch.zeros(3)).rgb.clamp(0, 1) for c in views.cameras]))
     residuals = training_residuals(model, views, 0, torch.zeros(3))
@@ -113,7 +84,7 @@ def test_the_map_is_half_at_the_typical_residual_and_one_where_nothing_is_seen()
     assert float(residual_map(torch.tensor(typical), typical)) == 0.5
     assert typical_residual(torch.full((3,), float("nan"))) == 1.0  # nothing seen: finite, no division by zero
     assert typical_residual(torch.zeros(3)) == RESIDUAL_FLOOR  # a perfect fit: the floor, not ~0
-    model, views = _model(), _views()
+    model, views = overlapping_gaussians(), noise_views()
     source = ResidualSource(model, 0, torch.zeros(3), training_residuals(model, views, 0, torch.zeros(3)),
                             with_ours=False)
     far_away = Camera(views.cameras[0].K, torch.eye(4), SIZE, SIZE, name="far")
@@ -125,7 +96,7 @@ def test_the_map_is_half_at_the_typical_residual_and_one_where_nothing_is_seen()
 
 
 def test_ours_residual_is_the_or_of_ours_and_the_residual_map():
-    model, views = _model(), _views()
+    model, views = overlapping_gaussians(), noise_views()
     residuals = training_residuals(model, views, 0, torch.zeros(3))
     with torch.no_grad():
         model.u_sh[:, 0, 0] = torch.linspace(-2.0, 2.0, len(model))  # a different u per Gaussian
@@ -141,7 +112,7 @@ def test_ours_residual_is_the_or_of_ours_and_the_residual_map():
 def test_methods_reading_u_refuse_a_run_trained_without_the_loss(method):
     config = preset_config("fast")
     off = dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=True))
-    run = LoadedRun(Path("run"), off, [_model()], None, [None])
+    run = LoadedRun(Path("run"), off, [overlapping_gaussians()], None, [None])
     with pytest.raises(SplatuError, match="needs a run trained with the uncertainty loss"):
         check_method(method, run)
     check_method("residual", run)  # the residual alone needs no u
