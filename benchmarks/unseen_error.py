@@ -11,7 +11,16 @@ squared error of the model's render three ways:
 - by whether a highlight lights the pixel (ground truth with and without the specular term differ by more
   than 2/255).
 Each bin gets its share of the pixels, its PSNR (pooled over its pixels, not averaged per image) and its share
-of the squared error. Prints the tables and writes benchmarks/results/unseen_error.json.
+of the squared error. Two more columns and one figure separate geometry from view-dependent colour:
+- the PSNR of the same model rendered with its colour SH's DC term only (no view dependence at all);
+- the median relative error of the rendered depth (Σ w·z / alpha, where alpha > 0.5) against the stand-in's
+  true depth. A Gaussian renders at its centre's depth over its whole footprint, so this error also includes a
+  tilted Gaussian's extent, not only misplaced geometry;
+- how far the Gaussians sit from the true surface: in every training view, the signed relative offset
+  (z − z_true) / z_true of each Gaussian whose maximum blending weight there is ≥ MIN_WEIGHT, with z_true read at
+  the pixel its mean projects to. An offset δ moves texture by about f·δ·sin(angle) pixels (f the focal length
+  in pixels) in a view at that angle, so it hurts more the further a view is from the training views.
+Prints the tables and writes benchmarks/results/unseen_error.json.
 """
 
 from __future__ import annotations
@@ -22,7 +31,9 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import torch
 import tyro
 from torch import Tensor
@@ -32,7 +43,9 @@ from splatu.baselines.load import load_any_run, run_data
 from splatu.data.poster.generate import build_scene, camera_path
 from splatu.data.poster.render import render
 from splatu.data.resolve import load_scene, real_poster_candidates
+from splatu.data.scene import Views
 from splatu.errors import SplatuError
+from splatu.model import GaussianModel, ModelRender
 from splatu.provenance import measured_on
 from splatu.train_config import eval_background
 
@@ -40,8 +53,55 @@ RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 GAP_EDGES = (0.0, 5.0, 10.0, 20.0, 30.0, 180.0)
 GRADIENT_EDGES = (0.0, 0.01, 0.03, 0.1, math.inf)
 HIGHLIGHT = 2.0 / 255.0
+MIN_WEIGHT = 0.3
+"""A Gaussian that supplies at least this share of some pixel's colour in a view decides where that texture lands;
+fainter ones barely move the image, and many sit off the surface without harm."""
+OFFSET_QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9)
 STORED_TOLERANCE = 1.5 / 255.0
 """The re-rendered ground truth must match the stored 8-bit images this closely, or the stand-in is another one."""
+
+
+@dataclass
+class PixelErrors:
+    """Per observed pixel: squared error (mean over channels) of the render, of its DC-only render, and the
+    relative depth error |d̂ − d| / d (NaN where the render is less than half opaque)."""
+
+    squared: Tensor
+    squared_dc: Tensor
+    depth: Tensor
+
+
+def relative_depth_error(render: ModelRender, true_depth: Tensor) -> Tensor:
+    """(H, W) |rendered depth − true depth| / true depth, NaN where the render is less than half opaque (its depth
+    is then mostly a guess)."""
+    error = (render.depth - true_depth).abs() / true_depth
+    return torch.where(render.alpha > 0.5, error, math.nan)
+
+
+@torch.no_grad()
+def surface_offsets(model: GaussianModel, views: Views) -> Tensor:
+    """Signed relative depth offsets from the true surface, over every view, of the Gaussians with a maximum blending
+    weight ≥ MIN_WEIGHT in that view (the weights need no colour, so the render is DC only on black)."""
+    offsets = []
+    for camera, true_depth in zip(views.cameras, views.depths, strict=True):
+        strong = model.render(camera, 0, model.means.new_zeros(3)).raster.contrib_max >= MIN_WEIGHT
+        uv, z = camera.project(model.means[strong])
+        pixel = uv.floor().long()
+        inside = ((pixel[:, 0] >= 0) & (pixel[:, 0] < camera.width) & (pixel[:, 1] >= 0)
+                  & (pixel[:, 1] < camera.height) & (z > 0))
+        surface = true_depth[pixel[inside, 1], pixel[inside, 0]]
+        offsets.append(((z[inside] - surface) / surface).double())  # the stand-in's room gives every pixel a depth
+    return torch.cat(offsets)
+
+
+def offset_summary(offsets: Tensor) -> dict[str, Any]:
+    """How many (Gaussian, view) offsets, their median magnitude and their OFFSET_QUANTILES (signed); None and {}
+    if there are none."""
+    if offsets.numel() == 0:
+        return {"gaussian_views": 0, "median_abs": None, "quantiles": {}}
+    values = offsets.numpy()
+    return {"gaussian_views": int(values.size), "median_abs": float(np.median(np.abs(values))),
+            "quantiles": {f"{q:g}": float(np.quantile(values, q)) for q in OFFSET_QUANTILES}}
 
 
 @dataclass
@@ -60,15 +120,24 @@ def gradient_magnitude(image: Tensor) -> Tensor:
     return (gx * gx + gy * gy).sqrt()
 
 
-def binned(errors: Tensor, values: Tensor, edges: tuple[float, ...]) -> list[dict[str, float]]:
-    """Share of pixels, pooled PSNR and share of squared error of each [lo, hi) bin of `values`."""
+def pooled_psnr(squared_errors: Tensor) -> float:
+    return -10.0 * math.log10(float(squared_errors.mean()))
+
+
+def binned(pixels: PixelErrors, values: Tensor, edges: tuple[float, ...]) -> list[dict[str, float | None]]:
+    """Per [lo, hi) bin of `values`: share of pixels, pooled PSNR (full colour and DC only), share of the
+    squared error, and the median relative depth error of its pixels that have one (None if none do)."""
     rows = []
     for lo, hi in itertools.pairwise(edges):
         inside = (values >= lo) & (values < hi)
         if inside.any():
+            depth = pixels.depth[inside]
+            depth = depth[torch.isfinite(depth)]
             rows.append({"from": lo, "to": hi if math.isfinite(hi) else None, "pixels": float(inside.double().mean()),
-                         "psnr": -10.0 * math.log10(float(errors[inside].mean())),
-                         "squared_error": float(errors[inside].sum() / errors.sum())})
+                         "psnr": pooled_psnr(pixels.squared[inside]),
+                         "psnr_dc_only": pooled_psnr(pixels.squared_dc[inside]),
+                         "squared_error": float(pixels.squared[inside].sum() / pixels.squared.sum()),
+                         "depth_error": float(np.median(depth.numpy())) if depth.numel() else None})
     return rows
 
 
@@ -83,7 +152,7 @@ def main(args: Args) -> None:
     background, degree = eval_background(run.config), run.config.model.sh_degree
     world, cameras = build_scene(), {c.name: c for c in camera_path(data.poster)}
     coverage = view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
-    errors, gaps, gradients, highlights = [], [], [], []
+    squared, squared_dc, depth_errors, gaps, gradients, highlights = [], [], [], [], [], []
     for i, camera in enumerate(scene.eval.cameras):
         target = scene.eval.images[i]
         original = cameras[Path(scene.eval.names[i]).stem]
@@ -94,31 +163,45 @@ def main(args: Args) -> None:
         matte = render(world, original, data.poster.supersample, specular=False)
         gap = angular_gap(model.means, coverage, camera.center())
         out = model.render(camera, degree, background, extra_features=gap[:, None])
+        dc_only = model.render(camera, 0, background)
         observed = scene.eval.observed[i].reshape(target.shape[:2]).bool()
-        errors.append(((out.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
+        squared.append(((out.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
+        squared_dc.append(((dc_only.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
+        depth_errors.append(relative_depth_error(out, scene.eval.depths[i])[observed].double())
         # the gap of what the pixel sees: the composite without its empty-space share, over the coverage
         seen_gap = (out.extra[..., 0] - (1.0 - out.alpha)) / out.alpha.clamp_min(1e-6)
         gaps.append(torch.where(out.alpha > 1e-3, seen_gap, 1.0)[observed] * 180.0)
         gradients.append(gradient_magnitude(target)[observed])
         highlights.append(((full.rgb - matte.rgb).abs().mean(-1) > HIGHLIGHT)[observed])
-    error = torch.cat(errors)
+    pixels = PixelErrors(torch.cat(squared), torch.cat(squared_dc), torch.cat(depth_errors))
+    offsets = surface_offsets(model, scene.train)
     tables = {
-        "angular gap (degrees)": binned(error, torch.cat(gaps), GAP_EDGES),
-        "ground-truth gradient (per pixel)": binned(error, torch.cat(gradients), GRADIENT_EDGES),
-        "highlight (0: none, 1: lit)": binned(error, torch.cat(highlights).float(), (0.0, 0.5, 1.5)),
+        "angular gap (degrees)": binned(pixels, torch.cat(gaps), GAP_EDGES),
+        "ground-truth gradient (per pixel)": binned(pixels, torch.cat(gradients), GRADIENT_EDGES),
+        "highlight (0: none, 1: lit)": binned(pixels, torch.cat(highlights).float(), (0.0, 0.5, 1.5)),
     }
     record = {"run": str(args.load), "command": f"python benchmarks/unseen_error.py --load {args.load}",
-              "eval_views": len(scene.eval), "observed_pixels": int(error.numel()),
-              "psnr_observed_pooled": -10.0 * math.log10(float(error.mean())), "tables": tables,
+              "eval_views": len(scene.eval), "observed_pixels": int(pixels.squared.numel()),
+              "psnr_observed_pooled": pooled_psnr(pixels.squared),
+              "psnr_observed_pooled_dc_only": pooled_psnr(pixels.squared_dc), "tables": tables,
+              "surface_offset": offset_summary(offsets),
               "measured": measured_on()}
     print(f"{record['observed_pixels']} observed pixels in {len(scene.eval)} eval views, pooled PSNR "
-          f"{record['psnr_observed_pooled']:.2f} dB")
+          f"{record['psnr_observed_pooled']:.2f} dB ({record['psnr_observed_pooled_dc_only']:.2f} dB DC only)")
+    offset = record["surface_offset"]
+    if offset["gaussian_views"]:
+        print(f"Gaussians with a blending weight >= {MIN_WEIGHT:g} in a training view ({offset['gaussian_views']} "
+              f"(Gaussian, view) pairs): relative depth offset from the true surface, median |·| "
+              f"{offset['median_abs']:.2%}, quantiles "
+              + ", ".join(f"{q}: {v:+.2%}" for q, v in offset["quantiles"].items()))
     for title, rows in tables.items():
-        print(f"\n| {title} | pixels | PSNR dB | squared error |\n|---|---|---|---|")
+        print(f"\n| {title} | pixels | PSNR dB | PSNR dB, DC only | squared error | median depth error |"
+              "\n|---|---|---|---|---|---|")
         for row in rows:
             upper = "∞" if row["to"] is None else f"{row['to']:g}"
+            depth = "-" if row["depth_error"] is None else f"{row['depth_error']:.2%}"
             print(f"| [{row['from']:g}, {upper}) | {row['pixels']:.1%} | {row['psnr']:.2f} | "
-                  f"{row['squared_error']:.1%} |")
+                  f"{row['psnr_dc_only']:.2f} | {row['squared_error']:.1%} | {depth} |")
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(record, indent=2))
     print(f"\nwrote {args.output}")
