@@ -5,26 +5,18 @@ No training here: small made-up rows stand in for a study's scored methods.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
 from splatu.errors import SplatuError
-
-STUDY_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "uncertainty_study.py"
+from tests.benchmark_scripts import benchmark_script
 
 
 @pytest.fixture(scope="module")
 def study():
-    spec = importlib.util.spec_from_file_location("uncertainty_study", STUDY_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["uncertainty_study"] = module  # dataclasses resolve their module's annotations through it
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules["uncertainty_study"]
+    yield from benchmark_script("uncertainty_study")
 
 
 def row(ause: float, random: float, train_seconds: float, psnr: float = 23.0, method: str = "ours") -> dict:

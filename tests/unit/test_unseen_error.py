@@ -3,28 +3,19 @@ the Gaussians' offsets from the true surface on one- to three-Gaussian models.""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
 from splatu.model import GaussianModel, ModelConfig
+from tests.benchmark_scripts import benchmark_script
 from tests.small_models import SIZE, noise_views, two_cameras
-
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "unseen_error.py"
 
 
 @pytest.fixture(scope="module")
 def unseen_error():
-    spec = importlib.util.spec_from_file_location("unseen_error", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["unseen_error"] = module  # dataclasses resolve their module's annotations through it
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules["unseen_error"]
+    yield from benchmark_script("unseen_error")
 
 
 def test_binned_pools_each_bin_and_skips_missing_depths(unseen_error) -> None:
