@@ -120,6 +120,11 @@ def gradient_magnitude(image: Tensor) -> Tensor:
     return (gx * gx + gy * gy).sqrt()
 
 
+def squared_error(rgb: Tensor, target: Tensor) -> Tensor:
+    """(H, W) float64 squared error, mean over channels, of a render clipped to [0, 1] as the images are."""
+    return ((rgb.clamp(0, 1) - target) ** 2).mean(-1).double()
+
+
 def pooled_psnr(squared_errors: Tensor) -> float:
     return -10.0 * math.log10(float(squared_errors.mean()))
 
@@ -165,8 +170,8 @@ def main(args: Args) -> None:
         out = model.render(camera, degree, background, extra_features=gap[:, None])
         dc_only = model.render(camera, 0, background)
         observed = scene.eval.observed[i].reshape(target.shape[:2]).bool()
-        squared.append(((out.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
-        squared_dc.append(((dc_only.rgb.clamp(0, 1) - target) ** 2).mean(-1)[observed].double())
+        squared.append(squared_error(out.rgb, target)[observed])
+        squared_dc.append(squared_error(dc_only.rgb, target)[observed])
         depth_errors.append(relative_depth_error(out, scene.eval.depths[i])[observed].double())
         # the gap of what the pixel sees: the composite without its empty-space share, over the coverage
         seen_gap = (out.extra[..., 0] - (1.0 - out.alpha)) / out.alpha.clamp_min(1e-6)
