@@ -60,3 +60,26 @@ def test_results_are_written_per_budget_and_kept_scenes_survive(study, tmp_path:
     with pytest.raises(SplatuError, match="other quality settings"):
         study.earlier_scenes(tmp_path / "uncertainty_study.json", study.QUALITY)
     assert json.loads((tmp_path / "uncertainty_study_quick.json").read_text())["budget"]["name"] == "quick"
+
+
+def test_repeat_timings_train_only_the_missing_ones_and_the_table_names_them(study, tmp_path: Path,
+                                                                              monkeypatch) -> None:
+    trained: list[Path] = []
+    monkeypatch.setattr(study.trainer, "train_run", lambda config, scene, run_dir: trained.append(run_dir))
+    variant = study.Variant("ours-antipodal", lambda c: c)
+    run_dir = tmp_path / "ours-antipodal"
+    run_dir.mkdir()
+    first = study.repeat_timings(variant, None, None, run_dir, 2)
+    assert len(first) == 2 and len(trained) == 2 and all(not p.is_relative_to(run_dir) for p in trained)
+    again = study.repeat_timings(variant, None, None, run_dir, 3)  # a rerun asking for more reuses the two
+    assert again[:2] == first and len(trained) == 3
+    assert study.repeat_timings(variant, None, None, run_dir, 1) == first[:1] and len(trained) == 3
+
+    timed = {**scene("2026-01-03"), "timings": {"ours-antipodal": [563.0, 481.0, 490.0]}}
+    results = {"budget": study.dataclasses.asdict(study.QUALITY), "caption": "c", "scenes": {"poster": timed}}
+    assert "median of 3 trainings of it (563, 481, 490 s" in study.markdown(results, study.QUALITY)
+
+
+def test_ours_timings_below_one_is_one_clear_error(study) -> None:
+    with pytest.raises(SplatuError, match="--ours-timings is 0"):
+        study.main(study.Args(ours_timings=0))
