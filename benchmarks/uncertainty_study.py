@@ -13,7 +13,8 @@ one budget for all (a preset, or tiny overrides of `fast` with --quick), so wall
 Rows: ours (antipodal, mean, weighted losses), ensemble-N (plain 3DGS members differing only
 in seed), visibility count, Fisher diagonal, colour spread, training residual, angular gap and random, all on
 the ours (antipodal) Gaussians, which the uncertainty loss never moves, so only the uncertainty differs; and
-ours-weighted OR colour spread, ours-weighted OR training residual (OR angular gap). ours-antipodal trains alone (the
+ours-weighted OR colour spread, ours-weighted OR training residual (OR angular gap; the residual also read from
+each view's direction). ours-antipodal trains alone (the
 cost of one run of ours); ours-mean, ours-weighted and the ablations (every scene: λ and u-SH degree on
 the weighted loss, the supervision threshold on the antipodal loss, which has one) are
 uncertainty heads of ONE more training.
@@ -289,7 +290,7 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
         if rows_of_heads[name] in seen_heads:
             continue
         seen_heads.add(rows_of_heads[name])
-        for method in ("ours-spread", "ours-residual", "ours-residual-angle"):
+        for method in ("ours-spread", "ours-residual", "ours-residual-angle", "ours-view-residual-angle"):
             row = score(root / heads_run.name, method, scene, rows_of_heads[name])
             extra_seconds = row["setup_seconds"]  # the spread has none; the residual and angle passes are timed
             suffix = method.removeprefix("ours-")

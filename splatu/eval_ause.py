@@ -36,10 +36,11 @@ class EvalAuseConfig:
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
     method: UncertaintyMethod = "ours"
     """With --load: which uncertainty to score (see splatu.baselines): ours, ensemble, visibility, fisher, random,
-    spread, ours-spread, residual, ours-residual, angle or ours-residual-angle."""
+    spread, ours-spread, residual, ours-residual, angle, ours-residual-angle or ours-view-residual-angle."""
     head: str | None = None
-    """With --load and a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle): one of the
-    run's extra uncertainty heads (its spec, as given to --uncertainty.extra-heads); default: the run's own."""
+    """With --load and a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle,
+    ours-view-residual-angle): one of the run's extra uncertainty heads (its spec, as given to
+    --uncertainty.extra-heads); default: the run's own."""
     density_aware: bool = False
     """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
     metric: A.Metric = "mae"

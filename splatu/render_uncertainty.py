@@ -57,10 +57,11 @@ class RenderUncertaintyConfig:
     """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
     method: UncertaintyMethod = "ours"
     """Which uncertainty to render (see splatu.baselines): ours, ensemble, visibility, fisher, random, spread,
-    ours-spread, residual, ours-residual, angle or ours-residual-angle."""
+    ours-spread, residual, ours-residual, angle, ours-residual-angle or ours-view-residual-angle."""
     head: str | None = None
-    """With a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle): one of the run's extra
-    uncertainty heads (its spec, as given to --uncertainty.extra-heads); default: the run's own."""
+    """With a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle,
+    ours-view-residual-angle): one of the run's extra uncertainty heads (its spec, as given to
+    --uncertainty.extra-heads); default: the run's own."""
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
     output: Path | None = None

@@ -13,7 +13,9 @@ and AUSE treat them identically:
 - residual: how badly each Gaussian fits the training views it shows up in (`residual.training_residuals`);
 - ours-residual: ours OR residual, 1 − (1 − U)(1 − R);
 - angle: the angle from a view to the nearest training view that saw each Gaussian (`angle.angular_gap`);
-- ours-residual-angle: ours OR residual OR angle, 1 − (1 − U)(1 − R)(1 − G).
+- ours-residual-angle: ours OR residual OR angle, 1 − (1 − U)(1 − R)(1 − G);
+- ours-view-residual-angle: the same with the residual read from each view's direction, R(d)
+  (`residual.directional_residuals`): the training views that saw a Gaussian from near d weigh most.
 """
 
 from __future__ import annotations
@@ -26,10 +28,11 @@ from torch import Tensor
 from splatu.camera import Camera
 
 UncertaintyMethod = Literal["ours", "ensemble", "visibility", "fisher", "random", "spread", "ours-spread", "residual",
-                            "ours-residual", "angle", "ours-residual-angle"]
+                            "ours-residual", "angle", "ours-residual-angle", "ours-view-residual-angle"]
 
 UNCERTAINTY_METHODS: tuple[str, ...] = get_args(UncertaintyMethod)
-METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual", "ours-residual-angle")
+METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual", "ours-residual-angle",
+                                                    "ours-view-residual-angle")
 """The methods that read the run's uncertainty SH, so they need a run trained with the loss and accept --head."""
 
 

@@ -303,7 +303,8 @@ def test_unwritable_outputs_are_one_line_errors(tiny_run, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("method", ["visibility", "fisher", "random", "spread", "ours-spread", "residual",
-                                    "ours-residual", "angle", "ours-residual-angle"])
+                                    "ours-residual", "angle", "ours-residual-angle",
+                                    "ours-view-residual-angle"])
 def test_every_baseline_renders_and_scores(tiny_run, method):
     entrypoint(["eval-ause", "--load", str(tiny_run), "--method", method])
     mean = json.loads((tiny_run / f"ause_{method}.json").read_text())["mean"]

@@ -10,13 +10,19 @@ import pytest
 import torch
 
 from splatu.baselines import METHODS_WITH_OURS
+from splatu.baselines.angle import VIEW_CHUNK
 from splatu.baselines.load import LoadedRun, check_method
 from splatu.baselines.residual import (
     RESIDUAL_FLOOR,
     ResidualSource,
+    ViewResiduals,
+    directional_residuals,
+    mean_residuals,
+    residual_feature,
     residual_map,
     training_residuals,
     typical_residual,
+    view_residual_sums,
 )
 from splatu.camera import Camera
 from splatu.data.scene import Views
@@ -116,3 +122,84 @@ def test_methods_reading_u_refuse_a_run_trained_without_the_loss(method):
     with pytest.raises(SplatuError, match="needs a run trained with the uncertainty loss"):
         check_method(method, run)
     check_method("residual", run)  # the residual alone needs no u
+
+
+def test_per_view_sums_give_each_views_own_residual():
+    model, views = overlapping_gaussians(), noise_views()
+    record = view_residual_sums(model, views, 0, torch.zeros(3))
+    assert record.sums.shape == (len(model), len(views.cameras), 2)
+    torch.testing.assert_close(record.centres, torch.stack([c.center() for c in views.cameras]))
+    for v, camera in enumerate(views.cameras):
+        alone = Views([camera], views.images[v:v + 1], [camera.name])
+        expected = _brute_force(model, alone)
+        seen = torch.isfinite(expected)
+        own = record.sums[:, v, 0] / record.sums[:, v, 1]
+        torch.testing.assert_close(own[seen].double(), expected[seen], atol=1e-6, rtol=1e-4)
+    torch.testing.assert_close(mean_residuals(record), training_residuals(model, views, 0, torch.zeros(3)),
+                               equal_nan=True)
+
+
+def _kernel_brute_force(means: torch.Tensor, record: ViewResiduals, viewer: torch.Tensor, kappa: float) -> torch.Tensor:
+    """r_i(c) by two loops over Gaussians and views, in float64."""
+    out = torch.empty(means.shape[0], dtype=torch.float64)
+    for i, mean in enumerate(means.double()):
+        looking = (mean - viewer.double()) / (mean - viewer.double()).norm()
+        num = den = 0.0
+        for v, centre in enumerate(record.centres.double()):
+            trained = (mean - centre) / (mean - centre).norm()
+            k = math.exp(kappa * (float(trained @ looking) - 1.0))
+            num += k * float(record.sums[i, v, 0])
+            den += k * float(record.sums[i, v, 1])
+        out[i] = num / den if den > 0 else math.nan
+    return out
+
+
+@pytest.mark.parametrize("kappa", [0.0, 3.0, 20.0])
+def test_directional_residuals_match_the_kernel_brute_force_across_view_chunks(kappa):
+    g = torch.Generator().manual_seed(4)
+    views = 2 * VIEW_CHUNK + 5  # three chunks, the last one partial
+    means = torch.randn(7, 3, generator=g)
+    weight = torch.rand(7, views, generator=g) * (torch.rand(7, views, generator=g) > 0.5)  # many views see none
+    weight[-1] = 0.0  # one Gaussian no view saw
+    sums = torch.stack([weight * torch.rand(7, views, generator=g), weight], -1)
+    record = ViewResiduals(sums, torch.randn(views, 3, generator=g) * 3.0)
+    viewer = torch.tensor([0.5, -4.0, 1.0])
+    got = directional_residuals(means, record, viewer, kappa)
+    torch.testing.assert_close(got.double(), _kernel_brute_force(means, record, viewer, kappa), equal_nan=True,
+                               atol=1e-6, rtol=1e-5)
+    assert math.isnan(float(got[-1])) and torch.isfinite(got[:-1]).all()
+    if kappa == 0.0:  # a flat kernel is the plain mean over every view
+        torch.testing.assert_close(got, mean_residuals(record), equal_nan=True)
+
+
+def test_a_directional_residual_follows_the_nearest_training_direction():
+    """One Gaussian at the origin, seen from -z with error 0.1 and from +z with error 0.5."""
+    record = ViewResiduals(torch.tensor([[[0.1, 1.0], [0.5, 1.0]]]), torch.tensor([[0.0, 0.0, -2.0], [0.0, 0.0, 2.0]]))
+    mean = torch.zeros(1, 3)
+
+    def at(viewer: list[float], rec: ViewResiduals = record) -> float:
+        return float(directional_residuals(mean, rec, torch.tensor(viewer)))
+
+    assert at([0.0, 0.0, -3.0]) == pytest.approx(0.1, abs=1e-6)  # the far view weighs e^-40
+    assert at([0.0, 0.0, 3.0]) == pytest.approx(0.5, abs=1e-6)
+    assert at([3.0, 0.0, 0.0]) == pytest.approx(0.3)  # square to both: the mean
+    assert at([0.0, 0.0, 0.0]) == pytest.approx(0.3)  # a zero-length direction: the mean, not NaN
+    only_far = ViewResiduals(torch.tensor([[[0.0, 0.0], [0.5, 1.0]]]), record.centres)
+    assert at([0.0, 0.0, -3.0], only_far) == pytest.approx(0.5)  # seen only from behind: that view's error, not 0
+
+
+def test_the_view_residual_source_renders_the_directional_residual():
+    model, views = overlapping_gaussians(), noise_views()
+    record = view_residual_sums(model, views, 0, torch.zeros(3))
+    camera = views.cameras[1]
+    camera = Camera(camera.K, camera.world_to_camera.clone(), SIZE, SIZE, name="off")
+    camera.world_to_camera[0, 3] = 1.5  # well away from both training cameras
+    source = ResidualSource(model, 0, torch.zeros(3), mean_residuals(record), with_ours=False, directional=record)
+    got = source.render(camera).uncertainty
+    feature = residual_feature(directional_residuals(model.means.detach(), record, camera.center()))
+    with torch.no_grad():
+        composited = model.render(camera, 0, torch.zeros(3), extra_features=feature).extra[..., 0]
+    torch.testing.assert_close(got, residual_map(composited, source.typical))
+    plain = ResidualSource(model, 0, torch.zeros(3), mean_residuals(record), with_ours=False).render(camera)
+    assert not torch.allclose(got, plain.uncertainty, atol=1e-5)  # the direction did change the map
+    assert torch.isfinite(got).all() and (got >= 0).all() and (got < 1).all()
