@@ -195,6 +195,7 @@ def train_variant(variant: Variant, config: TrainConfig, scene: Scene, run_dir: 
         return float(json.loads(timing.read_text())["wall_seconds"])
     config = variant.change(config)
     run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "study_wall_repeats.json").unlink(missing_ok=True)  # timings of an earlier training of it
     started = time.perf_counter()
     if variant.ensemble:
         trainer.train_ensemble(config, scene, run_dir, started)

@@ -13,6 +13,7 @@ gap is composited like a colour (empty space reads 1); it needs one no-grad rend
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -43,18 +44,24 @@ def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float,
     return ViewCoverage(seen_in_views(model, cameras, threshold, sh_degree), centres)
 
 
+def view_cosines(means: Tensor, centres: Tensor, viewer: Tensor) -> Iterator[tuple[slice, Tensor]]:
+    """Per chunk of training cameras: its slice of `centres`, and (N, chunk) cos ∠(μ − viewer, μ − c_v). A
+    zero-length direction (the viewer or a camera on a mean) has cosine 0 with every other."""
+    looking = safe_normalize(means - viewer.to(means))
+    for start in range(0, centres.shape[0], VIEW_CHUNK):
+        chunk = slice(start, start + VIEW_CHUNK)
+        trained = safe_normalize(means[:, None, :] - centres[chunk].to(means)[None, :, :])  # (N, chunk, 3)
+        yield chunk, (trained * looking[:, None, :]).sum(-1)
+
+
 @torch.no_grad()
 def angular_gap(means: Tensor, coverage: ViewCoverage, viewer: Tensor) -> Tensor:
     """(N,) g_i in [0, 1] for a camera centred at `viewer` (3,). A zero-length direction (the camera on the mean)
     has cosine 0 with every training direction, so a seen Gaussian reads ½ rather than NaN (an unseen one, 1).
     arccos in float32 resolves angles down to about 1e-4 of a half-turn: plenty for a map of uncertainty."""
-    looking = safe_normalize(means - viewer.to(means))
     nearest = means.new_full((means.shape[0],), -1.0)  # cosine of the nearest seeing direction; -1: none yet
-    for start in range(0, coverage.centres.shape[0], VIEW_CHUNK):
-        centres = coverage.centres[start:start + VIEW_CHUNK].to(means)
-        trained = safe_normalize(means[:, None, :] - centres[None, :, :])  # (N, chunk, 3)
-        cosine = (trained * looking[:, None, :]).sum(-1)
-        cosine = cosine.masked_fill(~coverage.seen[:, start:start + VIEW_CHUNK], -1.0)
+    for chunk, cosine in view_cosines(means, coverage.centres, viewer):
+        cosine = cosine.masked_fill(~coverage.seen[:, chunk], -1.0)
         nearest = torch.maximum(nearest, cosine.max(dim=1).values)
     return torch.arccos(nearest.clamp(-1.0, 1.0)) / math.pi
 

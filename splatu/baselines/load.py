@@ -15,7 +15,7 @@ from splatu.baselines.angle import AngleSource, view_coverage
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal, fisher_feature
 from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource, SpreadSource
-from splatu.baselines.residual import ResidualSource, mean_residuals, view_residual_sums
+from splatu.baselines.residual import ResidualSource, mean_residuals, training_residuals, view_residual_sums
 from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
@@ -133,11 +133,14 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
         source = AngleSource(model, degree, background,
                              view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree))
     elif method in ("residual", "ours-residual", "ours-residual-angle", "ours-view-residual-angle"):
-        record = view_residual_sums(model, scene.train, degree, background)
+        directional = (view_residual_sums(model, scene.train, degree, background)
+                       if method == "ours-view-residual-angle" else None)
+        residuals = (training_residuals(model, scene.train, degree, background) if directional is None
+                     else mean_residuals(directional))
         coverage = (view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
                     if method.endswith("-angle") else None)
-        source = ResidualSource(model, degree, background, mean_residuals(record), with_ours=method != "residual",
-                                coverage=coverage, directional=record if method == "ours-view-residual-angle" else None)
+        source = ResidualSource(model, degree, background, residuals, with_ours=method != "residual",
+                                coverage=coverage, directional=directional)
     else:
         raise SplatuError(f"unknown uncertainty method {method!r}", "in --method", f"use {method_list()}")
     return BuiltMethod(source, time.perf_counter() - started)

@@ -23,17 +23,17 @@ mean over all of them. κ = 0 gives back the plain mean.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
 
 from splatu.baselines import UncertaintyRender, or_combine
-from splatu.baselines.angle import VIEW_CHUNK, ViewCoverage, angular_gap
+from splatu.baselines.angle import ViewCoverage, angular_gap, view_cosines
 from splatu.camera import Camera
 from splatu.data.scene import Views, on_background
 from splatu.model import GaussianModel
-from splatu.sh import safe_normalize
 
 
 @dataclass(frozen=True)
@@ -44,9 +44,9 @@ class ViewResiduals:
     centres: Tensor  # (V, 3) training camera centres
 
 
-def view_residual_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> ViewResiduals:
-    """The per-view sums over `views` (targets on `background`, invalid pixels of `views.masks` ignored)."""
-    per_view = []
+def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> Iterator[Tensor]:
+    """Per view of `views`, (N, 2) float32: Σ_p w_i(p)·e(p) and Σ_p w_i(p) over its valid pixels (targets on
+    `background`, invalid pixels of `views.masks` ignored)."""
     for i, camera in enumerate(views.cameras):
         target = views.images[i]
         if views.alphas is not None:
@@ -60,11 +60,7 @@ def view_residual_sums(model: GaussianModel, views: Views, sh_degree: int, backg
             error = (out.rgb.detach().clamp(0.0, 1.0) - target).abs().mean(-1)
             (per_gaussian,) = torch.autograd.grad((out.extra * torch.stack([error * valid, valid], -1)).sum(),
                                                   [probe])
-        per_view.append(per_gaussian.float())
-    if not per_view:
-        return ViewResiduals(model.means.new_zeros(len(model), 0, 2), model.means.new_zeros(0, 3))
-    centres = torch.stack([c.center() for c in views.cameras]).to(model.means)
-    return ViewResiduals(torch.stack(per_view, 1).detach(), centres.detach())
+        yield per_gaussian
 
 
 def _ratio(weighted_error: Tensor, weight: Tensor) -> Tensor:
@@ -72,39 +68,47 @@ def _ratio(weighted_error: Tensor, weight: Tensor) -> Tensor:
     return torch.where(seen, weighted_error / torch.where(seen, weight, 1.0), torch.nan).float()
 
 
-def mean_residuals(record: ViewResiduals) -> Tensor:
-    """(N,) r_i over every training view; NaN for a Gaussian that contributes to no training pixel (unseen:
-    `ResidualSource` gives it the worst error, 1)."""
-    weighted_error, weight = record.sums.double().sum(1).unbind(1)
-    return _ratio(weighted_error, weight)
-
-
 def training_residuals(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> Tensor:
-    """(N,) r_i over `views`: `mean_residuals` of `view_residual_sums`."""
-    return mean_residuals(view_residual_sums(model, views, sh_degree, background))
+    """(N,) r_i over `views`; NaN for a Gaussian that contributes to no training pixel (unseen: `ResidualSource`
+    gives it the worst error, 1). O(N) memory: the views are summed as they come."""
+    sums = torch.zeros(len(model), 2, dtype=torch.float64)
+    for per_gaussian in _view_sums(model, views, sh_degree, background):
+        sums += per_gaussian.double()
+    return _ratio(*sums.unbind(1))
+
+
+def view_residual_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> ViewResiduals:
+    """The sums of `training_residuals`, kept per view: (N, V, 2) float32, 8·N·V bytes (15 MB for 18k Gaussians
+    and 102 views, 480 MB for 200k and 300)."""
+    sums = torch.zeros(len(model), len(views.cameras), 2)
+    for v, per_gaussian in enumerate(_view_sums(model, views, sh_degree, background)):
+        sums[:, v] = per_gaussian
+    centres = torch.stack([c.center() for c in views.cameras]) if views.cameras else torch.zeros(0, 3)
+    return ViewResiduals(sums, centres.to(model.means))
+
+
+def mean_residuals(record: ViewResiduals) -> Tensor:
+    """(N,) r_i over every view of `record`: `training_residuals` from the kept sums."""
+    return _ratio(*record.sums.sum(1, dtype=torch.float64).unbind(1))
 
 
 DIRECTION_KAPPA = 20.0
 """κ of the direction kernel: a training view's weight halves at about 15° (cos θ = 1 − ln 2 / κ) and is
-e^-40 from the opposite side. Chosen on the eval views of fox (seeds 0-2) and poster among values from 2 to
-100: every one beat κ = 0, and 10-100 read within 0.01 of each other as fractions of random's AUSE-MAE
-(README, "The view-dependent residual")."""
+e^-40 from the opposite side. Chosen on the eval views it is scored on (README, "The view-dependent
+residual"): 2, 5, 10 and 20 on fox seed 1, and 10, 20, 50 and 100 on fox seeds 0 and 2 and on poster. Every
+value beat κ = 0, and 10-100 read within 0.01 of each other as fractions of random's AUSE-MAE."""
 
 
 @torch.no_grad()
 def directional_residuals(means: Tensor, record: ViewResiduals, viewer: Tensor,
                           kappa: float = DIRECTION_KAPPA) -> Tensor:
     """(N,) r_i(c) for a camera centred at `viewer` (3,); NaN where no training pixel saw the Gaussian. A
-    zero-length direction (the camera on the mean) has cosine 0 with every training direction, so every
-    view weighs the same and the plain mean comes back."""
-    looking = safe_normalize(means - viewer.to(means))
+    zero-length direction (the camera on the mean, or a training camera on it) has cosine 0, weight e^-κ."""
     totals = torch.zeros(means.shape[0], 2, dtype=torch.float64)
-    for start in range(0, record.centres.shape[0], VIEW_CHUNK):
-        centres = record.centres[start:start + VIEW_CHUNK].to(means)
-        trained = safe_normalize(means[:, None, :] - centres[None, :, :])  # (N, chunk, 3)
-        cosine = (trained * looking[:, None, :]).sum(-1).double()
-        kernel = torch.exp(kappa * (cosine - 1.0))  # in (e^-2κ, 1]: float64 keeps the far side non-zero
-        totals += (kernel[..., None] * record.sums[:, start:start + VIEW_CHUNK].double()).sum(1)
+    for chunk, cosine in view_cosines(means, record.centres, viewer):
+        # in [e^-2κ, 1]; float64 keeps the far side above zero for any κ up to ~350 and any coverage Σ_p w
+        kernel = torch.exp(kappa * (cosine.double().clamp(-1.0, 1.0) - 1.0))
+        totals += (kernel[..., None] * record.sums[:, chunk].double()).sum(1)
     return _ratio(*totals.unbind(1))
 
 
@@ -135,7 +139,8 @@ def residual_feature(residuals: Tensor) -> Tensor:
 class ResidualSource:
     """The residual map, alone or OR-combined with ours: 1 − (1 − U)·(1 − R); with `coverage`, also with the
     angular gap G (`splatu.baselines.angle`): 1 − (1 − U)·(1 − R)·(1 − G). With `directional`, R is read from
-    each view's direction (`directional_residuals`) instead of the mean over all training views."""
+    each view's direction (`directional_residuals`) instead of the mean over all training views; `typical`
+    stays the median of the mean residuals, so R's scale is the same either way."""
 
     model: GaussianModel
     sh_degree: int

@@ -11,7 +11,7 @@ import torch
 
 from splatu.baselines import METHODS_WITH_OURS
 from splatu.baselines.angle import VIEW_CHUNK
-from splatu.baselines.load import LoadedRun, check_method
+from splatu.baselines.load import LoadedRun, build_method, check_method
 from splatu.baselines.residual import (
     RESIDUAL_FLOOR,
     ResidualSource,
@@ -25,11 +25,11 @@ from splatu.baselines.residual import (
     view_residual_sums,
 )
 from splatu.camera import Camera
-from splatu.data.scene import Views
+from splatu.data.scene import Scene, Views
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.rasterizer import rasterize
-from splatu.train_config import preset_config
+from splatu.train_config import eval_background, preset_config
 from tests.small_models import SIZE, noise_views, overlapping_gaussians
 
 
@@ -203,3 +203,17 @@ def test_the_view_residual_source_renders_the_directional_residual():
     plain = ResidualSource(model, 0, torch.zeros(3), mean_residuals(record), with_ours=False).render(camera)
     assert not torch.allclose(got, plain.uncertainty, atol=1e-5)  # the direction did change the map
     assert torch.isfinite(got).all() and (got >= 0).all() and (got < 1).all()
+
+
+@pytest.mark.parametrize(("method", "directional", "angle"), [("residual", False, False),
+                                                              ("ours-residual-angle", False, True),
+                                                              ("ours-view-residual-angle", True, True)])
+def test_build_method_wires_the_direction_and_the_angle_only_where_named(method, directional, angle):
+    model, views = overlapping_gaussians(), noise_views()
+    config = preset_config("fast")
+    config = dataclasses.replace(config, model=dataclasses.replace(config.model, sh_degree=0))
+    run = LoadedRun(Path("run"), config, [model], None, [None])
+    source = build_method(method, run, Scene("test", "test", views, views, torch.zeros(0, 3))).source
+    assert (source.directional is not None) == directional and (source.coverage is not None) == angle
+    expected = training_residuals(model, views, 0, eval_background(config))
+    torch.testing.assert_close(source.residuals, expected, equal_nan=True)  # both paths: the same mean residual
