@@ -43,6 +43,10 @@ class EvalAuseConfig:
     --uncertainty.extra-heads); default: the run's own."""
     density_aware: bool = False
     """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
+    fisher_probes: int = 2
+    """With --method fisher: Rademacher probes per training view."""
+    seed: int = 0
+    """With --load: seed of the random method and of the Fisher probes, so a seed's score can be reproduced."""
     metric: A.Metric = "mae"
     """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
     output: Path | None = None
@@ -130,8 +134,8 @@ def run(config: EvalAuseConfig) -> None:
 
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)
-        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, data=config.data,
-                                    head=config.head)
+        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
+                                    config.seed, data=config.data, head=config.head)
         label = output_label(config.method, config.head)
         output = config.output or config.load / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output)

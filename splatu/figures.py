@@ -100,19 +100,29 @@ def save_orbit_gif(path: Path, rgbs: Sequence[np.ndarray], uncertainties: Sequen
     plt.close(fig)
 
 
+def distinct_oracles(curves: Mapping[str, Curves]) -> list[tuple[str, np.ndarray]]:
+    """(label, oracle curve) once per distinct oracle: the first is "oracle", any other is named after
+    the first method that has it, since only a method scored on other renders can have another."""
+    found: list[tuple[str, np.ndarray]] = []
+    for name, curve in curves.items():
+        if not any(np.allclose(curve.oracle, oracle) for _, oracle in found):
+            found.append(("oracle" if not found else f"oracle ({name}'s renders)", curve.oracle))
+    return found
+
+
 def plot_sparsification(path: Path, curves: Mapping[str, Curves], title: str, metric: str) -> None:
-    """Sparsification curves of several methods on one figure, with the (shared) oracle.
+    """Sparsification curves of several methods on one figure, with their oracles.
 
     The curves come start-normalised (divided by O(0), `ause.start_normalised`), so methods
     evaluated on the same images share one oracle and their gaps read as start-normalised AUSE.
+    A method scored on renders of its own (the ensemble's mean render) has its own oracle: it is
+    drawn too, dotted and named, so that method's gap is read against the right curve.
     """
     fig, ax = plt.subplots(figsize=(5.5, 4.0))
-    oracle_drawn = False
     for name, curve in curves.items():
         ax.plot(FRACTIONS, curve.sparsification, label=name)
-        if not oracle_drawn:
-            ax.plot(FRACTIONS, curve.oracle, "k--", label="oracle")
-            oracle_drawn = True
+    for index, (label, oracle) in enumerate(distinct_oracles(curves)):
+        ax.plot(FRACTIONS, oracle, color="k", linestyle="--" if index == 0 else ":", label=label)
     ax.set_xlabel("fraction of pixels removed (most uncertain first)")
     ax.set_ylabel(f"{metric.upper()} of kept pixels / {metric.upper()} of all")
     ax.set_title(textwrap.fill(title, 70), fontsize=8)

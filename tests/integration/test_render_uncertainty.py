@@ -315,6 +315,18 @@ def test_every_baseline_renders_and_scores(tiny_run, method):
         assert np.isfinite(u).all() and u.min() >= 0.0 and u.max() <= 1.0 + 1e-6
 
 
+def test_eval_ause_passes_its_seed_to_the_random_method(tiny_run):
+    def scored(seed: str) -> dict[str, float]:
+        output = tiny_run / f"random-seed-{seed}.json"
+        entrypoint(["eval-ause", "--load", str(tiny_run), "--method", "random", "--seed", seed,
+                    "--output", str(output)])
+        return json.loads(output.read_text())["per_image"]
+
+    first, again, other = scored("0"), scored("0"), scored("1")
+    assert first == again
+    assert any(first[name]["ause_mae"] != other[name]["ause_mae"] for name in first)
+
+
 def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty_space(tiny_run, tmp_path):
     ensemble = tmp_path / "ensemble"
     for k in range(2):

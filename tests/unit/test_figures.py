@@ -1,12 +1,15 @@
-"""The speed-against-error figure: budgets as markers, methods as colours, partial data tolerated."""
+"""The study's figures: the speed-against-error figure (budgets as markers, methods as colours, partial data
+tolerated) and the sparsification figure's oracles."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import matplotlib.image as mpimg
+import numpy as np
 
-from splatu.figures import SpeedPoint, method_lines, plot_speed_against_error
+from splatu.ause import FRACTIONS, Curves
+from splatu.figures import SpeedPoint, distinct_oracles, method_lines, plot_sparsification, plot_speed_against_error
 
 # as the study writes them: a method measured in one budget only, baselines with no PSNR of their own
 BUDGETS = {
@@ -30,3 +33,17 @@ def test_speed_figure_is_written(tmp_path: Path) -> None:
     single = tmp_path / "one.png"
     plot_speed_against_error(single, {"fast": {"ours": SpeedPoint(220.0, 0.45, None)}}, "one point")
     assert single.stat().st_size > 0
+
+
+def test_a_method_scored_on_its_own_renders_gets_its_own_oracle(tmp_path: Path) -> None:
+    shared = 1.0 - FRACTIONS
+    own = (1.0 - FRACTIONS) ** 2
+    curves = {"ours": Curves(shared, shared * 0.9), "fisher": Curves(shared.copy(), shared * 0.95),
+              "ensemble-10": Curves(own, own * 1.1)}
+    oracles = distinct_oracles(curves)
+    assert [label for label, _ in oracles] == ["oracle", "oracle (ensemble-10's renders)"]
+    np.testing.assert_array_equal(oracles[1][1], own)
+    assert [label for label, _ in distinct_oracles({"ours": curves["ours"]})] == ["oracle"]
+    path = tmp_path / "curves.png"
+    plot_sparsification(path, curves, "poster", "mae")
+    assert min(mpimg.imread(path).shape[:2]) > 100
