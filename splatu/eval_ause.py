@@ -116,17 +116,28 @@ def print_report(report: dict[str, Any], metric: A.Metric) -> None:
     Console().print(table)
 
 
+LOAD_ONLY_OPTIONS = ("data", "method", "head", "density_aware", "fisher_probes", "seed")
+"""Options that choose what --load renders; a maps directory's scores cannot depend on them."""
+
+
+def load_only_options_set(config: EvalAuseConfig) -> list[str]:
+    """The --load-only options moved off their defaults, as flags: with --maps they would be silently ignored."""
+    defaults = EvalAuseConfig()
+    return [f"--{name.replace('_', '-')}" for name in LOAD_ONLY_OPTIONS
+            if getattr(config, name) != getattr(defaults, name)]
+
+
 def run(config: EvalAuseConfig) -> None:
     if (config.load is None) == (config.maps is None):
         raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
                           "use --load RUN_DIR to evaluate a run or --maps DIR for precomputed maps")
-    if config.maps is not None and config.head is not None:
-        raise SplatuError("--head only applies with --load (a maps directory already holds one uncertainty)",
-                          "in the eval-ause options", "drop --head, or pass --load RUN_DIR instead of --maps")
-    if config.maps is not None and config.data is not None:
-        raise SplatuError("--data only applies with --load (a maps directory already holds its images)",
-                          "in the eval-ause options", "drop --data, or pass --load RUN_DIR instead of --maps")
     if config.maps is not None:
+        ignored = load_only_options_set(config)
+        if ignored:
+            flags = " ".join(ignored)
+            raise SplatuError(f"{flags} only apply with --load (a maps directory already holds its images and "
+                              "one uncertainty)", "in the eval-ause options",
+                              f"drop {flags}, or pass --load RUN_DIR instead of --maps")
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:

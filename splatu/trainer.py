@@ -111,7 +111,7 @@ class StepOutcome:
 
 
 class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C: the run was saved (when it stopped between steps) and can be resumed."""
+    """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
 
     def __init__(self, what: str, run_dir: Path, step: int) -> None:
         self.message = f"{what}; resume with `splatu train --resume {run_dir}`"
@@ -354,9 +354,13 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene
                       train_seconds=float(checkpoint["train_seconds"]))
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""Ctrl-C, and `kill` or a batch scheduler's time limit: both finish the step and save."""
+
+
 @contextmanager
 def deferred_interrupt() -> Iterator[dict[str, bool]]:
-    """First Ctrl-C: finish the current step, then stop cleanly; a second one aborts at once."""
+    """First Ctrl-C (or SIGTERM): finish the current step, then stop cleanly; a second one aborts at once."""
     flag = {"requested": False}
     if threading.current_thread() is not threading.main_thread():
         yield flag
@@ -367,11 +371,12 @@ def deferred_interrupt() -> Iterator[dict[str, bool]]:
             raise KeyboardInterrupt
         flag["requested"] = True
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield flag
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, before in previous.items():
+            signal.signal(sig, before)
 
 
 def _progress(enabled: bool) -> Progress:

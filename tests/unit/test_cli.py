@@ -75,3 +75,25 @@ def test_split_errors_are_user_errors():
         list_split(["a", "b"], ["c"], "eval.txt")
     with pytest.raises(SplatuError):
         list_split(["a", "b"], ["a", "b"], "eval.txt")
+
+
+KILLED_AFTER_LOADING_COMMANDS = """
+import os, signal, time
+from splatu.cli import main
+try:
+    main(["eval-ause", "--help"])  # loads every command, and with them pycolmap
+except SystemExit:
+    pass
+os.kill(os.getpid(), signal.SIGTERM)
+time.sleep(60)
+"""
+
+
+def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
+    """pycolmap's import puts glog's handler on SIGTERM; it printed a native stack trace and then hung in malloc."""
+    import signal
+
+    out = subprocess.run([sys.executable, "-c", KILLED_AFTER_LOADING_COMMANDS], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == -signal.SIGTERM
+    assert "SIGTERM" not in out.stderr and "Aborted" not in out.stderr

@@ -102,6 +102,20 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     assert "exactly one" in _one_line_error(capsys)
 
 
+def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, capsys):
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=1)
+    for args in (["--seed", "1"], ["--method", "random"], ["--fisher-probes", "4"], ["--density-aware"],
+                 ["--head", "degree=1"], ["--data", "poster"]):
+        line = _one_line_error(capsys, "--maps", str(root), *args)
+        assert f"{args[0]} only apply with --load" in line and f"drop {args[0]}" in line
+    assert "--fisher-probes --seed only apply" in _one_line_error(capsys, "--maps", str(root), "--fisher-probes", "3",
+                                                                  "--seed", "2")
+    assert not (root / "ause.json").exists()
+    _run("--maps", str(root), "--seed", "0")  # a default value changes nothing, so it is accepted
+    assert (root / "ause.json").is_file()
+
+
 def test_rgba_ground_truth_is_composited_on_the_background_the_method_renders_on():
     """An RGBA target loaded on white is scored on the render's (black) background, as training does."""
     import torch

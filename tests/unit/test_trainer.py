@@ -379,17 +379,18 @@ def test_command_line_flags_override_the_preset_defaults():
     assert config.densify.max_gaussians == preset_config("quality").densify.max_gaussians
 
 
-def test_a_real_sigint_finishes_the_step_then_saves(tmp_path, scene):
-    def sigint_at_2(step, state):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_real_sigint_or_sigterm_finishes_the_step_then_saves(tmp_path, scene, signum):
+    def signal_at_2(step, state):
         if step == 2:
-            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signum)
 
-    before = signal.getsignal(signal.SIGINT)  # SIG_IGN under nohup / in the background, else Python's default
+    before = signal.getsignal(signum)  # SIG_IGN under nohup / in the background, else Python's default
     with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
-        trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[sigint_at_2])
+        trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[signal_at_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
-    assert signal.getsignal(signal.SIGINT) is before  # the handler that was there is restored
+    assert signal.getsignal(signum) is before  # the handler that was there is restored
 
 
 def test_downsampled_targets_match_their_scaled_cameras():
