@@ -153,6 +153,9 @@ def binned(pixels: PixelErrors, values: Tensor, edges: tuple[float, ...]) -> lis
 
 @torch.no_grad()
 def main(args: Args) -> None:
+    if args.ground_truth_floor < 0:
+        raise SplatuError(f"--ground-truth-floor {args.ground_truth_floor} is negative", "in the options",
+                          "pass 0 (off) or the rays per pixel side, e.g. 8")
     run = load_any_run(args.load)
     data = run_data(run)
     if data.data != "poster" or any((p / "transforms.json").is_file() for p in real_poster_candidates()):
@@ -194,6 +197,8 @@ def main(args: Args) -> None:
         "highlight (0: none, 1: lit)": binned(pixels, torch.cat(highlights).float(), (0.0, 0.5, 1.5)),
     }
     command = f"python benchmarks/unseen_error.py --load {args.load}"
+    if args.output != Args().output:
+        command += f" --output {args.output}"
     if args.ground_truth_floor:
         command += f" --ground-truth-floor {args.ground_truth_floor}"
     record = {"run": str(args.load), "command": command,

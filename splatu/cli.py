@@ -9,7 +9,6 @@ and exit 2; `--debug` or SPLATU_DEBUG=1 shows the traceback instead.
 from __future__ import annotations
 
 import os
-import signal
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -37,9 +36,6 @@ def _commands() -> dict[str, Command]:
 
 def main(argv: Sequence[str]) -> None:
     commands = _commands()
-    # Importing pycolmap installs glog's crash handler on SIGTERM, which prints a native stack trace and can
-    # deadlock in malloc instead of exiting (seen here); `kill` gets its default back (training saves first).
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     chosen = argv[0] if argv and argv[0] in commands else None
     # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
     defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}

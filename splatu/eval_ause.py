@@ -134,8 +134,8 @@ def run(config: EvalAuseConfig) -> None:
     if config.maps is not None:
         ignored = load_only_options_set(config)
         if ignored:
-            flags = " ".join(ignored)
-            raise SplatuError(f"{flags} only apply with --load (a maps directory already holds its images and "
+            flags, verb = " ".join(ignored), "applies" if len(ignored) == 1 else "apply"
+            raise SplatuError(f"{flags} only {verb} with --load (a maps directory already holds its images and "
                               "one uncertainty)", "in the eval-ause options",
                               f"drop {flags}, or pass --load RUN_DIR instead of --maps")
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)

@@ -376,7 +376,23 @@ def deferred_interrupt() -> Iterator[dict[str, bool]]:
         yield flag
     finally:
         for sig, before in previous.items():
-            signal.signal(sig, before)
+            if before is not None:  # None: a handler set outside Python, which cannot be put back from here
+                signal.signal(sig, before)
+
+
+@contextmanager
+def sigterm_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt for a whole command, as Ctrl-C does: outside the steps too (loading the
+    scene, between ensemble members), a kill then unwinds through the code that records a session."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        if before is not None:
+            signal.signal(signal.SIGTERM, before)
 
 
 def _progress(enabled: bool) -> Progress:
@@ -395,7 +411,7 @@ def _progress(enabled: bool) -> Progress:
 
 def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path,
              hooks: Sequence[StepHook] = ()) -> tuple[TrainState, TrainConfig]:
-    """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C handling.
+    """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C / SIGTERM handling.
 
     Returns the config too: choosing the SH degrees mid-run (`--degree-choice.on`) changes it.
     """
@@ -410,7 +426,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
         in_step = False
         try:
             while state.step < config.steps:
-                in_step = True  # from here until the step is counted, Ctrl-C cannot save a consistent state
+                in_step = True  # from here until the step is counted, a stop cannot save a consistent state
                 if config.degree_choice.on and state.step == decision_step(config.degree_choice, config.steps):
                     config = choose_degrees(state, config, scene, log, run_dir)
                     images = TrainImages(scene.train)
@@ -427,7 +443,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 rate = session_steps / max(time.perf_counter() - session_start, 1e-9)
                 progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
                                 gaussians=len(state.model), rate=rate)
-                if config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps:
+                if (config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps
+                        and not interrupt["requested"]):  # a stop request must not wait for a whole evaluation
                     _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
                     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
@@ -635,9 +652,10 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
 
 
 def run_command(config: TrainConfig) -> None:
-    """`splatu train`: train, print where the run went; Ctrl-C prints how to resume and exits 130."""
+    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130."""
     try:
-        run_dir = train(config)
+        with sigterm_as_ctrl_c():
+            run_dir = train(config)
     except TrainingInterrupted as stop:
         print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
         raise SystemExit(130) from None

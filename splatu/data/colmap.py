@@ -10,12 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pycolmap
 import torch
 
 from splatu.camera import Camera
 from splatu.data.frames import Frame, RawScene
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
+from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
 
 SUPPORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")

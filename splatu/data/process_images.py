@@ -14,10 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-import pycolmap
 import tyro
 from rich.console import Console
 
+from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}

@@ -108,7 +108,7 @@ def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, cap
     for args in (["--seed", "1"], ["--method", "random"], ["--fisher-probes", "4"], ["--density-aware"],
                  ["--head", "degree=1"], ["--data", "poster"]):
         line = _one_line_error(capsys, "--maps", str(root), *args)
-        assert f"{args[0]} only apply with --load" in line and f"drop {args[0]}" in line
+        assert f"{args[0]} only applies with --load" in line and f"drop {args[0]}" in line
     assert "--fisher-probes --seed only apply" in _one_line_error(capsys, "--maps", str(root), "--fisher-probes", "3",
                                                                   "--seed", "2")
     assert not (root / "ause.json").exists()

@@ -385,12 +385,46 @@ def test_a_real_sigint_or_sigterm_finishes_the_step_then_saves(tmp_path, scene, 
         if step == 2:
             os.kill(os.getpid(), signum)
 
-    before = signal.getsignal(signum)  # SIG_IGN under nohup / in the background, else Python's default
+    before = signal.getsignal(signum)  # the handler there now (SIGINT: SIG_IGN in a background job)
     with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
         trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[signal_at_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
     assert signal.getsignal(signum) is before  # the handler that was there is restored
+
+
+def test_a_stop_requested_during_a_step_skips_that_steps_evaluation(tmp_path, scene, monkeypatch):
+    step_once = trainer.train_step
+
+    def sigterm_during_step_2(state, config, images):
+        outcome = step_once(state, config, images)
+        if state.step == 1:  # still inside step 2, which is counted next
+            os.kill(os.getpid(), signal.SIGTERM)
+        return outcome
+
+    monkeypatch.setattr(trainer, "train_step", sigterm_during_step_2)
+    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
+        trainer.train(tiny_config(tmp_path, steps=6, eval_every_steps=2, checkpoint_every=0))
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    events = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [e["step"] for e in events if e["event"] == "train"] == [1, 2]
+    assert not [e for e in events if e["event"] == "eval"]  # step 2 would have evaluated
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
+
+
+def test_sigterm_is_ctrl_c_for_the_whole_train_command(monkeypatch, tmp_path, capsys):
+    """Outside the steps (here: while loading the scene) a kill unwinds like Ctrl-C instead of ending the process."""
+    before = signal.getsignal(signal.SIGTERM)
+
+    def killed_while_loading(data_config):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not interrupt")
+
+    monkeypatch.setattr(trainer, "load_scene", killed_while_loading)
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--data", str(tmp_path), "--output-dir", str(tmp_path / "out")])
+    assert exc.value.code == 130 and "interrupted" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) is before
 
 
 def test_downsampled_targets_match_their_scaled_cameras():
