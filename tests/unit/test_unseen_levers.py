@@ -1,0 +1,115 @@
+"""The training levers of benchmarks/unseen_levers.py: each term's value on hand-made inputs, the 3D filter's
+invariants, and that applying a lever patches the training and always puts it back."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+import splatu.model
+from splatu import trainer
+from splatu.camera import Camera
+from splatu.losses import photometric_loss
+from splatu.model import GaussianModel
+from tests.benchmark_scripts import benchmark_script
+from tests.small_models import SIZE, noise_views, overlapping_gaussians, two_cameras
+
+
+@pytest.fixture(scope="module")
+def levers():
+    yield from benchmark_script("unseen_levers")
+
+
+def camera_at_z(z: float) -> Camera:
+    world_to_camera = torch.eye(4)
+    world_to_camera[2, 3] = -z  # centre at (0, 0, z), looking along +z
+    return Camera(torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]]), world_to_camera, 64, 64)
+
+
+def test_sampling_rate_is_the_nearest_viewing_cameras_and_the_largest_for_unseen_means(levers) -> None:
+    means = torch.tensor([[0.0, 0, 2], [0, 0, 4], [0, 0, -5], [100.0, 0, 2]])  # behind both, far off to the side
+    rate = levers.max_sampling_rate(means, [camera_at_z(0.0), camera_at_z(-2.0)])
+    assert rate.tolist() == pytest.approx([50.0, 25.0, 50.0, 50.0])
+
+
+def test_filter_widens_every_axis_by_the_variance_and_keeps_opacity_times_volume(levers) -> None:
+    g = torch.Generator().manual_seed(0)
+    log_scales, opacities = torch.randn(5, 3, generator=g) - 2, torch.rand(5, generator=g)
+    variance = torch.rand(5, generator=g) * 0.01
+    wide, dimmer = levers.filtered(log_scales, opacities, variance)
+    assert torch.allclose(torch.exp(2 * wide), torch.exp(2 * log_scales) + variance[:, None])
+    assert torch.allclose(dimmer * wide.sum(-1).exp(), opacities * log_scales.sum(-1).exp())
+    assert (dimmer < opacities).all()
+    same, unchanged = levers.filtered(log_scales, opacities, torch.zeros(5))
+    assert torch.allclose(same, log_scales) and torch.allclose(unchanged, opacities)
+
+
+def test_depth_smoothness_counts_steps_less_across_image_edges_and_only_between_opaque_pixels(levers) -> None:
+    depth = torch.ones(4, 4)
+    depth[:, 2:] = 2.0  # one step between columns 1 and 2; the median depth is 1
+    flat, edge = torch.zeros(4, 4, 3), torch.zeros(4, 4, 3)
+    edge[:, 2:] = 0.5
+    opaque = torch.ones(4, 4)
+    assert float(levers.depth_smoothness(torch.ones(4, 4), opaque, flat)) == 0.0
+    assert float(levers.depth_smoothness(depth, opaque, flat)) == pytest.approx(4 / 12)
+    assert float(levers.depth_smoothness(depth, opaque, edge)) == pytest.approx(4 / 12 * math.exp(-5))
+    half = opaque.clone()
+    half[:, 2:] = 0.0
+    assert float(levers.depth_smoothness(depth, half, flat)) == 0.0
+    assert float(levers.depth_smoothness(depth, torch.zeros(4, 4), flat)) == 0.0
+
+
+def test_opacity_entropy_is_ln2_at_one_half_and_vanishes_at_the_ends(levers) -> None:
+    assert float(levers.opacity_entropy(torch.zeros(3))) == pytest.approx(math.log(2))
+    assert float(levers.opacity_entropy(torch.tensor([-30.0, 30.0]))) < 1e-4
+
+
+def test_true_depth_error_is_relative_and_skips_transparent_or_unknown_pixels(levers) -> None:
+    depth = torch.tensor([[2.2, 5.0], [1.0, 3.0]])
+    alpha = torch.tensor([[1.0, 0.2], [1.0, 1.0]])
+    truth = torch.tensor([[2.0, 1.0], [math.nan, 3.0]])
+    assert float(levers.true_depth_error(depth, alpha, truth)) == pytest.approx(0.05)
+
+
+ORIGINALS = {"rasterize": (splatu.model, "rasterize"), "loss": (trainer, "photometric_loss"),
+             "render": (GaussianModel, "render"), "get": (trainer.TrainImages, "get")}
+
+
+@pytest.mark.parametrize("lever", ["filter-3d", "depth-smoothness", "opacity-entropy", "true-depth"])
+def test_a_lever_is_undone_after_its_block_even_on_an_error(levers, lever) -> None:
+    before = {name: getattr(owner, attr) for name, (owner, attr) in ORIGINALS.items()}
+    with pytest.raises(RuntimeError), levers.applied(lever, 0.5, two_cameras()):
+        assert any(getattr(owner, attr) is not before[name] for name, (owner, attr) in ORIGINALS.items())
+        raise RuntimeError("training failed")
+    assert all(getattr(owner, attr) is before[name] for name, (owner, attr) in ORIGINALS.items())
+
+
+def test_filter_3d_renders_the_filtered_gaussians(levers) -> None:
+    model, camera = overlapping_gaussians(), two_cameras()[0]
+    with torch.no_grad():
+        plain = model.render(camera, 0, torch.zeros(3)).alpha
+        with levers.applied("filter-3d", 1.0, two_cameras()):  # 1 px²: about the Gaussians' own size here
+            blurred = model.render(camera, 0, torch.zeros(3)).alpha
+    assert float(blurred.max()) < float(plain.max())  # the opacity compensation spreads the same mass wider
+    assert float((blurred > 1e-3).sum()) > float((plain > 1e-3).sum())
+
+
+def test_true_depth_adds_its_weighted_error_at_full_resolution_only(levers) -> None:
+    model = overlapping_gaussians()
+    views = dataclasses.replace(noise_views(), depths=torch.full((2, SIZE, SIZE), 2.5))
+    images = trainer.TrainImages(views)
+    with levers.applied("true-depth", 0.5, views.cameras):
+        camera, target = images.get(1, 0)
+        render = model.render(camera, 0, torch.zeros(3))
+        total = trainer.photometric_loss(render.rgb, target, 0.2)
+        expected = (photometric_loss(render.rgb, target, 0.2)
+                    + 0.5 * levers.true_depth_error(render.depth, render.alpha, views.depths[1]))
+        camera, target = images.get(1, 1)
+        coarse = model.render(camera, 0, torch.zeros(3))
+        coarse_total = trainer.photometric_loss(coarse.rgb, target, 0.2)
+    assert float(levers.true_depth_error(render.depth, render.alpha, views.depths[1]).detach()) > 0.01
+    assert float(total.detach()) == pytest.approx(float(expected.detach()))
+    assert float(coarse_total.detach()) == pytest.approx(float(photometric_loss(coarse.rgb, target, 0.2).detach()))
