@@ -8,9 +8,14 @@ import math
 import pytest
 import torch
 
+from splatu.data.poster.generate import build_scene, camera_path, standin_splits
+from splatu.data.poster.raycast import blocked
+from splatu.data.poster.render import render
+from splatu.data.poster.visibility import RELATIVE_TOLERANCE, in_view
 from splatu.model import GaussianModel, ModelConfig
 from tests.benchmark_scripts import benchmark_script
 from tests.small_models import SIZE, noise_views, two_cameras
+from tests.unit.test_poster import TINY
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +27,7 @@ def test_binned_pools_each_bin_and_skips_missing_depths(unseen_error) -> None:
     pixels = unseen_error.PixelErrors(
         squared=torch.tensor([1e-2, 1e-2, 1e-4, 3e-4], dtype=torch.float64),
         squared_dc=torch.tensor([1e-3, 1e-3, 1e-4, 1e-4], dtype=torch.float64),
+        squared_reprojected=torch.tensor([1e-4, 1e-4, 1e-3, 1e-3], dtype=torch.float64),
         depth=torch.tensor([0.01, math.nan, 0.03, 0.05], dtype=torch.float64),
     )
     rows = unseen_error.binned(pixels, torch.tensor([1.0, 2.0, 12.0, 15.0]), (0.0, 5.0, 10.0, 20.0, math.inf))
@@ -29,6 +35,7 @@ def test_binned_pools_each_bin_and_skips_missing_depths(unseen_error) -> None:
     low, high = rows
     assert low["pixels"] == pytest.approx(0.5) and high["pixels"] == pytest.approx(0.5)
     assert low["psnr"] == pytest.approx(20.0) and low["psnr_dc_only"] == pytest.approx(30.0)
+    assert low["psnr_reprojected"] == pytest.approx(40.0) and high["psnr_reprojected"] == pytest.approx(30.0)
     assert high["psnr"] == pytest.approx(-10 * math.log10(2e-4))
     assert low["squared_error"] == pytest.approx(0.02 / 0.0204)
     assert low["depth_error"] == pytest.approx(0.01)  # the NaN (less than half opaque) pixel is not counted
@@ -36,8 +43,7 @@ def test_binned_pools_each_bin_and_skips_missing_depths(unseen_error) -> None:
 
 
 def test_binned_reports_no_depth_error_when_no_pixel_has_one(unseen_error) -> None:
-    pixels = unseen_error.PixelErrors(torch.full((2,), 1e-3, dtype=torch.float64),
-                                      torch.full((2,), 1e-3, dtype=torch.float64),
+    pixels = unseen_error.PixelErrors(*(torch.full((2,), 1e-3, dtype=torch.float64) for _ in range(3)),
                                       torch.full((2,), math.nan, dtype=torch.float64))
     (row,) = unseen_error.binned(pixels, torch.zeros(2), (0.0, 1.0))
     assert row["depth_error"] is None and row["psnr"] == pytest.approx(30.0)
@@ -81,3 +87,35 @@ def test_offset_summary(unseen_error) -> None:
     assert summary["gaussian_views"] == 4 and summary["median_abs"] == pytest.approx(0.25)
     assert summary["quantiles"]["0.5"] == pytest.approx(0.05)
     assert unseen_error.offset_summary(torch.zeros(0)) == {"gaussian_views": 0, "median_abs": None, "quantiles": {}}
+
+
+def test_bilinear_interpolates_between_pixel_centres_and_clamps_at_the_edges(unseen_error) -> None:
+    images = torch.tensor([[[0.0], [1.0]], [[2.0], [3.0]]]).repeat(2, 1, 1, 3)  # (2 views, 2x2, 3 channels)
+    images[1] += 10.0
+    x, y = torch.tensor([0.0, 0.5, 1.0, -3.0, 0.5]), torch.tensor([0.0, 0.5, 1.0, 0.0, 9.0])
+    sampled = unseen_error.bilinear(images, torch.tensor([0, 0, 0, 0, 1]), x, y)
+    assert sampled[:, 0].tolist() == pytest.approx([0.0, 1.5, 3.0, 0.0, 12.5])
+
+
+def test_nearest_view_colours_takes_the_closest_view_in_angle_that_sees_each_point(unseen_error) -> None:
+    world, cameras = build_scene(), camera_path(TINY)
+    train_ids, eval_ids, _ = standin_splits(TINY)
+    train = [cameras[i] for i in train_ids]
+    viewer = cameras[eval_ids[len(eval_ids) // 2]]
+    points = render(world, viewer).points
+    images = torch.arange(len(train), dtype=torch.float32)[:, None, None, None].expand(-1, TINY.height, TINY.width, 3)
+    chosen = unseen_error.nearest_view_colours(world, points, viewer.center(), train, images.contiguous())[:, 0]
+
+    # brute force: every view's visibility and angle, for every point
+    centres = torch.stack([c.center().double() for c in train])
+    sees = in_view(train, points)
+    for k in range(len(train)):
+        rows = sees[k].nonzero()[:, 0]
+        sees[k, rows] = ~blocked(world, centres[k].expand(rows.numel(), 3), points[rows], RELATIVE_TOLERANCE)
+    to_viewer = torch.nn.functional.normalize(viewer.center().double() - points, dim=-1)
+    cosines = torch.stack([(torch.nn.functional.normalize(c - points, dim=-1) * to_viewer).sum(-1) for c in centres])
+    best = torch.where(sees, cosines, -math.inf).argmax(0).float()
+    seen = sees.any(0)
+    assert 0.3 < float(seen.float().mean()) < 1.0  # some of what the middle of the block sees, no training view does
+    assert torch.equal(chosen[seen], best[seen])
+    assert torch.isnan(chosen[~seen]).all()
