@@ -250,7 +250,7 @@ def main() -> None:
             "reference_peak_rss_mb": None if reference is None else round(reference["peak_rss_mb"], 1),
             "reference_candidate_pairs": None if reference is None else reference["pairs"],
             "reference_ns_per_candidate_pair": None if reference is None else round(
-                1e6 * (reference["ms_forward"] + reference["ms_backward"]) / reference["pairs"], 1),
+                1e6 * (reference["ms_forward"] + reference["ms_backward"]) / max(reference["pairs"], 1), 1),
             "kernels": "torch.compile" if args.compile else "eager",
             "malloc": "glibc defaults" if args.malloc_defaults else "splatu.allocator",
             "threads": args.threads or torch.get_num_threads(),

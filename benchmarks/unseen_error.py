@@ -244,6 +244,10 @@ def main(args: Args) -> None:
         squared_dc.append(squared_error(dc_only.rgb, target)[observed])
         copied = nearest_view_colours(world, full.points[observed.reshape(-1)], original.center(), train_cameras,
                                       scene.train.images)
+        unseen = int(torch.isnan(copied[:, 0]).sum())
+        if unseen:  # the observed mask comes from the same visibility test, so this would be a bug, not noise
+            raise RuntimeError(f"{unseen} observed pixels of {scene.eval.names[i]} are seen by no training view in the "
+                               "reprojection, though the observed mask says otherwise")
         squared_reprojected.append(squared_error(copied, target[observed]))
         depth_errors.append(relative_depth_error(out, scene.eval.depths[i])[observed].double())
         # the gap of what the pixel sees: the composite without its empty-space share, over the coverage

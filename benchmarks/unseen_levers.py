@@ -11,11 +11,15 @@ training only (the script patches the trainer while it trains, and puts everythi
 - `filter-3d W`: Mip-Splatting's 3D smoothing filter. Each Gaussian's covariance gets + W/ν² on every axis,
   where ν is the highest sampling rate (focal / depth, pixels per unit) any training camera has of its mean,
   and its opacity is scaled by sqrt(det Σ / det Σ'), which keeps opacity × volume. It caps a Gaussian's
-  frequency at what the training views could resolve. The filter is recomputed whenever the number of
-  Gaussians changes, and every 100 renders in between (Mip-Splatting recomputes it at each refinement).
+  frequency at what the training views could resolve; a mean no training camera has in view gets the lowest
+  rate of the others, the strongest filter, as in Mip-Splatting. The filter is recomputed whenever refinement
+  replaces the Gaussians, and every 100 renders in between (Mip-Splatting recomputes it at each refinement).
+  It is applied at render time only: the run's checkpoints and PLY hold the unfiltered Gaussians, so only the
+  evaluation inside the training scores the filtered model.
 - `depth-smoothness W`: W × the edge-aware total variation of the rendered depth (over the view's median
-  depth), with each difference down-weighted by exp(−10 |Δ image|), on pixels that are at least half opaque:
-  RegNeRF's sparse-view smoothness prior.
+  depth), with each difference down-weighted by exp(−10 |Δ image|), on pixels that are at least half opaque.
+  It is a depth-smoothness prior like RegNeRF's for sparse views, but on the training views (RegNeRF smooths
+  patches rendered from unobserved viewpoints) and edge-aware.
 - `opacity-entropy W`: W × the mean binary entropy of the opacities. It pushes every Gaussian to be opaque
   or gone, so a surface is one layer rather than a stack of translucent ones.
 - `true-depth W`: **an oracle, not a method.** W × the mean relative error |D − D_true| / D_true of the rendered
@@ -80,7 +84,7 @@ class Args:
 def max_sampling_rate(means: Tensor, cameras: Sequence[Camera]) -> Tensor:
     """(N,) the largest focal / depth (pixels per scene unit) over the cameras that have each mean in view.
 
-    A mean no camera has in view gets the largest rate of the others, the mildest filter.
+    A mean no camera has in view gets the smallest rate of the others, the strongest filter (Mip-Splatting).
     """
     best = torch.zeros(means.shape[0], dtype=means.dtype)
     for camera in cameras:
@@ -90,7 +94,7 @@ def max_sampling_rate(means: Tensor, cameras: Sequence[Camera]) -> Tensor:
                    & (uv[:, 1] > -margin_y) & (uv[:, 1] < camera.height + margin_y))
         best = torch.maximum(best, torch.where(in_view, float(camera.K[0, 0]) / z.clamp_min(camera.near), 0.0))
     seen = best > 0
-    return torch.where(seen, best, best.max() if bool(seen.any()) else 1.0)
+    return torch.where(seen, best, best[seen].min() if bool(seen.any()) else 1.0)
 
 
 def filtered(log_scales: Tensor, opacities: Tensor, variance: Tensor) -> tuple[Tensor, Tensor]:
@@ -152,16 +156,16 @@ def applied(lever: Lever, weight: float, cameras: Sequence[Camera]) -> Iterator[
 
 
 def _filtering_rasterize(rasterize: Callable, variance_px: float, cameras: Sequence[Camera]) -> Callable:
-    cache: dict[str, Any] = {"key": None, "renders": 0}
+    cache: dict[str, Any] = {"means": None, "round": None, "renders": 0}
 
     def filtering(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, *args: Any, **kwargs: Any):
         if not kwargs.get("log_scales"):
             raise ValueError("filter-3d expects the model's log-scales")
-        key = (means.shape[0], cache["renders"] // FILTER_REFRESH_RENDERS)
+        refresh = cache["renders"] // FILTER_REFRESH_RENDERS
         cache["renders"] += 1
-        if cache["key"] != key:
+        if cache["means"] is not means or cache["round"] != refresh:  # refinement replaces the means Parameter
             cache["variance"] = variance_px / max_sampling_rate(means.detach(), cameras).square()
-            cache["key"] = key
+            cache["means"], cache["round"] = means, refresh
         scales, opacities = filtered(scales, opacities, cache["variance"].to(scales))
         return rasterize(means, quats, scales, opacities, *args, **kwargs)
 
@@ -190,9 +194,11 @@ def _with_regulariser(photometric_loss: Callable, lever: Lever, weight: float, p
             return base + weight * depth_smoothness(out.depth, out.alpha, target)
         if lever == "opacity-entropy":
             return base + weight * opacity_entropy(seen["model"].opacity_logits)
-        if seen["level"] != 0:  # true-depth: ground truth exists at full resolution only
-            return base
-        return base + weight * true_depth_error(out.depth, out.alpha, seen["views"].depths[seen["index"]])
+        if lever == "true-depth":
+            if seen["level"] != 0:  # ground truth exists at full resolution only
+                return base
+            return base + weight * true_depth_error(out.depth, out.alpha, seen["views"].depths[seen["index"]])
+        raise ValueError(f"no regulariser for lever {lever!r}")
 
     return loss
 
@@ -202,9 +208,10 @@ def train_with(args: Args) -> dict:
     config = dataclasses.replace(preset_config(args.preset), output_dir=args.output_dir, progress=False,
                                  seed=args.seed)
     scene = trainer.load_scene(config.data)
-    if args.lever == "true-depth" and scene.train.depths is None:
-        raise SystemExit("error: true-depth needs the built-in stand-in's ground-truth depth, and this poster "
-                         "has none (the real capture?); run another lever")
+    if scene.eval.observed is None or scene.train.depths is None:
+        raise SystemExit("error: this study needs the built-in poster stand-in (its observed masks and true depth), "
+                         "and the poster found has neither (the real capture?); move the real capture out of "
+                         "data/nerfstudio/poster and $SPLATU_DATA/poster while it runs")
     run_dir = trainer.new_run_dir(config.output_dir, scene.name, config.method)
     started = time.perf_counter()
     with applied(args.lever, args.weight, scene.train.cameras):

@@ -119,3 +119,24 @@ def test_nearest_view_colours_takes_the_closest_view_in_angle_that_sees_each_poi
     assert 0.3 < float(seen.float().mean()) < 1.0  # some of what the middle of the block sees, no training view does
     assert torch.equal(chosen[seen], best[seen])
     assert torch.isnan(chosen[~seen]).all()
+
+
+def test_nearest_view_colours_samples_each_point_where_it_projects_with_pixel_centres_at_half(unseen_error) -> None:
+    world, cameras = build_scene(), camera_path(TINY)
+    train_ids, eval_ids, _ = standin_splits(TINY)
+    train = [cameras[i] for i in train_ids]
+    viewer = cameras[eval_ids[0]]
+    points = render(world, viewer).points
+    ys, xs = torch.meshgrid(torch.arange(TINY.height), torch.arange(TINY.width), indexing="ij")
+    images = torch.stack([xs, ys, torch.zeros_like(xs)], dim=-1).float().expand(len(train), -1, -1, -1).clone()
+    images[..., 2] = torch.arange(len(train), dtype=torch.float32)[:, None, None]  # which view was sampled
+    colours = unseen_error.nearest_view_colours(world, points, viewer.center(), train, images)
+    seen = ~torch.isnan(colours[:, 0])
+    assert int(seen.sum()) > 100
+    for k in colours[seen, 2].unique().long().tolist():
+        rows = seen & (colours[:, 2] == k)
+        uv, _ = train[k].to(dtype=torch.float64).project(points[rows].double())
+        expected = (uv - 0.5).clamp_min(0.0)  # x and y, clamped at the first pixel centre
+        expected[:, 0] = expected[:, 0].clamp_max(TINY.width - 1)
+        expected[:, 1] = expected[:, 1].clamp_max(TINY.height - 1)
+        assert torch.allclose(colours[rows, :2].double(), expected, atol=1e-3)

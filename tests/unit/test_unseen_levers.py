@@ -29,10 +29,10 @@ def camera_at_z(z: float) -> Camera:
     return Camera(torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]]), world_to_camera, 64, 64)
 
 
-def test_sampling_rate_is_the_nearest_viewing_cameras_and_the_largest_for_unseen_means(levers) -> None:
+def test_sampling_rate_is_the_nearest_viewing_cameras_and_the_smallest_for_unseen_means(levers) -> None:
     means = torch.tensor([[0.0, 0, 2], [0, 0, 4], [0, 0, -5], [100.0, 0, 2]])  # behind both, far off to the side
     rate = levers.max_sampling_rate(means, [camera_at_z(0.0), camera_at_z(-2.0)])
-    assert rate.tolist() == pytest.approx([50.0, 25.0, 50.0, 50.0])
+    assert rate.tolist() == pytest.approx([50.0, 25.0, 25.0, 25.0])  # unseen: the strongest filter of the seen
 
 
 def test_filter_widens_every_axis_by_the_variance_and_keeps_opacity_times_volume(levers) -> None:
@@ -78,13 +78,35 @@ ORIGINALS = {"rasterize": (splatu.model, "rasterize"), "loss": (trainer, "photom
              "render": (GaussianModel, "render"), "get": (trainer.TrainImages, "get")}
 
 
-@pytest.mark.parametrize("lever", ["filter-3d", "depth-smoothness", "opacity-entropy", "true-depth"])
-def test_a_lever_is_undone_after_its_block_even_on_an_error(levers, lever) -> None:
+@pytest.mark.parametrize(("lever", "patched"), [("none", set()), ("filter-3d", {"rasterize"}),
+                                                ("depth-smoothness", {"loss", "render", "get"}),
+                                                ("opacity-entropy", {"loss", "render", "get"}),
+                                                ("true-depth", {"loss", "render", "get"})])
+def test_a_lever_patches_what_it_needs_and_is_undone_even_on_an_error(levers, lever, patched) -> None:
     before = {name: getattr(owner, attr) for name, (owner, attr) in ORIGINALS.items()}
     with pytest.raises(RuntimeError), levers.applied(lever, 0.5, two_cameras()):
-        assert any(getattr(owner, attr) is not before[name] for name, (owner, attr) in ORIGINALS.items())
+        assert {name for name, (owner, attr) in ORIGINALS.items() if getattr(owner, attr) is not before[name]} \
+            == patched
         raise RuntimeError("training failed")
     assert all(getattr(owner, attr) is before[name] for name, (owner, attr) in ORIGINALS.items())
+
+
+def test_filter_3d_adds_weight_over_the_squared_sampling_rate_and_refreshes_when_the_means_change(levers) -> None:
+    cameras = [camera_at_z(0.0)]
+    seen: list = []
+
+    def recording_rasterize(means, quats, scales, opacities, *args, **kwargs):
+        seen.append((scales, opacities))
+
+    filtering = levers._filtering_rasterize(recording_rasterize, 0.2, cameras)
+    log_scales, opacities, quats = torch.full((2, 3), -3.0), torch.full((2,), 0.5), torch.zeros(2, 4)
+    for depth in (2.0, 4.0):  # a new means tensor of the same size, as refinement makes, at twice the depth
+        means = torch.tensor([[0.0, 0.0, depth], [0.1, 0.0, depth]])
+        filtering(means, quats, log_scales, opacities, log_scales=True)
+        rate = 100.0 / depth  # focal / depth, pixels per unit
+        assert torch.allclose(torch.exp(2 * seen[-1][0]), torch.exp(2 * log_scales) + 0.2 / rate**2)
+    with pytest.raises(ValueError, match="log-scales"):
+        filtering(means, quats, log_scales.exp(), opacities)
 
 
 def test_filter_3d_renders_the_filtered_gaussians(levers) -> None:
@@ -113,3 +135,33 @@ def test_true_depth_adds_its_weighted_error_at_full_resolution_only(levers) -> N
     assert float(levers.true_depth_error(render.depth, render.alpha, views.depths[1]).detach()) > 0.01
     assert float(total.detach()) == pytest.approx(float(expected.detach()))
     assert float(coarse_total.detach()) == pytest.approx(float(photometric_loss(coarse.rgb, target, 0.2).detach()))
+
+
+@pytest.mark.parametrize("lever", ["depth-smoothness", "opacity-entropy"])
+def test_a_regulariser_adds_its_weighted_term_to_the_photometric_loss(levers, lever) -> None:
+    model, views = overlapping_gaussians(), noise_views()
+    images = trainer.TrainImages(views)
+    with levers.applied(lever, 0.5, views.cameras):
+        camera, target = images.get(1, 0)
+        render = model.render(camera, 0, torch.zeros(3))
+        total = trainer.photometric_loss(render.rgb, target, 0.2)
+    term = (levers.depth_smoothness(render.depth, render.alpha, target) if lever == "depth-smoothness"
+            else levers.opacity_entropy(model.opacity_logits))
+    assert float(term.detach()) > 1e-4
+    expected = photometric_loss(render.rgb, target, 0.2) + 0.5 * term
+    assert float(total.detach()) == pytest.approx(float(expected.detach()))
+
+
+def test_merged_replaces_the_row_of_the_same_lever_weight_preset_and_seed(levers) -> None:
+    old = [{"lever": "none", "weight": 0.0, "preset": "fast", "seed": 0, "psnr": 1.0},
+           {"lever": "filter-3d", "weight": 0.2, "preset": "fast", "seed": 0, "psnr": 2.0}]
+    row = {"lever": "none", "weight": 0.0, "preset": "fast", "seed": 0, "psnr": 3.0}
+    assert levers.merged(row, old) == [old[1], row]
+    other_seed = {**row, "seed": 1}
+    assert levers.merged(other_seed, old) == [*old, other_seed]
+
+
+@pytest.mark.parametrize("weight", [0.0, -1.0, math.nan])
+def test_a_lever_needs_a_positive_weight(levers, weight) -> None:
+    with pytest.raises(SystemExit, match="--weight must be positive"):
+        levers.main(levers.Args(lever="filter-3d", weight=weight))
