@@ -5,8 +5,9 @@
     python benchmarks/unseen_levers.py --lever true-depth --weight 1
 
 The target under study is 28 dB on the observed pixels of the held-out contiguous block (the unseen angle);
-`fast` reads 26.46 dB there (the `none` row). Each lever is a published fix for novel views, applied to this process's
-training only (the script patches the trainer while it trains, and puts everything back after):
+`fast` reads 26.46 dB there (the `none` row). Each lever but the oracle is our version of a published fix for
+novel views, applied to this process's training only (the script patches the trainer while it trains, and puts
+everything back after):
 
 - `filter-3d W`: Mip-Splatting's 3D smoothing filter. Each Gaussian's covariance gets + W/ν² on every axis,
   where ν is the highest sampling rate (focal / depth, pixels per unit) any training camera has of its mean,
@@ -210,7 +211,7 @@ def train_with(args: Args) -> dict:
     scene = trainer.load_scene(config.data)
     if scene.eval.observed is None or scene.train.depths is None:
         raise SystemExit("error: this study needs the built-in poster stand-in (its observed masks and true depth), "
-                         "and the poster found has neither (the real capture?); move the real capture out of "
+                         "and the poster found lacks them (the real capture?); move the real capture out of "
                          "data/nerfstudio/poster and $SPLATU_DATA/poster while it runs")
     run_dir = trainer.new_run_dir(config.output_dir, scene.name, config.method)
     started = time.perf_counter()
