@@ -138,6 +138,12 @@ def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements:
                 yield positions[offset : offset + step]
 
 
+def columns(values: Tensor, index: Tensor) -> Tensor:
+    """values[:, index] for a (B, Q) tensor, as a gather with a broadcast index: torch's CPU index_select
+    along dim 1 is 2–15× slower here (float64 worst), measured on the benchmark's chunk shapes."""
+    return torch.gather(values, 1, index.expand(values.shape[0], -1))
+
+
 def take(values: Tensor, positions: slice | Tensor) -> Tensor:
     """values[positions]: a view for a slice, index_select (much faster than x[idx] on CPU) for a tensor."""
     return values[positions] if isinstance(positions, slice) else values.index_select(0, positions)
@@ -178,14 +184,14 @@ def forward_chunk(
     )
     cumulative = running_sum(log_one_minus)
     seg = segments(v.block)
-    transmittance, weight, weight_sum, weight_max = kernel("blend")(
+    transmittance, weight, weight_sum, weight_max, kept_pairs = kernel("blend")(
         log_one_minus, cumulative, seg.first, log_t, v.block, alpha_raw
     )
-    exclusive_at_first = cumulative.index_select(1, seg.block_first) - log_one_minus.index_select(1, seg.block_first)
-    block_total = cumulative.index_select(1, seg.block_last) - exclusive_at_first
+    exclusive_at_first = columns(cumulative, seg.block_first) - columns(log_one_minus, seg.block_first)
+    block_total = columns(cumulative, seg.block_last) - exclusive_at_first
     log_t.index_add_(1, seg.blocks, block_total)
     live = torch.nonzero(weight_max > 0).squeeze(1)
-    transmittance, weight, alpha_raw = (x.index_select(1, live) for x in (transmittance, weight, alpha_raw))
+    transmittance, weight, alpha_raw = (columns(x, live) for x in (transmittance, weight, alpha_raw))
     gaussian, block = v.gaussian.index_select(0, live), v.block.index_select(0, live)
     if live.numel():
         first, last = int(block[0]), int(block[-1])
@@ -193,7 +199,7 @@ def forward_chunk(
                                                              g.features_ext.index_select(0, gaussian))
     acc.contrib_sum.index_add_(0, gaussian, weight_sum.index_select(0, live))
     acc.contrib_max.scatter_reduce_(0, gaussian, weight_max.index_select(0, live), reduce="amax")
-    acc.pairs += int(torch.count_nonzero(transmittance))
+    acc.pairs += int(kept_pairs.sum())
     return ChunkState(_global(positions, live), transmittance, alpha_raw)
 
 
@@ -252,6 +258,6 @@ def backward_chunk(
         v.u, v.dy, v.conic, v.opacity, grad_features_ext,
     )
     grads.packed.index_add_(0, v.gaussian, per_entry)
-    block_total = (weighted_cumulative.index_select(1, seg.block_last)
-                   - weighted_cumulative.index_select(1, seg.block_first) + weighted.index_select(1, seg.block_first))
+    block_total = (columns(weighted_cumulative, seg.block_last)
+                   - columns(weighted_cumulative, seg.block_first) + columns(weighted, seg.block_first))
     behind.index_add_(1, seg.blocks, block_total)
