@@ -1,0 +1,158 @@
+"""A/B of the rasterizer against an earlier commit, in one process: the ratio of render times.
+
+    python benchmarks/rasterizer_ab.py --base COMMIT [--cases 20k 100k training] [--pairs 20] [--eager]
+
+These shared hosts drift between invocations of benchmarks/rasterizer.py by more than many changes are
+worth (its 20k case read 85–100 ns per pair over three invocations in a row), so a change is measured
+here instead: the base commit's `splatu` package is exported with `git archive`, renamed `splatu_base`
+and imported beside the working tree's, and the two render the same scene alternately (forward +
+backward of benchmarks/rasterizer.py's loss, after two warm-ups each). Each pair of renders gives a
+ratio current / base; the median and quartiles of those ratios are the result. Before timing, the
+two are compared on one render: the largest differences of image and gradients, and the pair counts.
+Prints a table and writes JSON.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import json
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import Literal
+
+import torch
+import tyro
+
+from splatu.allocator import keep_freed_memory
+
+REPO = Path(__file__).resolve().parents[1]
+BASE_PACKAGE = "splatu_base"
+CaseName = Literal["20k", "100k", "training"]
+
+
+@dataclass
+class AbConfig:
+    base: str
+    """The commit (or any git revision) to compare the working tree against."""
+    cases: list[CaseName] = field(default_factory=lambda: ["20k", "100k", "training"])
+    """benchmarks/rasterizer.py's two cases, and a training-sized render (18k Gaussians at 256×144)."""
+    pairs: int = 20
+    """Timed (base, current) render pairs per case."""
+    eager: bool = False
+    """Time the eager kernels instead of the compiled ones that the presets use."""
+    json: Path = REPO / "benchmarks" / "results" / "rasterizer_ab.json"
+    """Where to write the results."""
+
+
+def rename_package(source: str, old: str = "splatu", new: str = BASE_PACKAGE) -> str:
+    """Point a module's absolute imports of package `old` at `new` (only import statements are touched)."""
+    return re.sub(rf"^(\s*(?:from|import)\s+){old}\b", rf"\g<1>{new}", source, flags=re.MULTILINE)
+
+
+def export_base(revision: str, into: Path) -> None:
+    """Write the package `splatu` of `revision` into `into`/splatu_base, its imports renamed."""
+    archive = subprocess.run(["git", "archive", revision, "splatu"], cwd=REPO, capture_output=True, check=False)
+    if archive.returncode:
+        raise SystemExit(f"error: git cannot export splatu/ at {revision!r} ({archive.stderr.decode().strip()}); "
+                         "pass a commit of this repository to --base")
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    (into / "splatu").rename(into / BASE_PACKAGE)
+    for module in (into / BASE_PACKAGE).rglob("*.py"):
+        module.write_text(rename_package(module.read_text()))
+
+
+def load_rasterizer_benchmark() -> ModuleType:
+    """benchmarks/rasterizer.py as a module, for its scenes and loss."""
+    spec = importlib.util.spec_from_file_location("rasterizer_benchmark", REPO / "benchmarks" / "rasterizer.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses resolve annotations through it
+    spec.loader.exec_module(module)
+    return module
+
+
+def render_step(rasterize: Callable, bench: ModuleType, case, scene) -> tuple[torch.Tensor, list[torch.Tensor], int]:
+    """One forward + backward: the image, the gradients of the five Gaussian inputs, the pair count."""
+    leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(scene)]
+    out = rasterize(*leaves, case.width, case.height, log_scales=True)
+    bench.loss_of(out.image, out.alpha).backward()
+    return out.image.detach(), [leaf.grad for leaf in leaves[:5]], out.num_contributing_pairs
+
+
+def compare_case(name: str, base: ModuleType, current: ModuleType, bench: ModuleType, pairs: int) -> dict:
+    """Check the two agree on one render, then time `pairs` alternating renders of each."""
+    case = {"20k": bench.CASES[0], "100k": bench.CASES[1],
+            "training": bench.Case("18k Gaussians at 256x144 (training-sized)", 18_000, 256, 144, seed=3)}[name]
+    scene = bench.make_scene(case)
+    (image_b, grads_b, pairs_b), (image_c, grads_c, pairs_c) = (
+        render_step(r, bench, case, scene) for r in (base.rasterize, current.rasterize))
+    for _ in range(2):
+        render_step(base.rasterize, bench, case, scene)
+        render_step(current.rasterize, bench, case, scene)
+    base_ms, current_ms = [], []
+    for _ in range(pairs):
+        for rasterize, times in ((base.rasterize, base_ms), (current.rasterize, current_ms)):
+            start = time.perf_counter()
+            render_step(rasterize, bench, case, scene)
+            times.append(1e3 * (time.perf_counter() - start))
+    ratios = [c / b for b, c in zip(base_ms, current_ms, strict=True)]
+    quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+    return {
+        "name": case.name,
+        "contributing_pairs": {"base": pairs_b, "current": pairs_c},
+        "max_abs_image_difference": float((image_b - image_c).abs().max()),
+        "max_abs_gradient_difference": max(float((b - c).abs().max()) for b, c in zip(grads_b, grads_c, strict=True)),
+        "ms_base_median": round(statistics.median(base_ms), 1),
+        "ms_current_median": round(statistics.median(current_ms), 1),
+        "ratio_median": round(statistics.median(ratios), 3),
+        "ratio_quartiles": [round(quartiles[0], 3), round(quartiles[2], 3)],
+        "ms_base": [round(t, 1) for t in base_ms],
+        "ms_current": [round(t, 1) for t in current_ms],
+    }
+
+
+def current_revision() -> str:
+    """HEAD's short hash, marked when the working tree differs from it."""
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout
+    dirty = subprocess.run(["git", "status", "--porcelain", "splatu"], cwd=REPO, capture_output=True, text=True).stdout
+    return head.strip() + (" + uncommitted changes" if dirty.strip() else "")
+
+
+def main(config: AbConfig) -> None:
+    keep_freed_memory()  # as in training and every splatu command
+    bench = load_rasterizer_benchmark()
+    with tempfile.TemporaryDirectory() as scratch:
+        export_base(config.base, Path(scratch))
+        sys.path.insert(0, scratch)
+        base = importlib.import_module(f"{BASE_PACKAGE}.rasterizer")
+        base_kernels = importlib.import_module(f"{BASE_PACKAGE}.rasterizer.kernels")
+        current = importlib.import_module("splatu.rasterizer")
+        current_kernels = importlib.import_module("splatu.rasterizer.kernels")
+        base_kernels.set_compile(not config.eager)
+        current_kernels.set_compile(not config.eager)
+        results = [compare_case(name, base, current, bench, config.pairs) for name in config.cases]
+    print(f"{'case':45s} {'base ms':>9s} {'current ms':>11s} {'current / base':>15s} {'quartiles':>14s}")
+    for r in results:
+        q = r["ratio_quartiles"]
+        print(f"{r['name']:45s} {r['ms_base_median']:9.1f} {r['ms_current_median']:11.1f} "
+              f"{r['ratio_median']:15.3f} {q[0]:6.3f}–{q[1]:.3f}")
+        print(f"{'':45s} image differs by ≤ {r['max_abs_image_difference']:.2g}, gradients by ≤ "
+              f"{r['max_abs_gradient_difference']:.2g}; pairs {r['contributing_pairs']}")
+    report = {"base": config.base, "current": current_revision(), "pairs": config.pairs,
+              "kernels": "eager" if config.eager else "torch.compile", "threads": torch.get_num_threads(),
+              "cases": results}
+    config.json.parent.mkdir(parents=True, exist_ok=True)
+    config.json.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"written to {config.json}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(AbConfig))
