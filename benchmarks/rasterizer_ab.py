@@ -6,10 +6,10 @@ These shared hosts drift between invocations of benchmarks/rasterizer.py by more
 worth (its 20k case read 85–100 ns per pair over three invocations in a row), so a change is measured
 here instead: the base commit's `splatu` package is exported with `git archive`, renamed `splatu_base`
 and imported beside the working tree's, and the two render the same scene alternately (forward +
-backward of benchmarks/rasterizer.py's loss, after two warm-ups each). Each pair of renders gives a
-ratio current / base; the median and quartiles of those ratios are the result. Before timing, the
-two are compared on one render: the largest differences of image and gradients, and the pair counts.
-Prints a table and writes JSON.
+backward of benchmarks/rasterizer.py's loss, after two warm-ups each; which of the two goes first
+alternates from one pair to the next). Each pair of renders gives a ratio current / base; the median
+and quartiles of those ratios are the result. Before timing, the two are compared on one render: the
+largest differences of image and gradients, and the pair counts. Prints a table and writes JSON.
 """
 
 from __future__ import annotations
@@ -58,12 +58,19 @@ def rename_package(source: str, old: str = "splatu", new: str = BASE_PACKAGE) ->
     return re.sub(rf"^(\s*(?:from|import)\s+){old}\b", rf"\g<1>{new}", source, flags=re.MULTILINE)
 
 
-def export_base(revision: str, into: Path) -> None:
-    """Write the package `splatu` of `revision` into `into`/splatu_base, its imports renamed."""
-    archive = subprocess.run(["git", "archive", revision, "splatu"], cwd=REPO, capture_output=True, check=False)
-    if archive.returncode:
-        raise SystemExit(f"error: git cannot export splatu/ at {revision!r} ({archive.stderr.decode().strip()}); "
-                         "pass a commit of this repository to --base")
+def resolve_commit(revision: str) -> str:
+    """The full hash of `revision`, or one clear line and exit if it names no commit of this repository."""
+    found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", "--end-of-options", f"{revision}^{{commit}}"],
+                           cwd=REPO, capture_output=True, text=True, check=False)
+    if found.returncode:
+        raise SystemExit(f"error: {revision!r} is not a commit of the repository at {REPO}; "
+                         "pass a commit hash, tag or branch to --base")
+    return found.stdout.strip()
+
+
+def export_base(commit: str, into: Path) -> None:
+    """Write the package `splatu` of `commit` into `into`/splatu_base, its imports renamed."""
+    archive = subprocess.run(["git", "archive", commit, "splatu"], cwd=REPO, capture_output=True, check=True)
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
     (into / "splatu").rename(into / BASE_PACKAGE)
     for module in (into / BASE_PACKAGE).rglob("*.py"):
@@ -98,13 +105,17 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
         render_step(base.rasterize, bench, case, scene)
         render_step(current.rasterize, bench, case, scene)
     base_ms, current_ms = [], []
-    for _ in range(pairs):
-        for rasterize, times in ((base.rasterize, base_ms), (current.rasterize, current_ms)):
+    for index in range(pairs):
+        order = ((base.rasterize, base_ms), (current.rasterize, current_ms))
+        for rasterize, times in order if index % 2 == 0 else order[::-1]:
             start = time.perf_counter()
             render_step(rasterize, bench, case, scene)
             times.append(1e3 * (time.perf_counter() - start))
     ratios = [c / b for b, c in zip(base_ms, current_ms, strict=True)]
     quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+    if base.kernels.kernels_compiled() != current.kernels.kernels_compiled():
+        raise SystemExit("error: torch.compile failed for one of the two packages only (see the warning above), "
+                         "so their times are not comparable; rerun with --eager")
     return {
         "name": case.name,
         "contributing_pairs": {"base": pairs_b, "current": pairs_c},
@@ -127,18 +138,23 @@ def current_revision() -> str:
 
 
 def main(config: AbConfig) -> None:
+    if config.pairs < 1:
+        raise SystemExit("error: --pairs must be at least 1")
+    commit = resolve_commit(config.base)
     keep_freed_memory()  # as in training and every splatu command
     bench = load_rasterizer_benchmark()
     with tempfile.TemporaryDirectory() as scratch:
-        export_base(config.base, Path(scratch))
+        export_base(commit, Path(scratch))
         sys.path.insert(0, scratch)
-        base = importlib.import_module(f"{BASE_PACKAGE}.rasterizer")
-        base_kernels = importlib.import_module(f"{BASE_PACKAGE}.rasterizer.kernels")
-        current = importlib.import_module("splatu.rasterizer")
-        current_kernels = importlib.import_module("splatu.rasterizer.kernels")
-        base_kernels.set_compile(not config.eager)
-        current_kernels.set_compile(not config.eager)
-        results = [compare_case(name, base, current, bench, config.pairs) for name in config.cases]
+        try:
+            base = importlib.import_module(f"{BASE_PACKAGE}.rasterizer")
+            current = importlib.import_module("splatu.rasterizer")
+            for package in (base, current):
+                package.kernels = importlib.import_module(f"{package.__name__}.kernels")
+                package.kernels.set_compile(not config.eager)
+            results = [compare_case(name, base, current, bench, config.pairs) for name in config.cases]
+        finally:
+            sys.path.remove(scratch)
     print(f"{'case':45s} {'base ms':>9s} {'current ms':>11s} {'current / base':>15s} {'quartiles':>14s}")
     for r in results:
         q = r["ratio_quartiles"]
@@ -146,7 +162,7 @@ def main(config: AbConfig) -> None:
               f"{r['ratio_median']:15.3f} {q[0]:6.3f}–{q[1]:.3f}")
         print(f"{'':45s} image differs by ≤ {r['max_abs_image_difference']:.2g}, gradients by ≤ "
               f"{r['max_abs_gradient_difference']:.2g}; pairs {r['contributing_pairs']}")
-    report = {"base": config.base, "current": current_revision(), "pairs": config.pairs,
+    report = {"base": commit, "current": current_revision(), "pairs": config.pairs,
               "kernels": "eager" if config.eager else "torch.compile", "threads": torch.get_num_threads(),
               "cases": results}
     config.json.parent.mkdir(parents=True, exist_ok=True)
