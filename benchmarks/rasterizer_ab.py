@@ -86,7 +86,8 @@ def load_rasterizer_benchmark() -> ModuleType:
     return module
 
 
-def render_step(rasterize: Callable, bench: ModuleType, case, scene) -> tuple[torch.Tensor, list[torch.Tensor], int]:
+def render_step(rasterize: Callable, bench: ModuleType, case: object, scene: tuple[torch.Tensor, ...],
+                ) -> tuple[torch.Tensor, list[torch.Tensor], int]:
     """One forward + backward: the image, the gradients of the five Gaussian inputs, the pair count."""
     leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(scene)]
     out = rasterize(*leaves, case.width, case.height, log_scales=True)
@@ -101,6 +102,9 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
     scene = bench.make_scene(case)
     (image_b, grads_b, pairs_b), (image_c, grads_c, pairs_c) = (
         render_step(r, bench, case, scene) for r in (base.rasterize, current.rasterize))
+    if base.kernels.kernels_compiled() != current.kernels.kernels_compiled():
+        raise SystemExit("error: torch.compile failed for one of the two packages only (see the warning above), "
+                         "so their times are not comparable; rerun with --eager")
     for _ in range(2):
         render_step(base.rasterize, bench, case, scene)
         render_step(current.rasterize, bench, case, scene)
@@ -113,9 +117,6 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
             times.append(1e3 * (time.perf_counter() - start))
     ratios = [c / b for b, c in zip(base_ms, current_ms, strict=True)]
     quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
-    if base.kernels.kernels_compiled() != current.kernels.kernels_compiled():
-        raise SystemExit("error: torch.compile failed for one of the two packages only (see the warning above), "
-                         "so their times are not comparable; rerun with --eager")
     return {
         "name": case.name,
         "contributing_pairs": {"base": pairs_b, "current": pairs_c},
@@ -150,8 +151,7 @@ def main(config: AbConfig) -> None:
             base = importlib.import_module(f"{BASE_PACKAGE}.rasterizer")
             current = importlib.import_module("splatu.rasterizer")
             for package in (base, current):
-                package.kernels = importlib.import_module(f"{package.__name__}.kernels")
-                package.kernels.set_compile(not config.eager)
+                importlib.import_module(f"{package.__name__}.kernels").set_compile(not config.eager)
             results = [compare_case(name, base, current, bench, config.pairs) for name in config.cases]
         finally:
             sys.path.remove(scratch)
