@@ -130,9 +130,10 @@ def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_c
 # ---------------------------------------------------------------------------------------------
 
 
-def record_footprint_times() -> list[float]:
-    """Make the rasterizer record the wall time of each footprint pass (block_entries) into the returned list."""
-    module = importlib.import_module("splatu.rasterizer.rasterize")
+def record_footprint_times(package: str = "splatu") -> list[float]:
+    """Make `package`'s rasterizer record the wall time of each footprint pass (block_entries) into the
+    returned list."""
+    module = importlib.import_module(f"{package}.rasterizer.rasterize")
     block_entries, spent = module.block_entries, []
 
     def timed(*args):

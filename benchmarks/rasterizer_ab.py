@@ -8,7 +8,9 @@ here instead: the base commit's `splatu` package is exported with `git archive`,
 and imported beside the working tree's, and the two render the same scene alternately (forward +
 backward of benchmarks/rasterizer.py's loss, after two warm-ups each; which of the two goes first
 alternates from one pair to the next). Each pair of renders gives a ratio current / base; the median
-and quartiles of those ratios are the result. Before timing, the two are compared on one render: the
+and quartiles of those ratios are the result, for the whole render and for its footprint pass
+(block_entries) alone, whose share of a render is too small for a change to it to stand out of the
+render's noise. Before timing, the two are compared on one render: the
 largest differences of image and gradients, and the pair counts. Prints a table and writes JSON.
 """
 
@@ -95,8 +97,12 @@ def render_step(rasterize: Callable, bench: ModuleType, case: object, scene: tup
     return out.image.detach(), [leaf.grad for leaf in leaves[:5]], out.num_contributing_pairs
 
 
-def compare_case(name: str, base: ModuleType, current: ModuleType, bench: ModuleType, pairs: int) -> dict:
-    """Check the two agree on one render, then time `pairs` alternating renders of each."""
+def compare_case(name: str, base: ModuleType, current: ModuleType, bench: ModuleType, pairs: int,
+                 footprint_seconds: dict[ModuleType, list[float]]) -> dict:
+    """Check the two agree on one render, then time `pairs` alternating renders of each.
+
+    `footprint_seconds` holds, per package, the list its footprint passes append their times to.
+    """
     case = {"20k": bench.CASES[0], "100k": bench.CASES[1],
             "training": bench.Case("18k Gaussians at 256x144 (training-sized)", 18_000, 256, 144, seed=3)}[name]
     scene = bench.make_scene(case)
@@ -109,25 +115,36 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
         render_step(base.rasterize, bench, case, scene)
         render_step(current.rasterize, bench, case, scene)
     base_ms, current_ms = [], []
+    for seconds in footprint_seconds.values():
+        seconds.clear()
     for index in range(pairs):
         order = ((base.rasterize, base_ms), (current.rasterize, current_ms))
         for rasterize, times in order if index % 2 == 0 else order[::-1]:
             start = time.perf_counter()
             render_step(rasterize, bench, case, scene)
             times.append(1e3 * (time.perf_counter() - start))
-    ratios = [c / b for b, c in zip(base_ms, current_ms, strict=True)]
-    quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+    footprint_b, footprint_c = ([1e3 * t for t in footprint_seconds[p]] for p in (base, current))
     return {
         "name": case.name,
         "contributing_pairs": {"base": pairs_b, "current": pairs_c},
         "max_abs_image_difference": float((image_b - image_c).abs().max()),
         "max_abs_gradient_difference": max(float((b - c).abs().max()) for b, c in zip(grads_b, grads_c, strict=True)),
-        "ms_base_median": round(statistics.median(base_ms), 1),
-        "ms_current_median": round(statistics.median(current_ms), 1),
-        "ratio_median": round(statistics.median(ratios), 3),
-        "ratio_quartiles": [round(quartiles[0], 3), round(quartiles[2], 3)],
+        **ratio_summary("", base_ms, current_ms),
+        **ratio_summary("footprint_", footprint_b, footprint_c),
         "ms_base": [round(t, 1) for t in base_ms],
         "ms_current": [round(t, 1) for t in current_ms],
+    }
+
+
+def ratio_summary(prefix: str, base_ms: list[float], current_ms: list[float]) -> dict:
+    """Median times of each side, and the median and quartiles of the per-pair ratios current / base."""
+    ratios = [c / b for b, c in zip(base_ms, current_ms, strict=True)]
+    quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+    return {
+        f"{prefix}ms_base_median": round(statistics.median(base_ms), 1),
+        f"{prefix}ms_current_median": round(statistics.median(current_ms), 1),
+        f"{prefix}ratio_median": round(statistics.median(ratios), 3),
+        f"{prefix}ratio_quartiles": [round(quartiles[0], 3), round(quartiles[2], 3)],
     }
 
 
@@ -152,14 +169,18 @@ def main(config: AbConfig) -> None:
             current = importlib.import_module("splatu.rasterizer")
             for package in (base, current):
                 importlib.import_module(f"{package.__name__}.kernels").set_compile(not config.eager)
-            results = [compare_case(name, base, current, bench, config.pairs) for name in config.cases]
+            footprint_seconds = {base: bench.record_footprint_times(BASE_PACKAGE),
+                                 current: bench.record_footprint_times()}
+            results = [compare_case(name, base, current, bench, config.pairs, footprint_seconds)
+                       for name in config.cases]
         finally:
             sys.path.remove(scratch)
     print(f"{'case':45s} {'base ms':>9s} {'current ms':>11s} {'current / base':>15s} {'quartiles':>14s}")
     for r in results:
-        q = r["ratio_quartiles"]
-        print(f"{r['name']:45s} {r['ms_base_median']:9.1f} {r['ms_current_median']:11.1f} "
-              f"{r['ratio_median']:15.3f} {q[0]:6.3f}–{q[1]:.3f}")
+        for label, prefix in ((r["name"], ""), ("  of which the footprint", "footprint_")):
+            q = r[f"{prefix}ratio_quartiles"]
+            print(f"{label:45s} {r[f'{prefix}ms_base_median']:9.1f} {r[f'{prefix}ms_current_median']:11.1f} "
+                  f"{r[f'{prefix}ratio_median']:15.3f} {q[0]:6.3f}–{q[1]:.3f}")
         print(f"{'':45s} image differs by ≤ {r['max_abs_image_difference']:.2g}, gradients by ≤ "
               f"{r['max_abs_gradient_difference']:.2g}; pairs {r['contributing_pairs']}")
     report = {"base": commit, "current": current_revision(), "pairs": config.pairs,

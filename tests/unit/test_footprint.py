@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from splatu.rasterizer import footprint
+from splatu.rasterizer.errors import RasterInputError
 from splatu.rasterizer.footprint import ALPHA_MIN, block_entries
 from splatu.rasterizer.projection import project_gaussians
 from tests.reference_rasterizer import random_scene
@@ -62,6 +63,7 @@ def assert_round_block_depth_order(proj, entries, rounds: int) -> None:
     rank = depth_rank[entries.gaussian]
     bounds = entries.round_bounds
     assert len(bounds) == rounds + 1 and bounds[0] == 0 and bounds[-1] == entries.block.numel()
+    assert bool(((entries.block >= 0) & (entries.block < entries.num_blocks)).all()), "a block id is out of range"
     round_of = torch.repeat_interleave(torch.arange(rounds), torch.tensor(bounds).diff())
     key = (round_of * entries.num_blocks + entries.block) * (order.numel() + 1) + rank
     assert bool((key[1:] > key[:-1]).all()), "entries are not strictly ordered by (round, block, depth)"
@@ -99,13 +101,21 @@ def test_entries_are_every_passing_pair_in_round_block_depth_order(seed, rounds,
 
 
 @pytest.mark.parametrize("rounds", [1, 3])
-def test_order_holds_on_lists_long_enough_for_the_radix_sort(rounds, monkeypatch):
-    """torch sorts 1-D integer tensors of ≥ 32,768 elements with a different (radix) algorithm."""
+@pytest.mark.parametrize(("width", "height"), [(200, 150), (2048, 160)])
+def test_order_holds_on_lists_long_enough_for_the_radix_sort(rounds, width, height, monkeypatch):
+    """torch sorts 1-D integer tensors of ≥ 32,768 elements with a different (radix) algorithm. The sort
+    key is int16 below 32,768 blocks (200×150: 3,750) and int32 from there (2048×160: 40,960), where
+    int16 keys would wrap and break the order."""
     monkeypatch.setattr(footprint, "MAX_ROUNDS", rounds)
     monkeypatch.setattr(footprint, "ROUND_MIN_ENTRIES", 1)
-    _, proj, entries = listed(7, n=15_000, width=200, height=150)
+    _, proj, entries = listed(7, n=15_000, width=width, height=height)
     assert min(e - b for b, e in itertools.pairwise(entries.round_bounds)) >= 32_768
     assert_round_block_depth_order(proj, entries, rounds)
+
+
+def test_more_entries_than_int32_indexes_is_one_clear_error():
+    with pytest.raises(RasterInputError, match=r"more than 2\^31 − 1.*lower resolution"):
+        footprint._expand(torch.zeros(2, dtype=torch.int32), torch.tensor([2**30, 2**30]))
 
 
 def test_no_candidates_give_an_empty_list():
