@@ -10,8 +10,8 @@ backward of benchmarks/rasterizer.py's loss, after two warm-ups each; which of t
 alternates from one pair to the next). Each pair of renders gives a ratio current / base; the median
 and quartiles of those ratios are the result, for the whole render and for its footprint pass
 (block_entries) alone, whose share of a render is too small for a change to it to stand out of the
-render's noise. Before timing, the two are compared on one render: the
-largest differences of image and gradients, and the pair counts. Prints a table and writes JSON.
+render's noise. Before timing, the two are compared on one render: the largest differences of image
+and gradients, and the pair counts. Prints a table and writes JSON, with every timing.
 """
 
 from __future__ import annotations
@@ -106,8 +106,13 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
     case = {"20k": bench.CASES[0], "100k": bench.CASES[1],
             "training": bench.Case("18k Gaussians at 256x144 (training-sized)", 18_000, 256, 144, seed=3)}[name]
     scene = bench.make_scene(case)
+    for seconds in footprint_seconds.values():
+        seconds.clear()
     (image_b, grads_b, pairs_b), (image_c, grads_c, pairs_c) = (
         render_step(r, bench, case, scene) for r in (base.rasterize, current.rasterize))
+    if any(len(seconds) != 1 for seconds in footprint_seconds.values()):
+        raise SystemExit("error: a render did not run exactly one footprint pass through "
+                         "rasterizer.rasterize.block_entries, so footprint times cannot be paired with renders")
     if base.kernels.kernels_compiled() != current.kernels.kernels_compiled():
         raise SystemExit("error: torch.compile failed for one of the two packages only (see the warning above), "
                          "so their times are not comparable; rerun with --eager")
@@ -133,6 +138,8 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
         **ratio_summary("footprint_", footprint_b, footprint_c),
         "ms_base": [round(t, 1) for t in base_ms],
         "ms_current": [round(t, 1) for t in current_ms],
+        "footprint_ms_base": [round(t, 1) for t in footprint_b],
+        "footprint_ms_current": [round(t, 1) for t in footprint_c],
     }
 
 

@@ -26,6 +26,9 @@ ALPHA_MIN = 1.0 / 255.0
 FOOTPRINT_SLACK = 1e-4
 """Relative widening of the exact footprint so rounding never drops a pair; extra pairs fail the α test."""
 
+MAX_ENTRIES = torch.iinfo(torch.int32).max
+"""Entries and row records are counted with int32 indices (see _expand)."""
+
 
 MAX_ROUNDS = 16
 ROUND_MIN_ENTRIES = 1 << 18
@@ -56,6 +59,7 @@ def block_entries(
 ) -> BlockEntries:
     """List, for every block of pixels, the Gaussians whose α ≥ 1/255 region touches it, front to back."""
     blocks_per_row = (width + block_width - 1) // block_width
+    num_blocks = height * blocks_per_row
     with torch.no_grad():
         f64 = torch.float64
         o = opacities.to(f64)
@@ -81,7 +85,7 @@ def block_entries(
         # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable
         # sort of each round by block alone leaves every block's list front to back. torch's CPU sort
         # of a 1-D integer tensor of ≥ 32,768 elements is a parallel radix sort, one pass per key
-        # byte, and one round's keys fit in cache: 16 sorts of 394k random int32 keys take about half
+        # byte, and one round's keys fit in cache: 16 sorts of 395k random int32 keys take about half
         # the time of one sort of 6.3M, and int16 keys (any image of < 32,768 blocks) half again
         # (measured, torch 2.13 CPU, 2 threads; the 100k benchmark case has 6.3M entries in 16 rounds).
         ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
@@ -92,7 +96,7 @@ def block_entries(
         per_round.index_add_(0, depth_round.index_select(0, rec_g), blocks_per)
         round_bounds = [0, *torch.cumsum(per_round, 0).tolist()]
         unsorted_gaussian = ids.int().index_select(0, rec_g).index_select(0, ent_rec)
-        key = unsorted_block.short() if blocks_per_row * height <= torch.iinfo(torch.int16).max else unsorted_block
+        key = unsorted_block.short() if num_blocks <= torch.iinfo(torch.int16).max else unsorted_block
         block = torch.empty(round_bounds[-1], dtype=torch.long, device=ids.device)
         gaussian = torch.empty_like(block)
         for begin, end in itertools.pairwise(round_bounds):
@@ -101,7 +105,7 @@ def block_entries(
             gaussian[begin:end] = unsorted_gaussian[begin:end].index_select(0, order)
     return BlockEntries(
         gaussian=gaussian, block=block, round_bounds=round_bounds,
-        block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=height * blocks_per_row,
+        block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=num_blocks,
     )
 
 
@@ -113,13 +117,12 @@ def _expand(start: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
     faster making int32 than int64 (measured, torch 2.13 CPU, 1.6M ranges of 0–7 items).
     """
     total = int(counts.sum())
-    if total > torch.iinfo(torch.int32).max:
+    if total > MAX_ENTRIES:
         raise RasterInputError(
-            f"the footprints of the Gaussians cover {total:,} (block, Gaussian) entries, more than 2^31 − 1",
+            f"the footprints of the Gaussians make {total:,} entries, more than the {MAX_ENTRIES:,} int32 indices hold",
             "in the call to rasterize",
             "render at a lower resolution, or with fewer or smaller Gaussians",
         )
-    owner = torch.repeat_interleave(torch.arange(counts.numel(), dtype=torch.int32, device=counts.device),
-                                    counts.int(), output_size=total)
+    owner = torch.repeat_interleave(counts.int(), output_size=total)
     shifted = (start - (torch.cumsum(counts, 0) - counts)).to(start.dtype)
     return owner, shifted.index_select(0, owner) + torch.arange(total, dtype=start.dtype, device=start.device)

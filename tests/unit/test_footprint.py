@@ -101,21 +101,28 @@ def test_entries_are_every_passing_pair_in_round_block_depth_order(seed, rounds,
 
 
 @pytest.mark.parametrize("rounds", [1, 3])
-@pytest.mark.parametrize(("width", "height"), [(200, 150), (2048, 160)])
+@pytest.mark.parametrize(("width", "height"), [(200, 150), (2048, 160), (792, 331)])
 def test_order_holds_on_lists_long_enough_for_the_radix_sort(rounds, width, height, monkeypatch):
     """torch sorts 1-D integer tensors of ≥ 32,768 elements with a different (radix) algorithm. The sort
-    key is int16 below 32,768 blocks (200×150: 3,750) and int32 from there (2048×160: 40,960), where
-    int16 keys would wrap and break the order."""
+    key is int16 below 32,768 blocks (200×150: 3,750) and int32 from there (2048×160: 40,960; 792×331:
+    32,769, one past int16), where int16 keys would wrap and break the order."""
     monkeypatch.setattr(footprint, "MAX_ROUNDS", rounds)
     monkeypatch.setattr(footprint, "ROUND_MIN_ENTRIES", 1)
     _, proj, entries = listed(7, n=15_000, width=width, height=height)
     assert min(e - b for b, e in itertools.pairwise(entries.round_bounds)) >= 32_768
+    if entries.num_blocks > 32_768:
+        assert int(entries.block.max()) >= 32_768, "the scene should list a block id past int16"
     assert_round_block_depth_order(proj, entries, rounds)
 
 
-def test_more_entries_than_int32_indexes_is_one_clear_error():
-    with pytest.raises(RasterInputError, match=r"more than 2\^31 − 1.*lower resolution"):
-        footprint._expand(torch.zeros(2, dtype=torch.int32), torch.tensor([2**30, 2**30]))
+def test_more_entries_than_int32_indices_hold_is_one_clear_error(monkeypatch):
+    """Past MAX_ENTRIES the int32 owners would wrap; the limit is lowered here so the test allocates nothing large."""
+    assert torch.iinfo(torch.int32).max == footprint.MAX_ENTRIES
+    monkeypatch.setattr(footprint, "MAX_ENTRIES", 100)
+    owner, value = footprint._expand(torch.tensor([5, 9], dtype=torch.int32), torch.tensor([40, 60]))
+    assert owner.dtype == torch.int32 and value.tolist() == [*range(5, 45), *range(9, 69)]
+    with pytest.raises(RasterInputError, match=r"make 101 entries, more than the 100 int32 indices.*lower resolution"):
+        footprint._expand(torch.zeros(2, dtype=torch.int32), torch.tensor([40, 61]))
 
 
 def test_no_candidates_give_an_empty_list():
