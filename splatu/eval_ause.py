@@ -108,12 +108,17 @@ def print_report(report: dict[str, Any], metric: A.Metric) -> None:
                "AUROC unobserved")
     table = Table(title=f"AUSE-{metric.upper()} of {report['method']} ({report['caption']})")
     table.add_column("image", overflow="fold")
-    for header in headers:
-        table.add_column(header, justify="right")
+    for header in headers:  # at least a score wide: a narrow terminal cuts headers, not scores
+        table.add_column(header, justify="right", min_width=len(_fmt(0.0)))
     for name, scores in report["per_image"].items():
         table.add_row(name, *(_fmt(scores[c]) for c in columns))
     table.add_row("[bold]mean[/bold]", *(f"[bold]{_fmt(report['mean'][c])}[/bold]" for c in columns))
-    Console().print(table)
+    console = Console()
+    if not console.is_terminal:
+        # A log file or pipe has no width; rich would assume 80 columns and cut the scores to "0.05…".
+        needed = console.measure(table, options=console.options.update_width(1 << 12)).maximum
+        console = Console(width=max(console.width, needed))
+    console.print(table)
 
 
 LOAD_ONLY_OPTIONS = ("data", "method", "head", "density_aware", "fisher_probes", "seed")
@@ -151,4 +156,4 @@ def run(config: EvalAuseConfig) -> None:
         output = config.output or config.load / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output)
     print_report(report, config.metric)
-    Console().print(f"wrote {output} and {output.with_suffix('.png')}")
+    Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

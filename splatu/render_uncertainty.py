@@ -308,4 +308,4 @@ def run(config: RenderUncertaintyConfig) -> None:
     }
     (out / "render.json").write_text(json.dumps(record, indent=2))
     Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
-                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}")
+                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)

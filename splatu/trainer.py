@@ -395,6 +395,10 @@ def sigterm_as_ctrl_c() -> Iterator[None]:
             signal.signal(signal.SIGTERM, before)
 
 
+PLAIN_PROGRESS_LINES = 20
+"""Off a terminal, a plain progress line every 1/20 of the run."""
+
+
 def _progress(enabled: bool) -> Progress:
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
@@ -420,6 +424,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     log.drop_after(state.step)
     smoothed_psnr = float("nan")
     session_start, session_steps = time.perf_counter(), 0
+    plain_every = max(1, config.steps // PLAIN_PROGRESS_LINES) if config.progress and not console.is_terminal else 0
     with _progress(config.progress) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
@@ -443,6 +448,9 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 rate = session_steps / max(time.perf_counter() - session_start, 1e-9)
                 progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
                                 gaussians=len(state.model), rate=rate)
+                if plain_every and state.step % plain_every == 0 and state.step < config.steps:
+                    console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
+                                                len(state.model), rate), highlight=False, soft_wrap=True)
                 if (config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps
                         and not interrupt["requested"]):  # a stop request must not wait for a whole evaluation
                     _log_eval(state, config, scene, log)
@@ -481,7 +489,8 @@ def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: Me
     save_config(config, run_dir / "config.yml")
     u_part = f", u-SH degree {choice['u_sh_degree']}" if "u_sh_degree" in choice else ""
     console.print(f"step {state.step}: chose colour SH degree {choice['sh_degree']}{u_part} "
-                  f"on {len(choice['held_out_views'])} held-out views (scores in {run_dir / DEGREE_CHOICE_FILE})")
+                  f"on {len(choice['held_out_views'])} held-out views (scores in {run_dir / DEGREE_CHOICE_FILE})",
+                  soft_wrap=True)
     return config
 
 
@@ -513,7 +522,24 @@ def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: Metrics
     results = evaluate_scene(state.model, scene, config)
     for name, metrics in results.items():
         log.write({"step": state.step, "event": "eval", "set": name, **metrics})
+        console.print(eval_line(state.step, name, metrics), highlight=False, soft_wrap=True)
     return results
+
+
+def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
+    """One console line per evaluated set: a run's quality on screen and in its log, not only in metrics.jsonl."""
+    observed = f", observed pixels {metrics['psnr_observed']:.2f} dB" if "psnr_observed" in metrics else ""
+    return (f"step {step} {name} ({metrics['num_images']} views): PSNR {metrics['psnr']:.2f} dB{observed}, "
+            f"SSIM {metrics['ssim']:.3f}")
+
+
+def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float) -> str:
+    """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
+    rich draws no bar until the end."""
+    left = round((steps - step) / rate) if rate > 0 else None
+    eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
+    return (f"step {step:>6}/{steps}  loss {loss:.4f}  PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
+            f"  ETA {eta}")
 
 
 def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool) -> TrainingInterrupted:
@@ -563,7 +589,7 @@ ENSEMBLE_SESSIONS = "ensemble_sessions.json"
 def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
     """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it."""
     if (member_dir / "summary.json").is_file():
-        console.print(f"already trained: {member_dir}")
+        console.print(f"already trained: {member_dir}", soft_wrap=True)
         return
     found = list_checkpoints(member_dir)
     if not found:

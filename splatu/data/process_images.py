@@ -127,8 +127,9 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     best.write(sparse)
     _link_images(cfg.images, output)
     console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
-                  f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}")
-    console.print(f"train on it with: splatu train --data {output}")
+                  f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
+                  soft_wrap=True)
+    console.print(f"train on it with: splatu train --data {output}", soft_wrap=True)
     return output
 
 

@@ -2,6 +2,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import signal
 from pathlib import Path
 
@@ -553,3 +554,28 @@ def test_evaluation_composites_rgba_targets_on_the_render_background():
     empty = GaussianModel.empty_like_config(0, ModelConfig(sh_degree=0))  # renders the background alone
     metrics = trainer.evaluate_views(empty, views, 0, torch.zeros(3))
     assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)
+
+
+def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluation(tmp_path, scene, capsys):
+    """In a log file or CI (no terminal) rich draws no bar until the end, so plain lines stand in for it."""
+    run_dir = trainer.train(tiny_config(tmp_path, steps=20, checkpoint_every=0, progress=True, eval_every_steps=10))
+    err = capsys.readouterr().err.splitlines()
+    progress = [int(m.group(1)) for line in err if (m := re.match(r"step +(\d+)/20  loss \d\.\d{4}  PSNR ", line))]
+    assert progress == list(range(1, 20))  # every 1/20 of the run; the bar itself shows the last step
+    evals = [line for line in err if re.match(r"step \d+ eval \(2 views\): PSNR ", line)]
+    assert [line.split()[1] for line in evals] == ["10", "20"]
+    final = json.loads((run_dir / "summary.json").read_text())["eval"]["eval"]
+    assert evals[-1] == trainer.eval_line(20, "eval", final)
+    assert f"PSNR {final['psnr']:.2f} dB, SSIM {final['ssim']:.3f}" in evals[-1]
+
+
+def test_progress_and_eval_lines_read_plainly():
+    assert trainer.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
+        "step    500/2000  loss 0.0512  PSNR 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
+    assert trainer.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
+    assert trainer.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
+    metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
+    assert trainer.eval_line(2000, "eval", metrics) == (
+        "step 2000 eval (33 views): PSNR 22.92 dB, observed pixels 26.46 dB, SSIM 0.792")
+    del metrics["psnr_observed"]
+    assert trainer.eval_line(7, "interp", metrics) == "step 7 interp (33 views): PSNR 22.92 dB, SSIM 0.792"
