@@ -108,17 +108,16 @@ def print_report(report: dict[str, Any], metric: A.Metric) -> None:
                "AUROC unobserved")
     table = Table(title=f"AUSE-{metric.upper()} of {report['method']} ({report['caption']})")
     table.add_column("image", overflow="fold")
-    for header in headers:  # at least a score wide: a narrow terminal cuts headers, not scores
-        table.add_column(header, justify="right", min_width=len(_fmt(0.0)))
+    for header in headers:
+        table.add_column(header, justify="right")
     for name, scores in report["per_image"].items():
         table.add_row(name, *(_fmt(scores[c]) for c in columns))
     table.add_row("[bold]mean[/bold]", *(f"[bold]{_fmt(report['mean'][c])}[/bold]" for c in columns))
+    # As wide as the table needs: fitted to a log file's assumed 80 columns, or to a narrow terminal, rich would
+    # cut scores to "0.05…" or drop whole columns; a terminal wraps a long line instead, losing nothing.
     console = Console()
-    if not console.is_terminal:
-        # A log file or pipe has no width; rich would assume 80 columns and cut the scores to "0.05…".
-        needed = console.measure(table, options=console.options.update_width(1 << 12)).maximum
-        console = Console(width=max(console.width, needed))
-    console.print(table)
+    needed = console.measure(table, options=console.options.update_width(1 << 12)).maximum
+    Console(width=max(console.width, needed)).print(table)
 
 
 LOAD_ONLY_OPTIONS = ("data", "method", "head", "density_aware", "fisher_probes", "seed")

@@ -84,7 +84,7 @@ class TrainConfig:
     max_nonfinite_steps: int = 5
     """Stop when this many steps in a row have a non-finite loss or gradient (each one is skipped)."""
     progress: bool = True
-    """Show a live progress bar (step, loss, PSNR, #Gaussians, it/s, ETA)."""
+    """Show progress: a live bar (step, loss, PSNR, #Gaussians, it/s, ETA) on a terminal, plain lines off one."""
     compile_kernels: bool = False
     """Run the rasterizer's kernels through torch.compile (the presets turn it on: ~2.4x faster training;
     the first render pays the compile). SPLATU_COMPILE=1 also turns it on."""

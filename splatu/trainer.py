@@ -396,7 +396,8 @@ def sigterm_as_ctrl_c() -> Iterator[None]:
 
 
 PLAIN_PROGRESS_LINES = 20
-"""Off a terminal, a plain progress line every 1/20 of the run."""
+"""Off a terminal a live bar draws nothing useful until the run ends (or writes cursor codes into the log, when
+FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the run and at the last step."""
 
 
 def _progress(enabled: bool) -> Progress:
@@ -424,8 +425,9 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     log.drop_after(state.step)
     smoothed_psnr = float("nan")
     session_start, session_steps = time.perf_counter(), 0
-    plain_every = max(1, config.steps // PLAIN_PROGRESS_LINES) if config.progress and not console.is_terminal else 0
-    with _progress(config.progress) as progress, deferred_interrupt() as interrupt:
+    on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
+    plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
+    with _progress(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
         in_step = False
@@ -448,7 +450,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 rate = session_steps / max(time.perf_counter() - session_start, 1e-9)
                 progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
                                 gaussians=len(state.model), rate=rate)
-                if plain_every and state.step % plain_every == 0 and state.step < config.steps:
+                if plain_every and (state.step % plain_every == 0 or state.step == config.steps):
                     console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
                                                 len(state.model), rate), highlight=False, soft_wrap=True)
                 if (config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps

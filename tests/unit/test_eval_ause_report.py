@@ -10,8 +10,10 @@ COLUMNS = ("ause_mae", "random_ause_mae", "ause_mae_start_norm", "random_ause_ma
            "random_ausc_mae", "oracle_ausc_mae", "auroc_unobserved")
 
 
-def test_a_piped_table_keeps_every_name_and_score_whole(capsys):
+def test_a_piped_table_keeps_every_name_and_score_whole(capsys, monkeypatch):
     """rich assumes 80 columns off a terminal, which cut the scores to "0.05…" and folded the image names."""
+    for variable in ("FORCE_COLOR", "TTY_COMPATIBLE", "COLUMNS"):
+        monkeypatch.delenv(variable, raising=False)
     names = [f"images_frame_{i:05d}" for i in range(100, 133)]
     per_image = {name: {c: 0.1 + 0.001 * i + 0.0001 * j for j, c in enumerate(COLUMNS)} for i, name in enumerate(names)}
     per_image[names[0]]["auroc_unobserved"] = None

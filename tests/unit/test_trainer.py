@@ -556,17 +556,34 @@ def test_evaluation_composites_rgba_targets_on_the_render_background():
     assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)
 
 
-def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluation(tmp_path, scene, capsys):
-    """In a log file or CI (no terminal) rich draws no bar until the end, so plain lines stand in for it."""
-    run_dir = trainer.train(tiny_config(tmp_path, steps=20, checkpoint_every=0, progress=True, eval_every_steps=10))
+PROGRESS_LINE = re.compile(r"step +(\d+)/(\d+)  loss \d\.\d{4}  PSNR ")
+
+
+@pytest.mark.parametrize("force_color", [None, "1"])
+def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluation(
+        tmp_path, scene, capsys, monkeypatch, force_color):
+    """In a log file or CI (no terminal) rich draws no bar until the end, so plain lines stand in for it, also
+    when FORCE_COLOR (set by some CI systems) makes rich believe it writes to a terminal."""
+    monkeypatch.delenv("TTY_COMPATIBLE", raising=False)
+    if force_color is None:
+        monkeypatch.delenv("FORCE_COLOR", raising=False)
+    else:
+        monkeypatch.setenv("FORCE_COLOR", force_color)
+    run_dir = trainer.train(tiny_config(tmp_path, steps=30, checkpoint_every=0, progress=True, eval_every_steps=10))
     err = capsys.readouterr().err.splitlines()
-    progress = [int(m.group(1)) for line in err if (m := re.match(r"step +(\d+)/20  loss \d\.\d{4}  PSNR ", line))]
-    assert progress == list(range(1, 20))  # every 1/20 of the run; the bar itself shows the last step
+    progress = [int(m.group(1)) for line in err if (m := PROGRESS_LINE.match(line))]
+    assert progress == list(range(2, 31, 2))  # every ceil(30 / 20) steps, and no live bar
+    assert not [line for line in err if "━" in line or "\x1b" in line]
     evals = [line for line in err if re.match(r"step \d+ eval \(2 views\): PSNR ", line)]
-    assert [line.split()[1] for line in evals] == ["10", "20"]
+    assert [line.split()[1] for line in evals] == ["10", "20", "30"]
     final = json.loads((run_dir / "summary.json").read_text())["eval"]["eval"]
-    assert evals[-1] == trainer.eval_line(20, "eval", final)
+    assert evals[-1] == trainer.eval_line(30, "eval", final)
     assert f"PSNR {final['psnr']:.2f} dB, SSIM {final['ssim']:.3f}" in evals[-1]
+
+
+def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
+    trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=False))
+    assert not [line for line in capsys.readouterr().err.splitlines() if PROGRESS_LINE.match(line)]
 
 
 def test_progress_and_eval_lines_read_plainly():
