@@ -94,7 +94,7 @@ def mean_residuals(record: ViewResiduals) -> Tensor:
 
 DIRECTION_KAPPA = 20.0
 """κ of the direction kernel: a training view's weight halves at about 15° (cos θ = 1 − ln 2 / κ) and is
-e^-40 from the opposite side. Chosen on the eval views it is scored on (README, "The view-dependent
+e^-40 from the opposite side. Chosen on the eval views it is scored on (docs/results.md, "The view-dependent
 residual"): 2, 5, 10 and 20 on fox seed 1, and 10, 20, 50 and 100 on fox seeds 0 and 2 and on poster. Every
 value beat κ = 0, and 10-100 read within 0.01 of each other as fractions of random's AUSE-MAE."""
 
