@@ -23,10 +23,6 @@ class Camera:
     far: float = 1e10
     name: str = ""
 
-    @property
-    def camera_to_world(self) -> Tensor:
-        return torch.linalg.inv(self.world_to_camera)
-
     def center(self) -> Tensor:
         """Camera centre in world coordinates, (3,)."""
         R = self.world_to_camera[:3, :3]

@@ -10,7 +10,6 @@ Adam moments is tens of MB.
 from __future__ import annotations
 
 import dataclasses
-import os
 import pickle
 import random
 import zipfile
@@ -20,6 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel
@@ -41,37 +41,18 @@ def checkpoint_path(run_dir: Path, step: int) -> Path:
     return run_dir / CHECKPOINT_DIR / f"step-{step:07d}.pt"
 
 
-def atomic_torch_save(obj: Any, path: Path) -> None:
-    """torch.save to a temporary sibling, fsync, then rename over `path` in one step."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a small text file (run records) via a temporary sibling and a rename: never half a file."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def save_checkpoint(run_dir: Path, step: int, state: dict[str, Any]) -> Path:
     """Write the checkpoint for `step` (completed steps) atomically; prune older ones."""
     path = checkpoint_path(run_dir, step)
-    atomic_torch_save({"format": FORMAT, "step": step, **state}, path)
+    atomic_write(path, lambda f: torch.save({"format": FORMAT, "step": step, **state}, f))
     for old in list_checkpoints(run_dir)[:-KEEP_CHECKPOINTS]:
         old.unlink(missing_ok=True)
     return path
+
+
+def checkpoint_step(path: Path) -> int:
+    """The step a checkpoint file was written at, from its name (step-0001000.pt → 1000)."""
+    return int(path.stem.removeprefix("step-"))
 
 
 def list_checkpoints(run_dir: Path) -> list[Path]:

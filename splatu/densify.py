@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from splatu.errors import SplatuError
+from splatu.errors import require_at_least
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.rasterizer import RasterOutput
@@ -65,6 +65,11 @@ class DensifyConfig:
     """Steps without densification after each opacity reset, for opacities to recover (splatfacto uses the
     number of training images)."""
 
+    def validate(self) -> None:
+        """Raise a one-line SplatuError for a schedule or budget below 1."""
+        for name in ("refine_every", "reset_alpha_every", "n_split_samples", "max_gaussians"):
+            require_at_least(getattr(self, name), 1, f"--densify.{name.replace('_', '-')}")
+
 
 class DensityController:
     """Accumulates per-Gaussian screen-space statistics and refines the model on schedule."""
@@ -73,11 +78,7 @@ class DensityController:
         """`generator` draws the split children's positions (the global RNG when None)."""
         if not (math.isfinite(scene_extent) and scene_extent > 0):
             raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
-        for name in ("refine_every", "reset_alpha_every", "n_split_samples", "max_gaussians"):
-            if getattr(cfg, name) < 1:
-                flag = f"--densify.{name.replace('_', '-')}"
-                raise SplatuError(f"{flag} must be at least 1 (got {getattr(cfg, name)})", "in the training options",
-                                  f"pass a positive {flag}")
+        cfg.validate()
         self.cfg = cfg
         self.scene_extent = scene_extent
         self.generator = generator

@@ -27,6 +27,13 @@ def require_file(path: Path, what: str, fix: str) -> Path:
     return path
 
 
+def require_at_least(value: float, minimum: float, flag: str) -> None:
+    """Raise a one-line SplatuError unless option `flag` (a count, rate or size) is finite and at least `minimum`."""
+    if not (value == value and abs(value) != float("inf") and value >= minimum):
+        raise SplatuError(f"{flag} must be at least {minimum:g} (got {value})", "in the options",
+                          f"pass {flag} of at least {minimum:g}")
+
+
 def writable_dir(path: Path, option: str) -> Path:
     """Create `path` if needed and prove it writable now, so a bad output folder fails before any work is done."""
     try:

@@ -17,8 +17,9 @@ from rich.console import Console
 from rich.table import Table
 
 from splatu import ause as A
+from splatu.atomic import atomic_write_text
 from splatu.baselines import UncertaintyMethod
-from splatu.errors import SplatuError, writable_dir
+from splatu.errors import SplatuError, require_at_least, writable_dir
 from splatu.figures import plot_sparsification
 from splatu.maps import MapEntry, entry_names, read_entry
 
@@ -52,6 +53,9 @@ class EvalAuseConfig:
     output: Path | None = None
     """Where to write the JSON (default: ause_<method>.json in the run, or ause.json in the maps dir)."""
 
+    def __post_init__(self) -> None:
+        require_at_least(self.fisher_probes, 1, "--fisher-probes")
+
 
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
     """Per-image scores and the mean over images, plus the mean curves for the plot."""
@@ -80,7 +84,7 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     report, curves = score_entries(entries, metric)
     report["method"] = label
     output = checked_output(output or maps_dir / "ause.json")
-    output.write_text(json.dumps(report, indent=2))
+    atomic_write_text(output, json.dumps(report, indent=2))
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
     plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
     return report

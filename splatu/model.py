@@ -1,7 +1,8 @@
 """The Gaussian model: 3DGS parameters plus `u_sh`, the view-dependent uncertainty SH.
 
 Every per-Gaussian quantity is a row of one of the `PARAM_NAMES` parameters, so density
-control and checkpoints only ever edit rows of these seven tensors (see `splatu.optim`).
+control edits rows of these seven tensors (see `splatu.optim`), and choosing the SH degrees
+mid-run (`splatu.degree_choice`) cuts their SH columns and uncertainty heads.
 Uncertainty seen along unit direction d is u(d) = sigmoid(Σ_k u_sh[k]·Y_k(d)) (REFERENCE §1). `u_sh` has one
 channel per uncertainty head (see `losses.uncertainty_heads`); channel 0 is the run's own, the one rendered.
 """

@@ -1,7 +1,8 @@
-"""Adam per parameter group, and the one place that edits parameter rows and Adam state together.
+"""Adam per parameter group, and the one place that edits parameters and Adam state together.
 
 Density control adds and removes Gaussians; if a parameter row and its Adam moments ever went out
-of step, a Gaussian would be updated with another one's momentum. `replace_rows` keeps them aligned.
+of step, a Gaussian would be updated with another one's momentum. `replace_rows` keeps them aligned,
+and `edit_parameter` does the same for the column cuts of choosing the SH degrees mid-run.
 """
 
 from __future__ import annotations
@@ -41,6 +42,15 @@ class OptimConfig:
     """Learning rate of the uncertainty SH (ours): 4× the colour DC rate, because each Gaussian is supervised
     only in the views that see it and short CPU schedules must still move u from its initial 0.88."""
 
+    def validate(self) -> None:
+        """Raise a one-line SplatuError for a rate that is not positive and finite (the means decay takes
+        log(lr_final / lr))."""
+        for name, value in vars(self).items():
+            if not (math.isfinite(value) and value > 0):
+                flag = f"--optim.{name.replace('_', '-')}"
+                raise SplatuError(f"{flag} must be a positive learning rate (got {value})", "in the training options",
+                                  f"pass a positive {flag}")
+
 
 def _learning_rates(cfg: OptimConfig, scene_extent: float) -> dict[str, float]:
     return {
@@ -59,11 +69,7 @@ class Optimizers:
     def __init__(self, model: GaussianModel, cfg: OptimConfig, scene_extent: float, max_steps: int) -> None:
         if not (math.isfinite(scene_extent) and scene_extent > 0):
             raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
-        for name, value in vars(cfg).items():
-            if not (math.isfinite(value) and value > 0):  # the means decay takes log(lr_final / lr)
-                flag = f"--optim.{name.replace('_', '-')}"
-                raise SplatuError(f"{flag} must be a positive learning rate (got {value})", "in the training options",
-                                  f"pass a positive {flag}")
+        cfg.validate()
         self.cfg = cfg
         self.scene_extent = scene_extent
         self.max_steps = max(1, max_steps)

@@ -10,16 +10,16 @@ cameras and points; `load_ply` reads a file back as it is stored, in that frame.
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel, ModelConfig, initial_u_sh
-from splatu.sh import MAX_SH_DEGREE
+from splatu.sh import MAX_SH_DEGREE, sh_degree_of
 from splatu.world_frame import WorldTransform, model_to_world
 
 FORMAT_LINE = "format binary_little_endian 1.0"
@@ -59,12 +59,8 @@ def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None
                           "export from an earlier, finite checkpoint")
     names = property_names(rest.shape[1], model.u_sh.shape[1])
     header = ["ply", FORMAT_LINE, f"element vertex {n}", *(f"property float {name}" for name in names), "end_header"]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        f.write(np.ascontiguousarray(data).tobytes())
-    os.replace(tmp, path)
+    head = ("\n".join(header) + "\n").encode("ascii")
+    atomic_write(path, lambda f: f.write(head + np.ascontiguousarray(data).tobytes()))
 
 
 def _read_header(f, path: Path) -> tuple[int, list[tuple[str, str]]]:
@@ -158,9 +154,12 @@ def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
 
 
 def _degree_for(coefficients: int, what: str, path: Path) -> int:
-    """SH degree whose basis has exactly `coefficients` terms."""
-    for degree in range(MAX_SH_DEGREE + 1):
-        if (degree + 1) ** 2 == coefficients:
-            return degree
+    """SH degree whose basis has exactly `coefficients` terms, or a one-line error naming the file."""
+    try:
+        degree = sh_degree_of(coefficients)
+    except ValueError:
+        degree = -1
+    if 0 <= degree <= MAX_SH_DEGREE:
+        return degree
     raise SplatuError(f"PLY {what} properties give {coefficients} SH coefficients, not (d+1)² for d ≤ 3",
                       f"in {path}", "export a 3DGS PLY with SH degree 0-3")

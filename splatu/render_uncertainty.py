@@ -27,10 +27,11 @@ import numpy as np
 import torch
 from rich.console import Console
 
+from splatu.atomic import atomic_write_text
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRender, UncertaintySource, method_list
 from splatu.camera import Camera
 from splatu.data.scene import Views, on_background
-from splatu.errors import SplatuError, writable_dir
+from splatu.errors import SplatuError, require_at_least, writable_dir
 from splatu.figures import (
     DEPTH_CMAP,
     ERROR_CMAP,
@@ -83,6 +84,12 @@ class RenderUncertaintyConfig:
     """Seed of the random method and of the Fisher probes."""
     gif_fps: int = 6
     """Frames per second of the orbit GIF."""
+
+    def __post_init__(self) -> None:
+        for flag, value, minimum in (("--max-views", self.max_views, 0), ("--orbit-frames", self.orbit_frames, 1),
+                                     ("--fisher-probes", self.fisher_probes, 1), ("--gif-fps", self.gif_fps, 1),
+                                     ("--orbit-radius-scale", self.orbit_radius_scale, 1e-3)):
+            require_at_least(value, minimum, flag)
 
 
 @dataclass
@@ -280,9 +287,9 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     views, seconds = render_views(built.source, spec)
     shutil.rmtree(root, ignore_errors=True)  # our own folder: stale views of an earlier render must not be scored
     write_maps_layout(root, views)
-    (root / "timing.json").write_text(json.dumps({"train_seconds": run.train_seconds,
-                                                  "setup_seconds": built.setup_seconds,
-                                                  "render_seconds_per_view": float(np.median(seconds))}))
+    atomic_write_text(root / "timing.json", json.dumps({"train_seconds": run.train_seconds,
+                                                        "setup_seconds": built.setup_seconds,
+                                                        "render_seconds_per_view": float(np.median(seconds))}))
     return root
 
 
@@ -306,6 +313,6 @@ def run(config: RenderUncertaintyConfig) -> None:
         "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
                       "elevation_degrees": v.elevation_degrees} for v in views],
     }
-    (out / "render.json").write_text(json.dumps(record, indent=2))
+    atomic_write_text(out / "render.json", json.dumps(record, indent=2))
     Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)

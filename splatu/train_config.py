@@ -23,16 +23,19 @@ import torch
 import tyro
 import yaml
 
+from splatu.atomic import atomic_write_text
 from splatu.data.config import DataConfig
 from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, require_at_least
 from splatu.losses import UncertaintyLossConfig
 from splatu.model import ModelConfig
 from splatu.optim import OptimConfig
 
 CONFIGS_DIR = Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_PRESET = "fast"
+MAX_SEED = 2**32
+"""Seeds are below this, so every seed derived from one (per epoch, per member, per head) fits 64 bits."""
 SPLATFACTO_STEPS = 30000
 
 
@@ -95,13 +98,12 @@ class TrainConfig:
                     "log_every": self.log_every, "ensemble": self.ensemble,
                     "max_nonfinite_steps": self.max_nonfinite_steps}
         for name, value in positive.items():
-            if value < 1:
-                raise SplatuError(f"--{name.replace('_', '-')} must be at least 1 (got {value})",
-                                  "in the training options", f"pass a positive --{name.replace('_', '-')}")
-        for name in ("resolution_levels", "eval_every_steps", "checkpoint_every"):
-            if getattr(self, name) < 0:
-                raise SplatuError(f"--{name.replace('_', '-')} must not be negative", "in the training options",
-                                  "pass 0 or a positive number")
+            require_at_least(value, 1, f"--{name.replace('_', '-')}")
+        for name in ("resolution_levels", "eval_every_steps", "checkpoint_every", "seed"):
+            require_at_least(getattr(self, name), 0, f"--{name.replace('_', '-')}")
+        if self.seed >= MAX_SEED:  # camera_index seeds torch with seed · 1,000,003 + epoch, which must fit 64 bits
+            raise SplatuError(f"--seed {self.seed} is too large", "in the training options",
+                              f"pass a seed below {MAX_SEED:,}")
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:
@@ -298,7 +300,7 @@ def from_dict(values: Mapping[str, Any], source: str = "a saved config") -> Trai
 
 
 def save_config(config: TrainConfig, path: Path) -> None:
-    path.write_text(yaml.safe_dump(to_dict(config), sort_keys=False))
+    atomic_write_text(path, yaml.safe_dump(to_dict(config), sort_keys=False))
 
 
 def load_config(path: Path) -> TrainConfig:

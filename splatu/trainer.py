@@ -34,11 +34,12 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from splatu.allocator import keep_freed_memory
+from splatu.atomic import atomic_write_text
 from splatu.camera import Camera
 from splatu.checkpoint import (
     RESUME_KEYS,
-    atomic_write_text,
     capture_rng,
+    checkpoint_step,
     list_checkpoints,
     model_from_state,
     read_checkpoint,
@@ -53,6 +54,7 @@ from splatu.data.scene import Scene, Views, on_background
 from splatu.degree_choice import (
     apply_choice,
     decision_step,
+    held_out_block,
     score_degrees,
     split_for_choice,
     training_views,
@@ -94,6 +96,8 @@ class TrainState:
     nonfinite_streak: int = 0
     train_seconds: float = 0.0
     """Time spent in steps, summed over sessions (resumes)."""
+    wall_start: float = dataclasses.field(default_factory=time.perf_counter)
+    """perf_counter origin of the run's wall time; on resume, moved back by the earlier sessions' wall time."""
 
 
 StepHook = Callable[[int, TrainState], None]
@@ -283,13 +287,42 @@ class MetricsLog:
         with self.path.open("a") as f:
             f.write(json.dumps(record) + "\n")
 
-    def drop_after(self, step: int) -> None:
-        """On resume: forget lines logged after the checkpoint, they are about to be redone."""
+    def drop_after(self, step: int) -> list[str]:
+        """On resume: forget the lines logged after the checkpoint (they are about to be redone) and a line
+        torn by a killed process; return the dropped whole lines. Rewritten atomically: a crash here keeps
+        the old log."""
         if not self.path.is_file():
-            return
-        lines = [ln for ln in self.path.read_text().splitlines() if ln.strip()]
-        kept = [ln for ln in lines if json.loads(ln).get("step", 0) <= step]
-        self.path.write_text("".join(ln + "\n" for ln in kept))
+            return []
+        kept, dropped = [], []
+        for line in self.path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # empty, or half a line: the process died while appending it
+            (kept if record.get("step", 0) <= step else dropped).append(line)
+        atomic_write_text(self.path, "".join(ln + "\n" for ln in kept))
+        return dropped
+
+
+ABANDONED_DIR = "abandoned"
+
+
+def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
+    """Resuming from a checkpoint older than the run's newest abandons what came after it. Move the later
+    checkpoints, their metrics lines, and a finished run's summary.json and splat.ply into
+    abandoned/<time>/: nothing trained is lost, and `--resume RUN`, `render-uncertainty` and `eval-ause`,
+    which take the newest checkpoint, never pick up the abandoned branch. Returns that folder, or None."""
+    later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
+    if not later:
+        return None
+    folder = run_dir / ABANDONED_DIR / time.strftime("%Y-%m-%d_%H%M%S")
+    folder.mkdir(parents=True, exist_ok=True)
+    dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
+    atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
+    for path in [*later, run_dir / "summary.json", run_dir / "splat.ply"]:
+        if path.is_file():
+            path.replace(folder / path.name)
+    return folder
 
 
 def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
@@ -305,6 +338,7 @@ def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
         "world_transform": state.to_world.state_dict(),
         "nonfinite_streak": state.nonfinite_streak,
         "train_seconds": state.train_seconds,
+        "wall_seconds": time.perf_counter() - state.wall_start,
     }
 
 
@@ -554,7 +588,7 @@ def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step
     return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step)
 
 
-def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float) -> dict:
+def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
     """Final checkpoint, evaluation, PLY export and summary.json."""
     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
     results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
@@ -562,10 +596,10 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
     summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
                "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
                "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
-               "wall_seconds": time.perf_counter() - wall_start, "eval": results}
+               "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():
         summary["degree_choice"] = json.loads((run_dir / DEGREE_CHOICE_FILE).read_text())
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
 
@@ -581,8 +615,10 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
+    # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
+    state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
     state, config = run_loop(state, config, scene, run_dir, hooks)
-    return finish_run(state, config, scene, run_dir, wall_start)
+    return finish_run(state, config, scene, run_dir)
 
 
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"
@@ -651,6 +687,14 @@ def ensemble_config(run_dir: Path) -> TrainConfig | None:
     return config if config.ensemble > 1 else None
 
 
+def check_options(config: TrainConfig) -> None:
+    """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
+    may build the stand-in) and before a run folder is made and `latest` pointed at it."""
+    for part in (config.model, config.optim, config.densify, config.degree_choice):
+        part.validate()
+    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+
+
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
     wall_start = time.perf_counter()
@@ -664,12 +708,23 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         checkpoint = read_checkpoint(path, RESUME_KEYS)
         saved = from_dict(checkpoint["config"], str(path))
         run_dir = run_dir_of(path)
+        step = int(checkpoint["step"])
+        if step >= saved.steps and (run_dir / "summary.json").is_file():
+            console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
+                          soft_wrap=True)
+            return run_dir
+        abandoned = set_aside_later_work(run_dir, step)
+        if abandoned is not None:
+            console.print(f"resuming from step {step}: the run's later checkpoints and results moved to {abandoned}",
+                          soft_wrap=True)
         train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)
         return run_dir
     if config.degree_choice.on:
         config = with_choice_heads(config)
-    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)  # a bad head fails before the scene loads
+    check_options(config)
     scene = load_scene(config.data)
+    if config.degree_choice.on:
+        held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)
     point_latest(run_dir)
     if config.ensemble > 1:

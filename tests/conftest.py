@@ -29,7 +29,7 @@ def fast():
 
 
 @pytest.fixture(autouse=True)
-def _deterministic_threads():
-    """Keep tests reproducible and fair on the 2-core machines."""
+def _seeded_torch():
+    """Every test starts from the same global torch RNG state, whatever ran before it."""
     torch.manual_seed(0)
     yield

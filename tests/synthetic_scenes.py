@@ -6,15 +6,18 @@ is known and any mix-up of frames or channels shows.
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.nerfstudio import write_transforms
+from splatu.data.frames import opengl_camera_to_world
 
 
 def look_at_camera(center: np.ndarray, target: np.ndarray, K: np.ndarray, width: int, height: int,
@@ -64,3 +67,35 @@ def write_nerfstudio_scene(root: Path, n: int = 8, width: int = 40, height: int 
         write_rgb(root / camera.name, noise_image(i, width, height))
     write_transforms(root / "transforms.json", cameras, [c.name for c in cameras], top_extras=top_extras)
     return cameras
+
+
+def write_transforms(
+    path: Path,
+    cameras: Sequence[Camera],
+    file_paths: Sequence[str],
+    *,
+    frame_extras: Sequence[Mapping[str, Any]] | None = None,
+    top_extras: Mapping[str, Any] | None = None,
+) -> None:
+    """Write pinhole cameras as a nerfstudio transforms.json with per-frame intrinsics.
+
+    `file_paths` are relative to the json's folder. `frame_extras` adds keys per frame
+    (mask_path, depth_file_path, observed_mask_path, ...); `top_extras` adds top-level keys
+    (ply_file_path, train_filenames, val_filenames, test_filenames, camera_model, k1, ...).
+    """
+    if len(cameras) != len(file_paths) or (frame_extras is not None and len(frame_extras) != len(cameras)):
+        raise ValueError("cameras, file_paths and frame_extras must have the same length")
+    frames = []
+    for i, (camera, file_path) in enumerate(zip(cameras, file_paths, strict=True)):
+        K = camera.K.detach().to(torch.float64).cpu().numpy()
+        frame: dict[str, Any] = {
+            "file_path": file_path,
+            "transform_matrix": opengl_camera_to_world(camera),
+            "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+            "w": camera.width, "h": camera.height,
+        }
+        if frame_extras is not None:
+            frame.update(frame_extras[i])
+        frames.append(frame)
+    content: dict[str, Any] = {"camera_model": "OPENCV", **(top_extras or {}), "frames": frames}
+    path.write_text(json.dumps(content, indent=2))

@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from splatu.camera import Camera
+from splatu.errors import require_at_least
 from splatu.model import GaussianModel
 
 FISHER_PARAMS = ("means", "sh_dc", "opacity_logits")
@@ -29,6 +30,7 @@ EPSILON = 1e-6
 def fisher_diagonal(model: GaussianModel, cameras: list[Camera], sh_degree: int, probes: int,
                     generator: torch.Generator) -> Tensor:
     """(N,) Σ over `cameras` and FISHER_PARAMS of the Rademacher estimate of diag(JᵀJ)."""
+    require_at_least(probes, 1, "--fisher-probes")  # the estimate divides by it
     params = [getattr(model, name) for name in FISHER_PARAMS]
     information = torch.zeros(len(model))
     background = torch.zeros(3)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from splatu.camera import Camera
 from splatu.data.images import PixelRecipe
@@ -69,3 +70,14 @@ def world_to_camera_from_opengl(camera_to_world_gl: np.ndarray) -> np.ndarray:
     world_to_camera[:3, :3] = rotation.T
     world_to_camera[:3, 3] = -rotation.T @ camera_to_world_cv[:3, 3]
     return world_to_camera
+
+
+def opengl_camera_to_world(camera: Camera) -> list[list[float]]:
+    """nerfstudio's transform_matrix for `camera`, the inverse of world_to_camera_from_opengl: camera-to-world
+    with the y and z axes flipped to OpenGL's, exact in float64 since a rotation's inverse is its transpose."""
+    rotation = camera.world_to_camera[:3, :3].double()
+    camera_to_world = torch.eye(4, dtype=torch.float64)
+    camera_to_world[:3, :3] = rotation.T
+    camera_to_world[:3, 3] = camera.center().double()
+    camera_to_world[:3, 1:3] *= -1
+    return camera_to_world.tolist()

@@ -23,6 +23,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 
 PixelKind = Literal["color", "mask", "depth"]
@@ -262,14 +263,14 @@ class ImageCache:
         if entry.is_file():
             try:
                 return np.load(entry)
-            except (OSError, ValueError):
-                entry.unlink(missing_ok=True)  # a torn write from an interrupted run: recompute it
+            except (OSError, ValueError, EOFError):
+                entry.unlink(missing_ok=True)  # torn or emptied (a crash, a full disk): recompute it
         pixels = compute_pixels(recipe)
-        entry.parent.mkdir(parents=True, exist_ok=True)
-        partial = entry.with_suffix(f".{os.getpid()}.tmp")
-        with partial.open("wb") as handle:
-            np.save(handle, pixels)
-        partial.replace(entry)
+        try:
+            atomic_write(entry, lambda f: np.save(f, pixels))
+        except OSError as err:
+            raise SplatuError(f"cannot write the image cache ({err.strerror or type(err).__name__})",
+                              f"in {self.directory}", "set SPLATU_CACHE to a writable folder") from None
         return pixels
 
 

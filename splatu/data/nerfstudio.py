@@ -13,7 +13,7 @@ frame.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -22,7 +22,12 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import OPENGL_TO_OPENCV, Frame, RawScene, checked_matrix, world_to_camera_from_opengl
+from splatu.data.frames import (
+    Frame,
+    RawScene,
+    checked_matrix,
+    world_to_camera_from_opengl,
+)
 from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
 from splatu.data.ply import read_ply_points
 from splatu.errors import SplatuError
@@ -191,36 +196,3 @@ def _file_splits(top: Mapping[str, Any], names: list[str], json_path: Path) -> d
         if listed or split in ("train", "eval"):  # an empty train or eval list is an error later, not ignored
             splits[split] = [index[n] for n in listed]
     return splits
-
-
-def write_transforms(
-    path: Path,
-    cameras: Sequence[Camera],
-    file_paths: Sequence[str],
-    *,
-    frame_extras: Sequence[Mapping[str, Any]] | None = None,
-    top_extras: Mapping[str, Any] | None = None,
-) -> None:
-    """Write pinhole cameras as a nerfstudio transforms.json with per-frame intrinsics.
-
-    `file_paths` are relative to the json's folder. `frame_extras` adds keys per frame
-    (mask_path, depth_file_path, observed_mask_path, ...); `top_extras` adds top-level keys
-    (ply_file_path, train_filenames, val_filenames, test_filenames, camera_model, k1, ...).
-    """
-    if len(cameras) != len(file_paths) or (frame_extras is not None and len(frame_extras) != len(cameras)):
-        raise ValueError("cameras, file_paths and frame_extras must have the same length")
-    frames = []
-    for i, (camera, file_path) in enumerate(zip(cameras, file_paths, strict=True)):
-        K = camera.K.detach().to(torch.float64).cpu().numpy()
-        c2w_cv = np.linalg.inv(camera.world_to_camera.detach().to(torch.float64).cpu().numpy())
-        frame: dict[str, Any] = {
-            "file_path": file_path,
-            "transform_matrix": (c2w_cv @ OPENGL_TO_OPENCV).tolist(),  # the flip is its own inverse
-            "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-            "w": camera.width, "h": camera.height,
-        }
-        if frame_extras is not None:
-            frame.update(frame_extras[i])
-        frames.append(frame)
-    content: dict[str, Any] = {"camera_model": "OPENCV", **(top_extras or {}), "frames": frames}
-    path.write_text(json.dumps(content, indent=2))

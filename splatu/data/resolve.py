@@ -79,7 +79,6 @@ def load_scene(cfg: DataConfig) -> Scene:
     return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
 
 
-
 def standin_path(cfg: DataConfig) -> Path:
     """Build (first time) or reuse the cached poster stand-in, saying so in one line."""
     path = build_poster_standin(cfg.poster, cfg.cache_dir or default_cache_dir())

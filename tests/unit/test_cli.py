@@ -102,3 +102,19 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     out = killed(KILLED_AFTER_LOADING_COMMANDS)
     assert out.returncode == -signal.SIGTERM
     assert "SIGTERM" not in out.stderr and "Aborted" not in out.stderr
+
+
+@pytest.mark.parametrize("argv", [
+    ["render-uncertainty", "--gif-fps", "0"], ["render-uncertainty", "--fisher-probes", "0"],
+    ["render-uncertainty", "--max-views", "-1"], ["render-uncertainty", "--orbit-frames", "0"],
+    ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
+    ["train", "--seed", "-1"], ["train", "--seed", str(2**44)],
+])
+def test_an_option_out_of_range_is_one_line_before_any_work(capsys, tmp_path, argv):
+    """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a NaN blamed on
+    the model (--fisher-probes 0), an overflow in the camera shuffle (a huge seed)."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint([*argv, "--load" if argv[0] != "train" else "--data", str(tmp_path / "absent")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --") and err.count("\n") == 1, err

@@ -15,13 +15,12 @@ import torch
 
 from splatu.data.config import DataConfig
 from splatu.data.images import Distortion, ImageCache, PixelRecipe, load_pixels
-from splatu.data.nerfstudio import write_transforms
 from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
 from splatu.data.resolve import load_scene
-from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb
+from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
 
 
 def config(path: Path, tmp_path: Path, **overrides) -> DataConfig:
@@ -253,6 +252,21 @@ def test_image_cache_is_faster_the_second_time_and_follows_file_changes(tmp_path
     write_rgb(path, noise_image(1, 960, 720))
     os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 10**9))
     assert not np.array_equal(load_pixels(recipe, cache), cold)
+
+
+@pytest.mark.parametrize("damage", [b"", b"\x93NUMPY\x01\x00v\x00{'descr'"])
+def test_a_cache_entry_emptied_or_torn_is_recomputed(tmp_path, damage):
+    path = tmp_path / "photo.png"
+    write_rgb(path, noise_image(0, 32, 24))
+    K = (30.0, 0.0, 16.0, 0.0, 30.0, 12.0, 0.0, 0.0, 1.0)
+    recipe = PixelRecipe(path=path, kind="color", width=32, height=24, target_width=32, target_height=24, K=K,
+                         distortion=None, K_undistorted=K)
+    cache = ImageCache(tmp_path / "cache")
+    first = load_pixels(recipe, cache)
+    [entry] = (tmp_path / "cache").glob("pixels/*.npy")
+    entry.write_bytes(damage)  # a full disk or a crash left this behind
+    assert np.array_equal(load_pixels(recipe, cache), first)
+    assert np.array_equal(np.load(entry), cache.load(recipe))
 
 
 def test_ply_reader_ascii_and_binary(tmp_path):

@@ -498,6 +498,7 @@ def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation
     torch.testing.assert_close(exported.log_scales, model.log_scales + math.log(4.0))
 
     scene.center = torch.tensor([5.0, -1.0, 3.0])  # the data changed under the run
+    (run_dir / "summary.json").unlink()  # as if killed during its final evaluation: resume would finish it
     with pytest.raises(SplatuError, match="normalisation"):
         trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
 
@@ -596,3 +597,87 @@ def test_progress_and_eval_lines_read_plainly():
         "step 2000 eval (33 views): PSNR 22.92 dB, observed pixels 26.46 dB, SSIM 0.792")
     del metrics["psnr_observed"]
     assert trainer.eval_line(7, "interp", metrics) == "step 7 interp (33 views): PSNR 22.92 dB, SSIM 0.792"
+
+
+def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_from_it(tmp_path, scene):
+    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    run_dir = trainer.train(tiny_config(tmp_path / "b"))  # checkpoints at steps 6 and 12, summary, PLY
+    old, newest = list_checkpoints(run_dir)
+    abandoned_losses = losses_of(run_dir)
+
+    def ctrl_c_at_9(step, state):
+        if step == 9:
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 9"):
+        trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=old), hooks=[ctrl_c_at_9])
+    # the abandoned step-12 checkpoint must not be what resume, render or eval pick up
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000006.pt", "step-0000009.pt"]
+    assert not (run_dir / "summary.json").exists() and not (run_dir / "splat.ply").exists()
+    [aside] = (run_dir / trainer.ABANDONED_DIR).iterdir()
+    expected = ["metrics.jsonl", newest.name, "splat.ply", "summary.json"]
+    assert sorted(p.name for p in aside.iterdir()) == sorted(expected)
+    moved = [json.loads(line) for line in (aside / "metrics.jsonl").read_text().splitlines()]
+    assert {r["step"] for r in moved} == set(range(7, 13))
+    assert {r["step"]: r["loss"] for r in moved if r["event"] == "train"} == {
+        s: loss for s, loss in abandoned_losses.items() if s > 6}
+
+    trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir))
+    assert losses_of(run_dir) == losses_of(full_dir)  # the log reads as one run from step 1 to 12
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000009.pt", "step-0000012.pt"]
+    assert (run_dir / "summary.json").is_file()
+
+
+def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene):
+    def ctrl_c_at_7(step, state):
+        if step == 7:
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted):
+        trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    with (run_dir / "metrics.jsonl").open("a") as log:
+        log.write('{"event": "train", "step": 8, "lo')  # SIGKILL in the middle of an append
+    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert sorted(r["step"] for r in records if r["event"] == "train") == list(range(1, 13))
+
+
+def test_resuming_a_finished_run_changes_nothing(tmp_path, scene, capsys):
+    run_dir = trainer.train(tiny_config(tmp_path))
+    files = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
+    assert trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir)) == run_dir
+    assert "already finished" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == files
+
+
+def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
+    def ctrl_c_at_7(step, state):
+        if step == 7:
+            raise KeyboardInterrupt
+
+    with pytest.raises(trainer.TrainingInterrupted):
+        trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    first_session = read_checkpoint(list_checkpoints(run_dir)[-1])["wall_seconds"]
+    assert first_session > 0
+    started = trainer.time.perf_counter()
+    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    second_session = trainer.time.perf_counter() - started
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert first_session < summary["wall_seconds"] <= first_session + second_session
+
+
+@pytest.mark.parametrize("flag", [["--model.sh-degree", "5"], ["--optim.means-lr", "0"],
+                                  ["--densify.refine-every", "0"], ["--uncertainty.lam", "0.7"]])
+def test_a_bad_option_fails_before_the_scene_loads_and_makes_no_run_folder(tmp_path, monkeypatch, capsys, flag):
+    def no_scene(data_config):
+        raise AssertionError("the scene was loaded before the options were checked")
+
+    monkeypatch.setattr(trainer, "load_scene", no_scene)
+    output = tmp_path / "outputs"
+    with pytest.raises(SystemExit) as stop:
+        entrypoint(["train", "--data", "poster", "--output-dir", str(output), *flag])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.startswith("error: ")
+    assert not output.exists()

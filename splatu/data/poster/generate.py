@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 import torch
 
-from splatu.camera import Camera
+from splatu.data.frames import opengl_camera_to_world
+from splatu.data.ply import write_ply_points
 from splatu.data.poster.config import PosterConfig
 from splatu.data.poster.geometry import TARGET, build_scene
 from splatu.data.poster.path import camera_path
@@ -73,31 +74,6 @@ def cache_key(cfg: PosterConfig) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def opengl_camera_to_world(camera: Camera) -> list[list[float]]:
-    """nerfstudio's transform_matrix: camera-to-world with the y and z columns flipped (OpenGL axes)."""
-    R = camera.world_to_camera[:3, :3].double()
-    c2w = torch.eye(4, dtype=torch.float64)
-    c2w[:3, :3] = R.T
-    c2w[:3, 3] = camera.center().double()
-    c2w[:3, 1:3] *= -1
-    return c2w.tolist()
-
-
-def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
-    """Binary little-endian PLY with float x y z and uchar red green blue."""
-    vertex = np.empty(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                        ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    vertex["x"], vertex["y"], vertex["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    vertex["red"], vertex["green"], vertex["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {len(xyz)}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
-    path.write_bytes(header.encode("ascii") + vertex.tobytes())
-
-
 def _write_png(path: Path, image: np.ndarray) -> None:
     if not cv2.imwrite(str(path), image):
         raise SplatuError("could not write an image", f"in {path}", "check that the cache directory is writable")
@@ -138,7 +114,7 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
             "depth_file_path": f"depth/{camera.name}.npy",
             "observed_mask_path": f"observed/{camera.name}.png",
         })
-    write_ply(out / "points3D.ply", np.concatenate(point_xyz), np.concatenate(point_rgb))
+    write_ply_points(out / "points3D.ply", np.concatenate(point_xyz), np.concatenate(point_rgb) / 255.0)
     K = cameras[0].K
     transforms = {
         "camera_model": "PINHOLE",

@@ -1,0 +1,33 @@
+"""Whole-file writes that never leave half a file: a temporary sibling, fsync, then one rename.
+
+A crash mid-write (power loss, SIGKILL, a full disk) then leaves the previous file or none, never a
+torn one. That matters for anything read back as a record of the run: checkpoints, the config,
+`summary.json` (whose presence marks an ensemble member finished), the PLY and the reports.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import BinaryIO
+
+
+def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
+    """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write `text` (UTF-8) to `path` atomically."""
+    atomic_write(path, lambda f: f.write(text.encode("utf-8")))

@@ -1,0 +1,40 @@
+import pytest
+import torch
+
+from splatu.atomic import atomic_write, atomic_write_text
+from splatu.checkpoint import list_checkpoints, read_checkpoint, save_checkpoint
+
+
+def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / "summary.json"
+    atomic_write_text(path, "old")
+
+    def half_then_crash(f):
+        f.write(b"ne")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(path, half_then_crash)
+    assert path.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]
+
+
+def test_a_crash_before_the_rename_leaves_the_previous_checkpoint_readable(tmp_path, monkeypatch):
+    save_checkpoint(tmp_path, 1, {"weights": torch.ones(3)})
+
+    def killed(src, dst):
+        raise KeyboardInterrupt  # the process dies between writing the temporary and renaming it
+
+    monkeypatch.setattr("splatu.atomic.os.replace", killed)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint(tmp_path, 2, {"weights": torch.zeros(3)})
+    [only] = list_checkpoints(tmp_path)
+    assert torch.equal(read_checkpoint(only)["weights"], torch.ones(3))
+    assert [p.name for p in (tmp_path / "checkpoints").iterdir()] == [only.name]
+
+
+def test_it_creates_the_folder_and_replaces_whole_files(tmp_path):
+    path = tmp_path / "a" / "b.txt"
+    atomic_write_text(path, "first, longer")
+    atomic_write_text(path, "second")
+    assert path.read_text() == "second"
