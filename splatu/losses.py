@@ -39,13 +39,10 @@ def _check_pair(pred: Tensor, gt: Tensor) -> None:
         raise ValueError(f"prediction {tuple(pred.shape)} and target {tuple(gt.shape)} differ in shape")
 
 
-def l1(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
-    """Mean absolute error over all channels, or over the pixels where `mask` (H, W) is true."""
+def l1(pred: Tensor, gt: Tensor) -> Tensor:
+    """Mean absolute error over all pixels and channels."""
     _check_pair(pred, gt)
-    error = (pred - gt).abs()
-    if mask is None:
-        return error.mean()
-    return error[mask.bool()].mean()
+    return (pred - gt).abs().mean()
 
 
 def _gaussian_kernel(dtype: torch.dtype, device: torch.device) -> Tensor:

@@ -162,8 +162,8 @@ class TrainImages:
 
     Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
     so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
-    downsampled with the colour, which keeps that exact. `Views.masks` are not used (they mix
-    alpha and valid-pixel masks).
+    downsampled with the colour, which keeps that exact. The scene's mask files (`Views.valid`)
+    are downsampled alike and weight the loss (`weight`).
     """
 
     def __init__(self, views: Views) -> None:
@@ -174,15 +174,24 @@ class TrainImages:
         return len(self.views)
 
     def _level(self, level: int) -> torch.Tensor:
-        """(N, h, w, 3) images, or (N, h, w, 4) with alpha last."""
+        """(N, h, w, 3 + a + v): colour, then alpha when the views have one, then the valid-pixel mask.
+
+        Colour is averaged over valid pixels only (downsampled premultiplied by the mask, then divided by
+        the downsampled mask), so what a mask excludes never reaches the loss, at any level.
+        """
         if level not in self._levels:
-            images = self.views.images
-            if self.views.alphas is not None:
-                images = torch.cat([images, self.views.alphas.unsqueeze(-1)], dim=-1)
+            colour, valid = self.views.images, self.views.valid
+            if valid is not None:
+                colour = colour * valid.unsqueeze(-1)
+            extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
+            images = torch.cat([colour, *extras], dim=-1)
             if level > 0:
                 probe = self.views.cameras[0].scaled(0.5**level)
                 size = (probe.height, probe.width)
                 images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
+            if valid is not None:
+                coverage = images[..., -1:]
+                images[..., :3] = torch.where(coverage > 0, images[..., :3] / coverage.clamp_min(1e-12), 0.0)
             self._levels[level] = images.contiguous()
         return self._levels[level]
 
@@ -194,6 +203,10 @@ class TrainImages:
         if background is None or self.views.alphas is None:
             return camera, pixels[..., :3]
         return camera, on_background(pixels[..., :3], pixels[..., 3], self.views.alpha_background, background)
+
+    def weight(self, index: int, level: int) -> torch.Tensor | None:
+        """(h, w) weight in [0, 1] of each pixel in the loss, from the scene's mask files; None without them."""
+        return None if self.views.valid is None else self._level(level)[index, ..., -1]
 
 
 # --- one step --------------------------------------------------------------------------------
@@ -220,11 +233,16 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     step = state.step
     background = training_background(config.train_background, state.generator)
     level = resolution_level(step, config.resolution_levels, config.resolution_interval)
-    camera, target = images.get(camera_index(step, len(images), config.seed), level, background)
+    index = camera_index(step, len(images), config.seed)
+    camera, target = images.get(index, level, background)
+    weight = images.weight(index, level)
     degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
 
     render = state.model.render(camera, degree, background)
-    loss = photometric_loss(render.rgb, target, config.ssim_lambda)
+    rgb = render.rgb
+    if weight is not None:  # masked pixels: both images are 0 there, as nerfstudio's splatfacto does
+        rgb, target = rgb * weight[..., None], target * weight[..., None]
+    loss = photometric_loss(rgb, target, config.ssim_lambda)
     u_loss = torch.zeros(())
     if not config.uncertainty.off:
         u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
@@ -233,7 +251,7 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     loss.backward()
 
     bad = _nonfinite(loss.detach(), state.model, render.raster)
-    train_psnr = psnr(render.rgb.detach(), target) if bad is None else float("nan")
+    train_psnr = psnr(rgb.detach(), target) if bad is None else float("nan")
     refined: dict[str, int] = {}
     if bad is None:
         state.density.observe(render.raster, camera.width, camera.height)
@@ -250,7 +268,8 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
 def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor) -> dict[str, float]:
     """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels.
 
-    Images with alpha are scored on `background` too, so render and target share one background.
+    Images with alpha are scored on `background` too, so render and target share one background. Pixels
+    the scene's mask files exclude are left out of PSNR and are 0 in both images for SSIM, as in training.
     """
     psnrs, ssims, observed = [], [], []
     for i, camera in enumerate(views.cameras):
@@ -258,7 +277,11 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
         gt = views.images[i]
         if views.alphas is not None:
             gt = on_background(gt, views.alphas[i], views.alpha_background, background)
-        psnrs.append(psnr(rgb, gt))
+        if views.valid is not None:
+            if not bool((views.valid[i] > 0).any()):
+                continue  # a view its mask file excludes entirely has nothing to score
+            rgb, gt = rgb * views.valid[i][..., None], gt * views.valid[i][..., None]
+        psnrs.append(psnr(rgb, gt, mask=None if views.valid is None else views.valid[i] > 0))
         ssims.append(float(ssim(rgb, gt)))
         if views.observed is not None and bool(views.observed[i].any()):
             observed.append(psnr(rgb, gt, mask=views.observed[i]))

@@ -74,6 +74,7 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
 
     masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
     alphas: float32 (N, H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
+    valid: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one;
     depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
@@ -90,9 +91,8 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     file_masks = _stack([f.mask for f in frames], cache)
     size = images.shape[1:3]
     alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
-    masks = alpha  # shared, not copied, when there are no mask files
-    if any(m is not None for m in file_masks):
-        masks = torch.from_numpy(_filled(alphas, size) * _filled(file_masks, size))
+    valid = torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
+    masks = alpha if valid is None else valid if alpha is None else alpha * valid
     depths = _stack([f.depth for f in frames], cache)
     observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
     return Views(
@@ -104,6 +104,7 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
         observed=(torch.from_numpy(np.stack(observed) > 0.5) if all(o is not None for o in observed) else None),
         alphas=alpha,
         alpha_background=frames[0].image.background,
+        valid=valid,
     )
 
 

@@ -30,6 +30,9 @@ class Views:
     observed: Tensor | None = None
     alphas: Tensor | None = None
     alpha_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    valid: Tensor | None = None
+    """The scene's mask files alone (nerfstudio `mask_path`), (N, H, W) in [0, 1]: 0 marks a pixel that
+    training and scoring ignore. `masks` is this times the images' alpha."""
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -43,7 +46,7 @@ class Views:
 
         return Views([self.cameras[i] for i in indices], self.images[index], [self.names[i] for i in indices],
                      pick(self.masks), pick(self.depths), pick(self.observed), pick(self.alphas),
-                     self.alpha_background)
+                     self.alpha_background, pick(self.valid))
 
 
 def on_background(images: Tensor, alphas: Tensor, composited_on: tuple[float, float, float] | Tensor,

@@ -681,3 +681,43 @@ def test_a_bad_option_fails_before_the_scene_loads_and_makes_no_run_folder(tmp_p
     assert stop.value.code == 2
     assert capsys.readouterr().err.startswith("error: ")
     assert not output.exists()
+
+
+def _with_masked_right_side(scene: Scene, seed: int, masked: bool) -> Scene:
+    """The scene with its training images' right side (from column W/2 + 1, off the level-1 pixel grid)
+    replaced by seeded noise, and, when `masked`, a mask file excluding exactly that side."""
+    side = slice(W // 2 + 1, None)
+    images = scene.train.images.clone()
+    images[:, :, side] = torch.rand(images[:, :, side].shape, generator=torch.Generator().manual_seed(seed))
+    valid = None
+    if masked:
+        valid = torch.ones(images.shape[:3])
+        valid[:, :, side] = 0.0
+    return dataclasses.replace(scene, train=dataclasses.replace(scene.train, images=images, valid=valid))
+
+
+def test_pixels_a_mask_file_excludes_never_reach_the_loss(tmp_path, monkeypatch):
+    base = tiny_scene()
+    models = {}
+    for seed, masked in ((1, True), (2, True), (1, False), (2, False)):
+        scene = _with_masked_right_side(base, seed, masked)
+        monkeypatch.setattr(trainer, "load_scene", lambda data_config, scene=scene: scene)
+        config = tiny_config(tmp_path / f"{seed}-{masked}")  # half resolution until step 6, then full
+        models[seed, masked] = load_run(trainer.train(config)).model
+
+    def same(a, b) -> bool:
+        return len(a) == len(b) and all(torch.equal(getattr(a, n), getattr(b, n)) for n in GaussianModel.PARAM_NAMES)
+
+    assert same(models[1, True], models[2, True])  # what the mask hides made no difference at all
+    assert not same(models[1, False], models[2, False])  # and it would have, unmasked
+
+
+def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
+    scene = tiny_scene()
+    model = trainer.fresh_state(tiny_config(tmp_path), scene).model
+    background = torch.zeros(3)
+    masked = [_with_masked_right_side(scene, seed, masked=True).train for seed in (1, 2)]
+    first, second = (trainer.evaluate_views(model, views, 1, background) for views in masked)
+    assert first == second
+    unmasked = trainer.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
+    assert unmasked["psnr"] != first["psnr"]
