@@ -39,7 +39,7 @@ class Args:
 
 def worker(malloc: str, loss: str, steps: int, measured: int) -> dict:
     """Train in this process and measure the last `measured` steps."""
-    from splatu import trainer
+    from splatu import trainer, training_step
     from splatu.allocator import keep_freed_memory
     from splatu.data.config import DataConfig
     from splatu.data.resolve import load_scene
@@ -52,11 +52,11 @@ def worker(malloc: str, loss: str, steps: int, measured: int) -> dict:
     set_compile(config.compile_kernels)
     scene = load_scene(config.data)
     state = trainer.fresh_state(config, scene)
-    images = trainer.TrainImages(scene.train)
+    images = training_step.TrainImages(scene.train)
     seconds, faults, kernel = [], [], []
     for _ in range(steps):
         before, started = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        trainer.train_step(state, config, images)
+        training_step.train_step(state, config, images)
         state.step += 1
         after = resource.getrusage(resource.RUSAGE_SELF)
         seconds.append(time.perf_counter() - started)

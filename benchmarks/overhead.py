@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 import tyro
 
-from splatu import trainer
+from splatu import trainer, training_step
 from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.densify import DensityController
@@ -54,9 +54,9 @@ def measure(args: Args) -> dict:
     set_compile(config.compile_kernels and not args.eager)
     scene = load_scene(config.data)
     state = trainer.fresh_state(config, scene)
-    images = trainer.TrainImages(scene.train)
+    images = training_step.TrainImages(scene.train)
     for _ in range(args.warmup):
-        trainer.train_step(state, config, images)
+        training_step.train_step(state, config, images)
         state.step += 1
 
     frozen = dataclasses.replace(config.densify, warmup_length=10**9)  # no refinement while measuring
@@ -71,7 +71,7 @@ def measure(args: Args) -> dict:
         for name in order:
             state.step = step  # same camera, same schedule for both members of the pair
             started = time.perf_counter()
-            trainer.train_step(state, variants[name], images)
+            training_step.train_step(state, variants[name], images)
             times[name].append(time.perf_counter() - started)
         state.step = step + 1
     median = {name: statistics.median(values) for name, values in times.items()}
@@ -87,7 +87,7 @@ def measure(args: Args) -> dict:
     }
 
 
-def isolated_loss_seconds(state: trainer.TrainState, config: TrainConfig, images: trainer.TrainImages,
+def isolated_loss_seconds(state: training_step.TrainState, config: TrainConfig, images: training_step.TrainImages,
                           repeats: int) -> list[float]:
     """Forward + backward of the uncertainty loss alone on one render: the whole extra work of a step.
 

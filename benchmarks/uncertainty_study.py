@@ -47,6 +47,7 @@ from splatu import ause as A
 from splatu import trainer
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod
 from splatu.baselines.load import build_method, load_any_run
+from splatu.config_values import apply_values
 from splatu.data.config import DataConfig
 from splatu.data.poster import PosterConfig
 from splatu.data.resolve import load_scene
@@ -57,7 +58,7 @@ from splatu.figures import SpeedPoint, plot_sparsification, plot_speed_against_e
 from splatu.losses import psnr
 from splatu.provenance import measured_on
 from splatu.render_uncertainty import RenderUncertaintyConfig, map_entries, render_views, view_spec
-from splatu.train_config import TrainConfig, apply_values, preset_config
+from splatu.train_config import TrainConfig, preset_config
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("SPLATU_SHARED_DATA", REPO.parent / "shared" / "data"))

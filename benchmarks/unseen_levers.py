@@ -49,7 +49,7 @@ import tyro
 from torch import Tensor
 
 import splatu.model
-from splatu import trainer
+from splatu import trainer, training_step
 from splatu.camera import Camera
 from splatu.model import GaussianModel
 from splatu.provenance import measured_on
@@ -148,7 +148,8 @@ def applied(lever: Lever, weight: float, cameras: Sequence[Camera]) -> Iterator[
     if lever == "filter-3d":
         patch(splatu.model, "rasterize", _filtering_rasterize(splatu.model.rasterize, weight, cameras))
     elif lever != "none":
-        patch(trainer, "photometric_loss", _with_regulariser(trainer.photometric_loss, lever, weight, patch))
+        regularised = _with_regulariser(training_step.photometric_loss, lever, weight, patch)
+        patch(training_step, "photometric_loss", regularised)
     try:
         yield
     finally:
@@ -176,18 +177,18 @@ def _filtering_rasterize(rasterize: Callable, variance_px: float, cameras: Seque
 def _with_regulariser(photometric_loss: Callable, lever: Lever, weight: float, patch: Callable) -> Callable:
     """The trainer's photometric loss plus weight × the lever's term, read off the render being trained on."""
     seen: dict[str, Any] = {}
-    render, get = GaussianModel.render, trainer.TrainImages.get
+    render, get = GaussianModel.render, training_step.TrainImages.get
 
     def recording_render(model: GaussianModel, *args: Any, **kwargs: Any):
         seen["model"], seen["render"] = model, render(model, *args, **kwargs)
         return seen["render"]
 
-    def recording_get(images: trainer.TrainImages, index: int, level: int, *args: Any):
+    def recording_get(images: training_step.TrainImages, index: int, level: int, *args: Any):
         seen["views"], seen["index"], seen["level"] = images.views, index, level
         return get(images, index, level, *args)
 
     patch(GaussianModel, "render", recording_render)
-    patch(trainer.TrainImages, "get", recording_get)
+    patch(training_step.TrainImages, "get", recording_get)
 
     def loss(rgb: Tensor, target: Tensor, ssim_lambda: float) -> Tensor:
         base, out = photometric_loss(rgb, target, ssim_lambda), seen["render"]

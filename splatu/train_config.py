@@ -11,9 +11,6 @@ together instead of as scattered constants.
 from __future__ import annotations
 
 import dataclasses
-import math
-import types
-import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +21,7 @@ import tyro
 import yaml
 
 from splatu.atomic import atomic_write_text
+from splatu.config_values import apply_values, read_yaml, to_dict
 from splatu.data.config import DataConfig
 from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
@@ -158,141 +156,6 @@ def preset_path(preset: str) -> Path:
     known = sorted(p.stem for p in CONFIGS_DIR.glob("*.yaml"))
     raise SplatuError(f"unknown preset {preset!r}", f"in {CONFIGS_DIR}",
                       f"use one of {', '.join(known)} or a path to a YAML file")
-
-
-def read_yaml(path: Path) -> dict[str, Any]:
-    """A YAML mapping, or a one-line error naming the file."""
-    try:
-        values = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise SplatuError(f"cannot read YAML ({type(err).__name__})", f"in {path}",
-                          "check the file exists and is valid YAML") from None
-    if values is None:
-        return {}
-    if not isinstance(values, dict):
-        raise SplatuError("a config file must hold a mapping of option: value", f"in {path}",
-                          "write one `option: value` per line")
-    return values
-
-
-def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: str = "") -> Any:
-    """A copy of dataclass `config` with `values` (nested dicts for nested configs) applied.
-
-    `prefix` is the dotted path of `config` inside the root config, so errors name `densify.refine_every`.
-    """
-    hints = typing.get_type_hints(type(config))
-    changes: dict[str, Any] = {}
-    for key, value in values.items():
-        if key not in hints:
-            known = ", ".join(f.name for f in dataclasses.fields(config))
-            raise SplatuError(f"unknown option {prefix + key!r} for {type(config).__name__}", f"in {source}",
-                              f"use one of: {known}")
-        current = getattr(config, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, Mapping):
-            changes[key] = apply_values(current, value, source, f"{prefix}{key}.")
-        else:
-            changes[key] = _coerce_option(hints[key], value, prefix + key, source)
-    return dataclasses.replace(config, **changes)
-
-
-class _Mismatch(Exception):
-    """`value` does not fit the type being tried; caught by `_coerce_option` (or by a union trying its next arm)."""
-
-
-def _coerce_option(tp: Any, value: Any, key: str, source: str) -> Any:
-    """`_coerce`, or a one-line error naming the option, the file, the expected type and the value."""
-    try:
-        return _coerce(tp, value, key, source)
-    except _Mismatch:
-        raise SplatuError(f"option {key!r} expects {_type_name(tp)}, got {value!r}", f"in {source}",
-                          f"write {key} as {_type_name(tp)}") from None
-
-
-def _type_name(tp: Any) -> str:
-    """How an option's type reads in an error: `int`, `one of 'random', 'black'`, `a list of 3 float`."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join("null" if a is type(None) else _type_name(a) for a in args)
-    if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in args)
-    if origin is tuple:
-        if len(args) == 2 and args[1] is Ellipsis:
-            return f"a list of {_type_name(args[0])}"
-        return f"a list of {len(args)} {' / '.join(dict.fromkeys(_type_name(a) for a in args))}"
-    if dataclasses.is_dataclass(tp):
-        return f"a mapping of {tp.__name__} options"
-    return "a path" if tp is Path else tp.__name__
-
-
-def _float(value: Any) -> float:
-    """A YAML number as a float; also a numeric string, since YAML 1.1 reads `1e-3` (no dot) as a string."""
-    if isinstance(value, bool):
-        raise _Mismatch
-    if isinstance(value, int | float):
-        return float(value)
-    if isinstance(value, str):
-        try:
-            number = float(value)
-        except ValueError:
-            raise _Mismatch from None
-        if math.isfinite(number):
-            return number
-    raise _Mismatch
-
-
-def _coerce(tp: Any, value: Any, key: str, source: str) -> Any:
-    """Turn a YAML scalar/list into the field's type (paths, tuples, optional values); `_Mismatch` if it cannot."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        for arm in (a for a in args if a is not type(None)):
-            try:
-                return _coerce(arm, value, key, source)
-            except _Mismatch:
-                continue
-        raise _Mismatch
-    if origin is Literal:
-        # `type(...) is` too: YAML `true` must not pass as the choice 1
-        if any(value == a and type(value) is type(a) for a in args):
-            return value
-        raise _Mismatch
-    if origin is tuple:
-        if not isinstance(value, Sequence) or isinstance(value, str):
-            raise _Mismatch
-        arms = [args[0]] * len(value) if len(args) == 2 and args[1] is Ellipsis else list(args)
-        if len(arms) != len(value):
-            raise _Mismatch
-        return tuple(_coerce(a, v, key, source) for a, v in zip(arms, value, strict=True))
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, Mapping):
-            raise _Mismatch
-        return apply_values(tp(), value, source, f"{key}.")
-    if tp is Path:
-        if not isinstance(value, str | Path):
-            raise _Mismatch
-        return Path(value)
-    if tp is float:
-        return _float(value)
-    # bool is an int in Python, but `steps: true` is a mistake, not 1
-    if isinstance(value, tp) and not (isinstance(value, bool) and tp is not bool):
-        return value
-    raise _Mismatch
-
-
-def to_dict(config: Any) -> dict[str, Any]:
-    """A plain dict of YAML-safe values (paths as strings, tuples as lists)."""
-
-    def plain(value: Any) -> Any:
-        if dataclasses.is_dataclass(value):
-            return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-        if isinstance(value, Path):
-            return str(value)
-        if isinstance(value, tuple | list):
-            return [plain(v) for v in value]
-        return value
-
-    return plain(config)
 
 
 def from_dict(values: Mapping[str, Any], source: str = "a saved config") -> TrainConfig:

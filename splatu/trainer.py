@@ -1,14 +1,12 @@
 """The training loop: splatfacto-style 3DGS with the uncertainty SH learned in the same step.
 
-One step renders one training camera (shuffled order, resolution schedule, random background;
-images with alpha are composited on that same background), adds the photometric loss and the
-uncertainty loss computed from the *same* render's contributions, and does one backward. A step
-whose loss or gradients are non-finite is skipped (no optimizer step, no density statistics), so a
-bad value never reaches the model.
+It drives `train_step` (splatu.train_step) from a fresh or restored state to the last step, with periodic
+evaluation, checkpoints, the mid-run choice of SH degrees, and a clean stop on Ctrl-C or SIGTERM, then
+finishes the run (final checkpoint, evaluation, PLY, summary.json).
 
 Entry points: `train(config)` (the CLI and the Python API; handles --resume, of a single run or of a
-whole ensemble, and --ensemble) and
-`train_run(config, scene, run_dir)` for callers that already hold a scene.
+whole ensemble, and --ensemble) and `train_run(config, scene, run_dir)` for callers that already hold a
+scene.
 """
 
 from __future__ import annotations
@@ -17,29 +15,20 @@ import dataclasses
 import json
 import math
 import random
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from splatu.allocator import keep_freed_memory
 from splatu.atomic import atomic_write_text
-from splatu.camera import Camera
 from splatu.checkpoint import (
     RESUME_KEYS,
     capture_rng,
-    checkpoint_step,
     list_checkpoints,
     model_from_state,
     read_checkpoint,
@@ -49,8 +38,9 @@ from splatu.checkpoint import (
     save_checkpoint,
     saved_frame,
 )
+from splatu.config_values import to_dict
 from splatu.data.resolve import load_scene
-from splatu.data.scene import Scene, Views, on_background
+from splatu.data.scene import Scene
 from splatu.degree_choice import (
     apply_choice,
     decision_step,
@@ -62,290 +52,22 @@ from splatu.degree_choice import (
 )
 from splatu.densify import DensityController
 from splatu.errors import SplatuError
-from splatu.losses import photometric_loss, psnr, ssim, uncertainty_heads, uncertainty_loss
+from splatu.evaluation import evaluate_scene
+from splatu.interrupts import TrainingInterrupted, deferred_interrupt, sigterm_as_ctrl_c
+from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
-from splatu.train_config import TrainConfig, eval_background, from_dict, load_config, save_config, to_dict
-from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
+from splatu.run_records import MetricsLog, set_aside_later_work
+from splatu.train_config import TrainConfig, eval_background, from_dict, load_config, save_config
+from splatu.train_progress import PLAIN_PROGRESS_LINES, console, eval_line, progress_bar, progress_line
+from splatu.training_step import StepHook, StepOutcome, TrainImages, TrainState, scene_extent, train_step
+from splatu.world_frame import require_same_frame, scene_frame
 
-console = Console(stderr=True)
 UNCERTAINTY_SEED_OFFSET = 7_919
 """Offsets the uncertainty loss's seed from the geometry's, so the two streams differ."""
-
-
-@dataclass
-class TrainState:
-    """What changes during training; with the config, exactly what a checkpoint stores."""
-
-    model: GaussianModel
-    optimizers: Optimizers
-    density: DensityController
-    generator: torch.Generator
-    """Backgrounds, density control and init: everything that shapes the geometry."""
-    uncertainty_generators: list[torch.Generator]
-    """The uncertainty loss's own draws (`mean`'s directions), one stream per head, so that L_u never shifts the
-    geometry's stream and each head draws what it would draw in a run of its own."""
-    scene_extent: float
-    to_world: WorldTransform
-    """The scene's normalised → original frame; fixed, stored so exports land in the data's frame."""
-    step: int = 0
-    """Completed steps."""
-    nonfinite_streak: int = 0
-    train_seconds: float = 0.0
-    """Time spent in steps, summed over sessions (resumes)."""
-    wall_start: float = dataclasses.field(default_factory=time.perf_counter)
-    """perf_counter origin of the run's wall time; on resume, moved back by the earlier sessions' wall time."""
-
-
-StepHook = Callable[[int, TrainState], None]
-"""Called after every completed step with the number of completed steps (tests, callers)."""
-
-
-@dataclass
-class StepOutcome:
-    loss: float
-    uncertainty_loss: float
-    psnr: float
-    skipped: str | None
-    """Why the step was skipped (which value was non-finite), or None."""
-    refined: dict[str, int]
-
-
-class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
-
-    def __init__(self, what: str, run_dir: Path, step: int) -> None:
-        self.message = f"{what}; resume with `splatu train --resume {run_dir}`"
-        super().__init__(self.message)
-        self.what = what
-        self.run_dir = run_dir
-        self.step = step
-
-
-# --- pure schedule helpers -------------------------------------------------------------------
-
-def camera_index(step: int, num_cameras: int, seed: int) -> int:
-    """Shuffled order, a new permutation per epoch; a pure function of the step, so resume is exact."""
-    epoch, position = divmod(step, num_cameras)
-    order = torch.randperm(num_cameras, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch))
-    return int(order[position])
-
-
-def resolution_level(step: int, levels: int, interval: int) -> int:
-    """k in the 1/2^k resolution schedule: k = max(levels - step // interval, 0)."""
-    return max(levels - step // interval, 0)
-
-
-def active_sh_degree(step: int, max_degree: int, interval: int) -> int:
-    return min(step // interval, max_degree)
-
-
-def scene_extent(cameras: Sequence[Camera]) -> float:
-    """3DGS's scene radius: 1.1 × the largest camera distance from the mean camera centre."""
-    centers = torch.stack([c.center() for c in cameras])
-    radius = float((centers - centers.mean(0)).norm(dim=-1).max())
-    return 1.1 * radius if radius > 0 else 1.0
-
-
-def training_background(kind: str, generator: torch.Generator) -> torch.Tensor:
-    """Random backgrounds stop the model from painting the background colour into empty space."""
-    if kind == "random":
-        return torch.rand(3, generator=generator)
-    return torch.full((3,), 1.0 if kind == "white" else 0.0)
-
-
-class TrainImages:
-    """Training views at every resolution level, downsampled once (area averaging) and cached.
-
-    Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
-    so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
-    downsampled with the colour, which keeps that exact. The scene's mask files (`Views.valid`)
-    are downsampled alike and weight the loss (`weight`).
-    """
-
-    def __init__(self, views: Views) -> None:
-        self.views = views
-        self._levels: dict[int, torch.Tensor] = {}
-
-    def __len__(self) -> int:
-        return len(self.views)
-
-    def _level(self, level: int) -> torch.Tensor:
-        """(N, h, w, 3 + a + v): colour, then alpha when the views have one, then the valid-pixel mask.
-
-        Colour is averaged over valid pixels only (downsampled premultiplied by the mask, then divided by
-        the downsampled mask), so what a mask excludes never reaches the loss, at any level.
-        """
-        if level not in self._levels:
-            colour, valid = self.views.images, self.views.valid
-            if valid is not None:
-                colour = colour * valid.unsqueeze(-1)
-            extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
-            images = torch.cat([colour, *extras], dim=-1)
-            if level > 0:
-                probe = self.views.cameras[0].scaled(0.5**level)
-                size = (probe.height, probe.width)
-                images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
-            if valid is not None:
-                coverage = images[..., -1:]
-                images[..., :3] = torch.where(coverage > 0, images[..., :3] / coverage.clamp_min(1e-12), 0.0)
-            self._levels[level] = images.contiguous()
-        return self._levels[level]
-
-    def get(self, index: int, level: int, background: torch.Tensor | None = None) -> tuple[Camera, torch.Tensor]:
-        """Camera and target image of view `index` at 1/2^level resolution, on `background` (None: as loaded)."""
-        camera = self.views.cameras[index]
-        camera = camera.scaled(0.5**level) if level > 0 else camera
-        pixels = self._level(level)[index]
-        if background is None or self.views.alphas is None:
-            return camera, pixels[..., :3]
-        return camera, on_background(pixels[..., :3], pixels[..., 3], self.views.alpha_background, background)
-
-    def weight(self, index: int, level: int) -> torch.Tensor | None:
-        """(h, w) weight in [0, 1] of each pixel in the loss, from the scene's mask files; None without them."""
-        return None if self.views.valid is None else self._level(level)[index, ..., -1]
-
-
-# --- one step --------------------------------------------------------------------------------
-
-def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | None:
-    """Name the first non-finite value among the loss, every parameter gradient and the absgrad.
-
-    A tensor's sum is non-finite iff it holds a NaN/Inf (or is large enough to overflow float32,
-    which is just as fatal), and one reduction per tensor is cheaper than an elementwise isfinite.
-    """
-    if not torch.isfinite(loss):
-        return "loss"
-    named = [(f"gradient of {name}", getattr(model, name).grad) for name in GaussianModel.PARAM_NAMES]
-    named.append(("screen-space gradient", getattr(raster, "means2d_absgrad", None)))
-    named = [(what, t) for what, t in named if t is not None]
-    sums = torch.stack([t.sum() for _, t in named])
-    if bool(torch.isfinite(sums).all()):
-        return None
-    return next(what for (what, _), ok in zip(named, torch.isfinite(sums).tolist(), strict=True) if not ok)
-
-
-def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> StepOutcome:
-    """Render one camera, one backward for both losses, then optimise and refine (unless non-finite)."""
-    step = state.step
-    background = training_background(config.train_background, state.generator)
-    level = resolution_level(step, config.resolution_levels, config.resolution_interval)
-    index = camera_index(step, len(images), config.seed)
-    camera, target = images.get(index, level, background)
-    weight = images.weight(index, level)
-    degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
-
-    render = state.model.render(camera, degree, background)
-    rgb = render.rgb
-    if weight is not None:  # masked pixels: both images are 0 there, as nerfstudio's splatfacto does
-        rgb, target = rgb * weight[..., None], target * weight[..., None]
-    loss = photometric_loss(rgb, target, config.ssim_lambda)
-    u_loss = torch.zeros(())
-    if not config.uncertainty.off:
-        u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
-                                  state.uncertainty_generators)
-        loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
-    loss.backward()
-
-    bad = _nonfinite(loss.detach(), state.model, render.raster)
-    train_psnr = psnr(rgb.detach(), target) if bad is None else float("nan")
-    refined: dict[str, int] = {}
-    if bad is None:
-        state.density.observe(render.raster, camera.width, camera.height)
-        state.optimizers.step(step)
-    state.optimizers.zero_grad()
-    if bad is None:
-        refined = {k: v for k, v in state.density.refine(step, state.model, state.optimizers).items() if v}
-    return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)
-
-
-# --- evaluation ------------------------------------------------------------------------------
-
-@torch.no_grad()
-def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor) -> dict[str, float]:
-    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels.
-
-    Images with alpha are scored on `background` too, so render and target share one background. Pixels
-    the scene's mask files exclude are left out of PSNR and are 0 in both images for SSIM, as in training.
-    """
-    psnrs, ssims, observed = [], [], []
-    for i, camera in enumerate(views.cameras):
-        rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
-        gt = views.images[i]
-        if views.alphas is not None:
-            gt = on_background(gt, views.alphas[i], views.alpha_background, background)
-        if views.valid is not None:
-            if not bool((views.valid[i] > 0).any()):
-                continue  # a view its mask file excludes entirely has nothing to score
-            rgb, gt = rgb * views.valid[i][..., None], gt * views.valid[i][..., None]
-        psnrs.append(psnr(rgb, gt, mask=None if views.valid is None else views.valid[i] > 0))
-        ssims.append(float(ssim(rgb, gt)))
-        if views.observed is not None and bool(views.observed[i].any()):
-            observed.append(psnr(rgb, gt, mask=views.observed[i]))
-    metrics = {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)), "num_images": len(psnrs)}
-    if observed:
-        metrics["psnr_observed"] = float(np.mean(observed))
-    return metrics
-
-
-def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
-    """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
-    sets = {"eval": scene.eval, **scene.extra_eval}
-    return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config))
-            for name, views in sets.items()}
-
-
-# --- run bookkeeping -------------------------------------------------------------------------
-
-class MetricsLog:
-    """metrics.jsonl: one JSON object per line, appended and flushed as training goes."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def write(self, record: dict[str, Any]) -> None:
-        with self.path.open("a") as f:
-            f.write(json.dumps(record) + "\n")
-
-    def drop_after(self, step: int) -> list[str]:
-        """On resume: forget the lines logged after the checkpoint (they are about to be redone) and a line
-        torn by a killed process; return the dropped whole lines. Rewritten atomically: a crash here keeps
-        the old log."""
-        if not self.path.is_file():
-            return []
-        kept, dropped = [], []
-        for line in self.path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # empty, or half a line: the process died while appending it
-            (kept if record.get("step", 0) <= step else dropped).append(line)
-        atomic_write_text(self.path, "".join(ln + "\n" for ln in kept))
-        return dropped
-
-
-ABANDONED_DIR = "abandoned"
-
-
-def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
-    """Resuming from a checkpoint older than the run's newest abandons what came after it. Move the later
-    checkpoints, their metrics lines, and a finished run's summary.json and splat.ply into
-    abandoned/<time>/: nothing trained is lost, and `--resume RUN`, `render-uncertainty` and `eval-ause`,
-    which take the newest checkpoint, never pick up the abandoned branch. Returns that folder, or None."""
-    later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
-    if not later:
-        return None
-    folder = run_dir / ABANDONED_DIR / time.strftime("%Y-%m-%d_%H%M%S")
-    folder.mkdir(parents=True, exist_ok=True)
-    dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
-    atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
-    for path in [*later, run_dir / "summary.json", run_dir / "splat.ply"]:
-        if path.is_file():
-            path.replace(folder / path.name)
-    return folder
 
 
 def _checkpoint_state(state: TrainState, config: TrainConfig) -> dict[str, Any]:
@@ -411,64 +133,6 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene
                       train_seconds=float(checkpoint["train_seconds"]))
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-"""Ctrl-C, and `kill` or a batch scheduler's time limit: both finish the step and save."""
-
-
-@contextmanager
-def deferred_interrupt() -> Iterator[dict[str, bool]]:
-    """First Ctrl-C (or SIGTERM): finish the current step, then stop cleanly; a second one aborts at once."""
-    flag = {"requested": False}
-    if threading.current_thread() is not threading.main_thread():
-        yield flag
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        if flag["requested"]:
-            raise KeyboardInterrupt
-        flag["requested"] = True
-
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
-    try:
-        yield flag
-    finally:
-        for sig, before in previous.items():
-            if before is not None:  # None: a handler set outside Python, which cannot be put back from here
-                signal.signal(sig, before)
-
-
-@contextmanager
-def sigterm_as_ctrl_c() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt for a whole command, as Ctrl-C does: outside the steps too (loading the
-    scene, between ensemble members), a kill then unwinds through the code that records a session."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    before = signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        if before is not None:
-            signal.signal(signal.SIGTERM, before)
-
-
-PLAIN_PROGRESS_LINES = 20
-"""Off a terminal a live bar draws nothing useful until the run ends (or writes cursor codes into the log, when
-FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the run and at the last step."""
-
-
-def _progress(enabled: bool) -> Progress:
-    return Progress(
-        TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
-        BarColumn(),
-        TextColumn("loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
-                   "  {task.fields[rate]:5.2f} it/s"),
-        TimeRemainingColumn(),
-        console=console,
-        disable=not enabled,
-    )
-
-
 # --- the loop --------------------------------------------------------------------------------
 
 def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path,
@@ -484,7 +148,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     session_start, session_steps = time.perf_counter(), 0
     on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
     plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
-    with _progress(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
+    with progress_bar(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
         in_step = False
@@ -583,22 +247,6 @@ def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: Metrics
         log.write({"step": state.step, "event": "eval", "set": name, **metrics})
         console.print(eval_line(state.step, name, metrics), highlight=False, soft_wrap=True)
     return results
-
-
-def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
-    """One console line per evaluated set: a run's quality on screen and in its log, not only in metrics.jsonl."""
-    observed = f", observed pixels {metrics['psnr_observed']:.2f} dB" if "psnr_observed" in metrics else ""
-    return (f"step {step} {name} ({metrics['num_images']} views): PSNR {metrics['psnr']:.2f} dB{observed}, "
-            f"SSIM {metrics['ssim']:.3f}")
-
-
-def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float) -> str:
-    """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
-    rich draws no bar until the end."""
-    left = round((steps - step) / rate) if rate > 0 else None
-    eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
-    return (f"step {step:>6}/{steps}  loss {loss:.4f}  PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
-            f"  ETA {eta}")
 
 
 def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool) -> TrainingInterrupted:

@@ -5,9 +5,10 @@ import pytest
 import torch
 
 from splatu import checkpoint as ckpt
+from splatu.config_values import to_dict
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
-from splatu.train_config import TrainConfig, to_dict
+from splatu.train_config import TrainConfig
 
 
 def _state(config: TrainConfig, seed: int) -> dict:

@@ -6,7 +6,7 @@ import json
 import pytest
 import torch
 
-from splatu import trainer
+from splatu import interrupts, trainer, training_step
 from splatu.checkpoint import load_run
 from splatu.data.scene import Views
 from splatu.degree_choice import (
@@ -247,14 +247,14 @@ def test_scores_pick_the_degree_that_explains_held_out_views(tmp_path):
 
 def test_a_run_chooses_mid_way_records_why_and_loads_with_the_chosen_degrees(tmp_path, scene, monkeypatch):
     seen: list[tuple[int, str]] = []
-    real_get = trainer.TrainImages.get
+    real_get = training_step.TrainImages.get
 
     def record(self, index, level, background=None):
         camera, target = real_get(self, index, level, background)
         seen.append((len(seen), self.views.names[index]))
         return camera, target
 
-    monkeypatch.setattr(trainer.TrainImages, "get", record)
+    monkeypatch.setattr(training_step.TrainImages, "get", record)
     run_dir = trainer.train(choice_config(tmp_path))
     record_file = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
     assert record_file["step"] == 9 and record_file["held_out_views"] == ["t3", "t4"]
@@ -296,7 +296,7 @@ def test_resume_before_at_or_after_the_choice_equals_an_uninterrupted_run(tmp_pa
         if step == stop_at:
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted):
+    with pytest.raises(interrupts.TrainingInterrupted):
         trainer.train(mean_loss_choice(tmp_path / "b"), hooks=[ctrl_c])
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert (interrupted / trainer.DEGREE_CHOICE_FILE).is_file() == (stop_at > 9)
@@ -316,7 +316,7 @@ def test_ctrl_c_during_the_choice_resumes_by_choosing_again(tmp_path, scene, mon
         return real_score(*args, **kwargs)
 
     monkeypatch.setattr(trainer, "score_degrees", interrupted_once)
-    with pytest.raises(trainer.TrainingInterrupted, match="aborted during step 10; the last checkpoint is"):
+    with pytest.raises(interrupts.TrainingInterrupted, match="aborted during step 10; the last checkpoint is"):
         trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))

@@ -10,8 +10,9 @@ import torch
 
 from splatu.camera import Camera
 from splatu.errors import SplatuError
+from splatu.knn import mean_neighbour_distance
 from splatu.losses import photometric_loss
-from splatu.model import GaussianModel, ModelConfig, mean_neighbour_distance
+from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.sh import num_sh_bases
 

@@ -4,16 +4,18 @@ import math
 import os
 import re
 import signal
+import time
 from pathlib import Path
 
 import pytest
 import torch
 import tyro
 
-from splatu import trainer
+from splatu import evaluation, interrupts, run_records, train_progress, trainer, training_step
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
 from splatu.cli import entrypoint
+from splatu.config_values import read_yaml, to_dict
 from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views
@@ -31,9 +33,7 @@ from splatu.train_config import (
     load_config,
     preset_config,
     preset_path,
-    read_yaml,
     splatfacto_schedule,
-    to_dict,
 )
 from tests.synthetic_scenes import noise_image, write_rgb
 
@@ -98,7 +98,7 @@ def test_one_training_step_decreases_the_loss(tmp_path):
     scene = tiny_scene(n_train=1)
     config = tiny_config(tmp_path, resolution_levels=0, train_background="black")
     state = trainer.fresh_state(config, scene)
-    images = trainer.TrainImages(scene.train)
+    images = training_step.TrainImages(scene.train)
     camera, target = images.get(0, 0)
 
     def loss_now() -> float:
@@ -106,7 +106,7 @@ def test_one_training_step_decreases_the_loss(tmp_path):
             return float(photometric_loss(state.model.render(camera, 0, torch.zeros(3)).rgb, target))
 
     before = loss_now()
-    outcome = trainer.train_step(state, config, images)
+    outcome = training_step.train_step(state, config, images)
     assert outcome.skipped is None
     assert loss_now() < before
 
@@ -123,7 +123,7 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
         if step == 7:
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted, match="resume with"):
+    with pytest.raises(interrupts.TrainingInterrupted, match="resume with"):
         trainer.train(_mean_loss(tiny_config(tmp_path / "b", checkpoint_every=0)), hooks=[ctrl_c_at_7])
     interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000007.pt"]
@@ -207,7 +207,7 @@ def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, 
     state = trainer.fresh_state(config, scene)
     with torch.no_grad():  # u_sh away from its initial value, so a leak would have a non-zero gradient
         state.model.u_sh.normal_(generator=torch.Generator().manual_seed(3))
-    real_loss, check = trainer.uncertainty_loss, trainer._nonfinite
+    real_loss, check = training_step.uncertainty_loss, training_step._nonfinite
     grads: list[tuple[torch.Tensor, torch.Tensor]] = []
 
     def zero_uncertainty_loss(*args, **kwargs):
@@ -217,10 +217,10 @@ def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, 
         grads.append((model.u_sh.grad.clone(), model.sh_dc.grad.clone()))
         return check(loss, model, raster)
 
-    monkeypatch.setattr(trainer, "uncertainty_loss", zero_uncertainty_loss)
-    monkeypatch.setattr(trainer, "_nonfinite", recording_check)
+    monkeypatch.setattr(training_step, "uncertainty_loss", zero_uncertainty_loss)
+    monkeypatch.setattr(training_step, "_nonfinite", recording_check)
     for _ in range(3):
-        assert trainer.train_step(state, config, trainer.TrainImages(scene.train)).skipped is None
+        assert training_step.train_step(state, config, training_step.TrainImages(scene.train)).skipped is None
         state.step += 1
     assert len(grads) == 3
     for u_grad, colour_grad in grads:
@@ -290,10 +290,10 @@ def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
 
 
 def test_schedules_are_pure_functions_of_the_step():
-    orders = [[trainer.camera_index(epoch * 5 + i, 5, seed=0) for i in range(5)] for epoch in range(3)]
+    orders = [[training_step.camera_index(epoch * 5 + i, 5, seed=0) for i in range(5)] for epoch in range(3)]
     assert all(sorted(o) == list(range(5)) for o in orders) and orders[0] != orders[1]
-    assert [trainer.resolution_level(s, 2, 300) for s in (0, 299, 300, 600, 5000)] == [2, 2, 1, 0, 0]
-    assert [trainer.active_sh_degree(s, 3, 100) for s in (0, 100, 250, 1000)] == [0, 1, 2, 3]
+    assert [training_step.resolution_level(s, 2, 300) for s in (0, 299, 300, 600, 5000)] == [2, 2, 1, 0, 0]
+    assert [training_step.active_sh_degree(s, 3, 100) for s in (0, 100, 250, 1000)] == [0, 1, 2, 3]
 
 
 def test_presets_scale_the_splatfacto_schedule_consistently():
@@ -387,7 +387,7 @@ def test_a_real_sigint_or_sigterm_finishes_the_step_then_saves(tmp_path, scene, 
             os.kill(os.getpid(), signum)
 
     before = signal.getsignal(signum)  # the handler there now (SIGINT: SIG_IGN in a background job)
-    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
         trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[signal_at_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
@@ -395,7 +395,7 @@ def test_a_real_sigint_or_sigterm_finishes_the_step_then_saves(tmp_path, scene, 
 
 
 def test_a_stop_requested_during_a_step_skips_that_steps_evaluation(tmp_path, scene, monkeypatch):
-    step_once = trainer.train_step
+    step_once = training_step.train_step
 
     def sigterm_during_step_2(state, config, images):
         outcome = step_once(state, config, images)
@@ -404,7 +404,7 @@ def test_a_stop_requested_during_a_step_skips_that_steps_evaluation(tmp_path, sc
         return outcome
 
     monkeypatch.setattr(trainer, "train_step", sigterm_during_step_2)
-    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 2"):
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
         trainer.train(tiny_config(tmp_path, steps=6, eval_every_steps=2, checkpoint_every=0))
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     events = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
@@ -429,7 +429,7 @@ def test_sigterm_is_ctrl_c_for_the_whole_train_command(monkeypatch, tmp_path, ca
 
 
 def test_downsampled_targets_match_their_scaled_cameras():
-    images = trainer.TrainImages(tiny_scene().train)
+    images = training_step.TrainImages(tiny_scene().train)
     for level in (0, 1, 2):
         camera, target = images.get(3, level)
         assert target.shape == (camera.height, camera.width, 3)
@@ -460,7 +460,7 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
         if len(calls) == 6:  # member 0 ran its 4 steps, member 1 stops after its step 2
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted, match="ensemble member 2/3: interrupted at step 2") as stop:
+    with pytest.raises(interrupts.TrainingInterrupted, match="ensemble member 2/3: interrupted at step 2") as stop:
         trainer.train(_ensemble_config(tmp_path / "b"), hooks=[ctrl_c_in_member_1])
     run_dir = (tmp_path / "b" / "outputs" / "tiny" / "ensemble" / "latest").resolve()
     assert stop.value.message.endswith(f"`splatu train --resume {run_dir}`")  # the ensemble, not the member
@@ -520,7 +520,7 @@ def test_rgba_targets_are_composited_on_the_background_the_step_renders_on(tmp_p
     scene = load_scene(DataConfig(data=str(tmp_path / "lego"), cache_dir=tmp_path / "cache"))
     config = tiny_config(tmp_path, resolution_levels=0, model=ModelConfig(sh_degree=1, random_init_points=200))
     seen: dict[str, list[torch.Tensor]] = {"target": [], "render_background": []}
-    loss, render = trainer.photometric_loss, GaussianModel.render
+    loss, render = training_step.photometric_loss, GaussianModel.render
 
     def recording_loss(rgb, target, *args):
         seen["target"].append(target.detach().clone())
@@ -530,15 +530,15 @@ def test_rgba_targets_are_composited_on_the_background_the_step_renders_on(tmp_p
         seen["render_background"].append(background.clone())
         return render(self, camera, degree, background, **kwargs)
 
-    monkeypatch.setattr(trainer, "photometric_loss", recording_loss)
+    monkeypatch.setattr(training_step, "photometric_loss", recording_loss)
     monkeypatch.setattr(GaussianModel, "render", recording_render)
     state = trainer.fresh_state(config, scene)
-    images = trainer.TrainImages(scene.train)
+    images = training_step.TrainImages(scene.train)
     for step in range(3):
-        trainer.train_step(state, config, images)
+        training_step.train_step(state, config, images)
         state.step += 1  # as run_loop does
         background = seen["render_background"][step]
-        index = trainer.camera_index(step, len(images), config.seed)
+        index = training_step.camera_index(step, len(images), config.seed)
         frame = int(scene.train.names[index].rsplit("_", 1)[1])
         rgba = torch.from_numpy(noise_image(frame, 20, 16, channels=4)).float() / 255
         rgb, alpha = rgba[..., :3], rgba[..., 3:]
@@ -553,7 +553,7 @@ def test_evaluation_composites_rgba_targets_on_the_render_background():
     views.images = torch.full_like(views.images, rgb * alpha + 1.0 * (1 - alpha))  # composited on white at load
     views.alphas = torch.full(views.images.shape[:3], alpha)
     empty = GaussianModel.empty_like_config(0, ModelConfig(sh_degree=0))  # renders the background alone
-    metrics = trainer.evaluate_views(empty, views, 0, torch.zeros(3))
+    metrics = evaluation.evaluate_views(empty, views, 0, torch.zeros(3))
     assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)
 
 
@@ -578,7 +578,7 @@ def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluatio
     evals = [line for line in err if re.match(r"step \d+ eval \(2 views\): PSNR ", line)]
     assert [line.split()[1] for line in evals] == ["10", "20", "30"]
     final = json.loads((run_dir / "summary.json").read_text())["eval"]["eval"]
-    assert evals[-1] == trainer.eval_line(30, "eval", final)
+    assert evals[-1] == train_progress.eval_line(30, "eval", final)
     assert f"PSNR {final['psnr']:.2f} dB, SSIM {final['ssim']:.3f}" in evals[-1]
 
 
@@ -588,15 +588,15 @@ def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
 
 
 def test_progress_and_eval_lines_read_plainly():
-    assert trainer.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
+    assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
         "step    500/2000  loss 0.0512  PSNR 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
-    assert trainer.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
-    assert trainer.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
+    assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
+    assert train_progress.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
     metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
-    assert trainer.eval_line(2000, "eval", metrics) == (
+    assert train_progress.eval_line(2000, "eval", metrics) == (
         "step 2000 eval (33 views): PSNR 22.92 dB, observed pixels 26.46 dB, SSIM 0.792")
     del metrics["psnr_observed"]
-    assert trainer.eval_line(7, "interp", metrics) == "step 7 interp (33 views): PSNR 22.92 dB, SSIM 0.792"
+    assert train_progress.eval_line(7, "interp", metrics) == "step 7 interp (33 views): PSNR 22.92 dB, SSIM 0.792"
 
 
 def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_from_it(tmp_path, scene):
@@ -609,12 +609,12 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
         if step == 9:
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted, match="interrupted at step 9"):
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 9"):
         trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=old), hooks=[ctrl_c_at_9])
     # the abandoned step-12 checkpoint must not be what resume, render or eval pick up
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000006.pt", "step-0000009.pt"]
     assert not (run_dir / "summary.json").exists() and not (run_dir / "splat.ply").exists()
-    [aside] = (run_dir / trainer.ABANDONED_DIR).iterdir()
+    [aside] = (run_dir / run_records.ABANDONED_DIR).iterdir()
     expected = ["metrics.jsonl", newest.name, "splat.ply", "summary.json"]
     assert sorted(p.name for p in aside.iterdir()) == sorted(expected)
     moved = [json.loads(line) for line in (aside / "metrics.jsonl").read_text().splitlines()]
@@ -633,7 +633,7 @@ def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene
         if step == 7:
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted):
+    with pytest.raises(interrupts.TrainingInterrupted):
         trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     with (run_dir / "metrics.jsonl").open("a") as log:
@@ -656,14 +656,14 @@ def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
         if step == 7:
             raise KeyboardInterrupt
 
-    with pytest.raises(trainer.TrainingInterrupted):
+    with pytest.raises(interrupts.TrainingInterrupted):
         trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     first_session = read_checkpoint(list_checkpoints(run_dir)[-1])["wall_seconds"]
     assert first_session > 0
-    started = trainer.time.perf_counter()
+    started = time.perf_counter()
     trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
-    second_session = trainer.time.perf_counter() - started
+    second_session = time.perf_counter() - started
     summary = json.loads((run_dir / "summary.json").read_text())
     assert first_session < summary["wall_seconds"] <= first_session + second_session
 
@@ -717,7 +717,7 @@ def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
     model = trainer.fresh_state(tiny_config(tmp_path), scene).model
     background = torch.zeros(3)
     masked = [_with_masked_right_side(scene, seed, masked=True).train for seed in (1, 2)]
-    first, second = (trainer.evaluate_views(model, views, 1, background) for views in masked)
+    first, second = (evaluation.evaluate_views(model, views, 1, background) for views in masked)
     assert first == second
-    unmasked = trainer.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
+    unmasked = evaluation.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
     assert unmasked["psnr"] != first["psnr"]

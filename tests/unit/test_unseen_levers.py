@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import splatu.model
-from splatu import trainer
+from splatu import training_step
 from splatu.camera import Camera
 from splatu.losses import photometric_loss
 from splatu.model import GaussianModel
@@ -74,8 +74,8 @@ def test_true_depth_error_is_relative_and_skips_transparent_or_unknown_pixels(le
     assert float(levers.true_depth_error(depth, alpha, truth)) == pytest.approx(0.05)
 
 
-ORIGINALS = {"rasterize": (splatu.model, "rasterize"), "loss": (trainer, "photometric_loss"),
-             "render": (GaussianModel, "render"), "get": (trainer.TrainImages, "get")}
+ORIGINALS = {"rasterize": (splatu.model, "rasterize"), "loss": (training_step, "photometric_loss"),
+             "render": (GaussianModel, "render"), "get": (training_step.TrainImages, "get")}
 
 
 @pytest.mark.parametrize(("lever", "patched"), [("none", set()), ("filter-3d", {"rasterize"}),
@@ -122,16 +122,16 @@ def test_filter_3d_renders_the_filtered_gaussians(levers) -> None:
 def test_true_depth_adds_its_weighted_error_at_full_resolution_only(levers) -> None:
     model = overlapping_gaussians()
     views = dataclasses.replace(noise_views(), depths=torch.full((2, SIZE, SIZE), 2.5))
-    images = trainer.TrainImages(views)
+    images = training_step.TrainImages(views)
     with levers.applied("true-depth", 0.5, views.cameras):
         camera, target = images.get(1, 0)
         render = model.render(camera, 0, torch.zeros(3))
-        total = trainer.photometric_loss(render.rgb, target, 0.2)
+        total = training_step.photometric_loss(render.rgb, target, 0.2)
         expected = (photometric_loss(render.rgb, target, 0.2)
                     + 0.5 * levers.true_depth_error(render.depth, render.alpha, views.depths[1]))
         camera, target = images.get(1, 1)
         coarse = model.render(camera, 0, torch.zeros(3))
-        coarse_total = trainer.photometric_loss(coarse.rgb, target, 0.2)
+        coarse_total = training_step.photometric_loss(coarse.rgb, target, 0.2)
     assert float(levers.true_depth_error(render.depth, render.alpha, views.depths[1]).detach()) > 0.01
     assert float(total.detach()) == pytest.approx(float(expected.detach()))
     assert float(coarse_total.detach()) == pytest.approx(float(photometric_loss(coarse.rgb, target, 0.2).detach()))
@@ -140,11 +140,11 @@ def test_true_depth_adds_its_weighted_error_at_full_resolution_only(levers) -> N
 @pytest.mark.parametrize("lever", ["depth-smoothness", "opacity-entropy"])
 def test_a_regulariser_adds_its_weighted_term_to_the_photometric_loss(levers, lever) -> None:
     model, views = overlapping_gaussians(), noise_views()
-    images = trainer.TrainImages(views)
+    images = training_step.TrainImages(views)
     with levers.applied(lever, 0.5, views.cameras):
         camera, target = images.get(1, 0)
         render = model.render(camera, 0, torch.zeros(3))
-        total = trainer.photometric_loss(render.rgb, target, 0.2)
+        total = training_step.photometric_loss(render.rgb, target, 0.2)
     term = (levers.depth_smoothness(render.depth, render.alpha, target) if lever == "depth-smoothness"
             else levers.opacity_entropy(model.opacity_logits))
     assert float(term.detach()) > 1e-4

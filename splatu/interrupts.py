@@ -1,0 +1,62 @@
+"""Stopping a training cleanly: Ctrl-C or SIGTERM finishes the step and saves; a second one aborts."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
+
+    def __init__(self, what: str, run_dir: Path, step: int) -> None:
+        self.message = f"{what}; resume with `splatu train --resume {run_dir}`"
+        super().__init__(self.message)
+        self.what = what
+        self.run_dir = run_dir
+        self.step = step
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""Ctrl-C, and `kill` or a batch scheduler's time limit: both finish the step and save."""
+
+
+@contextmanager
+def deferred_interrupt() -> Iterator[dict[str, bool]]:
+    """First Ctrl-C (or SIGTERM): finish the current step, then stop cleanly; a second one aborts at once."""
+    flag = {"requested": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if flag["requested"]:
+            raise KeyboardInterrupt
+        flag["requested"] = True
+
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    try:
+        yield flag
+    finally:
+        for sig, before in previous.items():
+            if before is not None:  # None: a handler set outside Python, which cannot be put back from here
+                signal.signal(sig, before)
+
+
+@contextmanager
+def sigterm_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt for a whole command, as Ctrl-C does: outside the steps too (loading the
+    scene, between ensemble members), a kill then unwinds through the code that records a session."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        if before is not None:
+            signal.signal(signal.SIGTERM, before)

@@ -1,0 +1,42 @@
+"""What training prints: a live progress bar on a terminal, plain lines off one, one line per evaluation."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+console = Console(stderr=True)
+
+
+PLAIN_PROGRESS_LINES = 20
+"""Off a terminal a live bar draws nothing useful until the run ends (or writes cursor codes into the log, when
+FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the run and at the last step."""
+
+
+def progress_bar(enabled: bool) -> Progress:
+    """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES)."""
+    return Progress(
+        TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
+        BarColumn(),
+        TextColumn("loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
+                   "  {task.fields[rate]:5.2f} it/s"),
+        TimeRemainingColumn(),
+        console=console,
+        disable=not enabled,
+    )
+
+
+def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
+    """One console line per evaluated set: a run's quality on screen and in its log, not only in metrics.jsonl."""
+    observed = f", observed pixels {metrics['psnr_observed']:.2f} dB" if "psnr_observed" in metrics else ""
+    return (f"step {step} {name} ({metrics['num_images']} views): PSNR {metrics['psnr']:.2f} dB{observed}, "
+            f"SSIM {metrics['ssim']:.3f}")
+
+
+def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float) -> str:
+    """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
+    rich draws no bar until the end."""
+    left = round((steps - step) / rate) if rate > 0 else None
+    eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
+    return (f"step {step:>6}/{steps}  loss {loss:.4f}  PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
+            f"  ETA {eta}")

@@ -1,0 +1,201 @@
+"""One training step: render one camera, one backward for the photometric and uncertainty losses, then
+optimise and refine, unless a value is non-finite.
+
+The camera order, resolution level, colour-SH degree and background are pure functions of the step (and
+the seeded generator), so a resumed run takes exactly the steps an uninterrupted one would. A step whose
+loss or gradients are non-finite is skipped (no optimizer step, no density statistics), so a bad value
+never reaches the model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from splatu.camera import Camera
+from splatu.data.scene import Views, on_background
+from splatu.densify import DensityController
+from splatu.losses import photometric_loss, psnr, uncertainty_loss
+from splatu.model import GaussianModel
+from splatu.optim import Optimizers
+from splatu.train_config import TrainConfig
+from splatu.world_frame import WorldTransform
+
+
+@dataclass
+class TrainState:
+    """What changes during training; with the config, exactly what a checkpoint stores."""
+
+    model: GaussianModel
+    optimizers: Optimizers
+    density: DensityController
+    generator: torch.Generator
+    """Backgrounds, density control and init: everything that shapes the geometry."""
+    uncertainty_generators: list[torch.Generator]
+    """The uncertainty loss's own draws (`mean`'s directions), one stream per head, so that L_u never shifts the
+    geometry's stream and each head draws what it would draw in a run of its own."""
+    scene_extent: float
+    to_world: WorldTransform
+    """The scene's normalised → original frame; fixed, stored so exports land in the data's frame."""
+    step: int = 0
+    """Completed steps."""
+    nonfinite_streak: int = 0
+    train_seconds: float = 0.0
+    """Time spent in steps, summed over sessions (resumes)."""
+    wall_start: float = dataclasses.field(default_factory=time.perf_counter)
+    """perf_counter origin of the run's wall time; on resume, moved back by the earlier sessions' wall time."""
+
+
+StepHook = Callable[[int, TrainState], None]
+"""Called after every completed step with the number of completed steps (tests, callers)."""
+
+
+@dataclass
+class StepOutcome:
+    loss: float
+    uncertainty_loss: float
+    psnr: float
+    skipped: str | None
+    """Why the step was skipped (which value was non-finite), or None."""
+    refined: dict[str, int]
+
+
+def camera_index(step: int, num_cameras: int, seed: int) -> int:
+    """Shuffled order, a new permutation per epoch; a pure function of the step, so resume is exact."""
+    epoch, position = divmod(step, num_cameras)
+    order = torch.randperm(num_cameras, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch))
+    return int(order[position])
+
+
+def resolution_level(step: int, levels: int, interval: int) -> int:
+    """k in the 1/2^k resolution schedule: k = max(levels - step // interval, 0)."""
+    return max(levels - step // interval, 0)
+
+
+def active_sh_degree(step: int, max_degree: int, interval: int) -> int:
+    return min(step // interval, max_degree)
+
+
+def scene_extent(cameras: Sequence[Camera]) -> float:
+    """3DGS's scene radius: 1.1 × the largest camera distance from the mean camera centre."""
+    centers = torch.stack([c.center() for c in cameras])
+    radius = float((centers - centers.mean(0)).norm(dim=-1).max())
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+def training_background(kind: str, generator: torch.Generator) -> torch.Tensor:
+    """Random backgrounds stop the model from painting the background colour into empty space."""
+    if kind == "random":
+        return torch.rand(3, generator=generator)
+    return torch.full((3,), 1.0 if kind == "white" else 0.0)
+
+
+class TrainImages:
+    """Training views at every resolution level, downsampled once (area averaging) and cached.
+
+    Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
+    so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
+    downsampled with the colour, which keeps that exact. The scene's mask files (`Views.valid`)
+    are downsampled alike and weight the loss (`weight`).
+    """
+
+    def __init__(self, views: Views) -> None:
+        self.views = views
+        self._levels: dict[int, torch.Tensor] = {}
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def _level(self, level: int) -> torch.Tensor:
+        """(N, h, w, 3 + a + v): colour, then alpha when the views have one, then the valid-pixel mask.
+
+        Colour is averaged over valid pixels only (downsampled premultiplied by the mask, then divided by
+        the downsampled mask), so what a mask excludes never reaches the loss, at any level.
+        """
+        if level not in self._levels:
+            colour, valid = self.views.images, self.views.valid
+            if valid is not None:
+                colour = colour * valid.unsqueeze(-1)
+            extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
+            images = torch.cat([colour, *extras], dim=-1)
+            if level > 0:
+                probe = self.views.cameras[0].scaled(0.5**level)
+                size = (probe.height, probe.width)
+                images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
+            if valid is not None:
+                coverage = images[..., -1:]
+                images[..., :3] = torch.where(coverage > 0, images[..., :3] / coverage.clamp_min(1e-12), 0.0)
+            self._levels[level] = images.contiguous()
+        return self._levels[level]
+
+    def get(self, index: int, level: int, background: torch.Tensor | None = None) -> tuple[Camera, torch.Tensor]:
+        """Camera and target image of view `index` at 1/2^level resolution, on `background` (None: as loaded)."""
+        camera = self.views.cameras[index]
+        camera = camera.scaled(0.5**level) if level > 0 else camera
+        pixels = self._level(level)[index]
+        if background is None or self.views.alphas is None:
+            return camera, pixels[..., :3]
+        return camera, on_background(pixels[..., :3], pixels[..., 3], self.views.alpha_background, background)
+
+    def weight(self, index: int, level: int) -> torch.Tensor | None:
+        """(h, w) weight in [0, 1] of each pixel in the loss, from the scene's mask files; None without them."""
+        return None if self.views.valid is None else self._level(level)[index, ..., -1]
+
+
+# --- one step --------------------------------------------------------------------------------
+
+def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | None:
+    """Name the first non-finite value among the loss, every parameter gradient and the absgrad.
+
+    A tensor's sum is non-finite iff it holds a NaN/Inf (or is large enough to overflow float32,
+    which is just as fatal), and one reduction per tensor is cheaper than an elementwise isfinite.
+    """
+    if not torch.isfinite(loss):
+        return "loss"
+    named = [(f"gradient of {name}", getattr(model, name).grad) for name in GaussianModel.PARAM_NAMES]
+    named.append(("screen-space gradient", getattr(raster, "means2d_absgrad", None)))
+    named = [(what, t) for what, t in named if t is not None]
+    sums = torch.stack([t.sum() for _, t in named])
+    if bool(torch.isfinite(sums).all()):
+        return None
+    return next(what for (what, _), ok in zip(named, torch.isfinite(sums).tolist(), strict=True) if not ok)
+
+
+def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> StepOutcome:
+    """Render one camera, one backward for both losses, then optimise and refine (unless non-finite)."""
+    step = state.step
+    background = training_background(config.train_background, state.generator)
+    level = resolution_level(step, config.resolution_levels, config.resolution_interval)
+    index = camera_index(step, len(images), config.seed)
+    camera, target = images.get(index, level, background)
+    weight = images.weight(index, level)
+    degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
+
+    render = state.model.render(camera, degree, background)
+    rgb = render.rgb
+    if weight is not None:  # masked pixels: both images are 0 there, as nerfstudio's splatfacto does
+        rgb, target = rgb * weight[..., None], target * weight[..., None]
+    loss = photometric_loss(rgb, target, config.ssim_lambda)
+    u_loss = torch.zeros(())
+    if not config.uncertainty.off:
+        u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
+                                  state.uncertainty_generators)
+        loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
+    loss.backward()
+
+    bad = _nonfinite(loss.detach(), state.model, render.raster)
+    train_psnr = psnr(rgb.detach(), target) if bad is None else float("nan")
+    refined: dict[str, int] = {}
+    if bad is None:
+        state.density.observe(render.raster, camera.width, camera.height)
+        state.optimizers.step(step)
+    state.optimizers.zero_grad()
+    if bad is None:
+        refined = {k: v for k, v in state.density.refine(step, state.model, state.optimizers).items() if v}
+    return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)
