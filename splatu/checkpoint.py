@@ -10,9 +10,7 @@ Adam moments is tens of MB.
 from __future__ import annotations
 
 import dataclasses
-import pickle
 import random
-import zipfile
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -75,6 +73,13 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     return found[-1]
 
 
+def run_folder(run_dir_or_checkpoint: Path) -> Path:
+    """The run directory of a `--load` value, which may name the run or one of its checkpoint files: where
+    renders and reports of it are written."""
+    path = Path(run_dir_or_checkpoint).expanduser()
+    return run_dir_of(path) if path.is_file() else path
+
+
 def run_dir_of(checkpoint: Path) -> Path:
     """The run directory a checkpoint file belongs to."""
     parent = checkpoint.resolve().parent
@@ -86,7 +91,9 @@ def read_checkpoint(path: Path, required: tuple[str, ...] = ("step",)) -> dict[s
     foreign or incomplete file."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
+    except MemoryError:
+        raise
+    except Exception as err:  # any junk (text, a truncated zip, a foreign pickle) raises its own type from torch
         raise SplatuError(f"corrupt or unreadable checkpoint ({type(err).__name__})", f"in {path}",
                           "resume from an older checkpoint in the same folder or retrain") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:

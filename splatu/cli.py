@@ -45,7 +45,8 @@ def main(argv: Sequence[str]) -> None:
         config_type,
         args=list(argv),
         prog="splatu",
-        description="3D Gaussian Splatting on the CPU with view-dependent uncertainty.",
+        description="3D Gaussian Splatting on the CPU with view-dependent uncertainty. A user error prints one "
+                    "line and exits 2; add --debug (or set SPLATU_DEBUG=1) for its traceback.",
     )
     name = next(n for n, d in defaults.items() if type(d) is type(config))
     commands[name].run(config)

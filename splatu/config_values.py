@@ -153,3 +153,14 @@ def to_dict(config: Any) -> dict[str, Any]:
         return value
 
     return plain(config)
+
+
+def changed_options(config: Any, base: Any) -> list[str]:
+    """Dotted names of the options where dataclass `config` differs from `base`, in field order."""
+    def flat(values: Any, prefix: str = "") -> dict[str, Any]:
+        if not isinstance(values, dict):
+            return {prefix.rstrip("."): values}
+        return {k: v for key, value in values.items() for k, v in flat(value, f"{prefix}{key}.").items()}
+
+    mine, theirs = flat(to_dict(config)), flat(to_dict(base))
+    return [name for name, value in mine.items() if theirs.get(name) != value]

@@ -19,6 +19,7 @@ from rich.table import Table
 from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.baselines import UncertaintyMethod
+from splatu.checkpoint import run_folder
 from splatu.errors import SplatuError, require_at_least, writable_dir
 from splatu.figures import plot_sparsification
 from splatu.maps import MapEntry, entry_names, read_entry
@@ -156,7 +157,7 @@ def run(config: EvalAuseConfig) -> None:
         maps_dir = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
                                     config.seed, data=config.data, head=config.head)
         label = output_label(config.method, config.head)
-        output = config.output or config.load / f"ause_{label}.json"
+        output = config.output or run_folder(config.load) / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

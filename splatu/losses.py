@@ -109,8 +109,9 @@ class UncertaintyLossConfig:
     """Train the plain model (no uncertainty loss), for comparison."""
     kind: Literal["antipodal", "mean", "weighted"] = "weighted"
     """weighted: the u(d) term weighted by each Gaussian's max blend weight, no threshold (the paper's future
-    work; the default because it scores better: AUSE-MAE 0.396 against antipodal's 0.441 on the demo run, same
-    PSNR); antipodal: the paper's own default u(−d) term; mean: ū over random directions (the paper's variant)."""
+    work; the default because it scores better: AUSE-MAE 0.421 against antipodal's 0.450 at u-SH degree 1 in the
+    poster uncertainty study, on the same Gaussians); antipodal: the paper's own default u(−d) term; mean: ū over
+    random directions (the paper's variant)."""
     lam: float = 0.3
     """λ in (1−λ)·u(d) + λ·(1−u(−d)); must be < 0.5 so Gaussians seen from opposite sides stay certain."""
     threshold: float = 0.05
@@ -172,8 +173,10 @@ def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> Uncer
     values: dict[str, str] = {}
     for item in spec.split(","):
         key, sep, value = (part.strip() for part in item.partition("="))
-        if not sep or key not in HEAD_KEYS or key in values:
-            raise SplatuError(f"bad uncertainty head {spec!r} (at {item.strip()!r})", flag,
+        problem = ("not key=value" if not sep else f"unknown key {key!r}" if key not in HEAD_KEYS
+                   else f"{key!r} given twice" if key in values else None)
+        if problem is not None:
+            raise SplatuError(f"bad uncertainty head {spec!r}: {problem}", flag,
                               f"write key=value pairs joined by commas, keys from {', '.join(HEAD_KEYS)}")
         values[key] = value
     typed: dict[str, str | int | float] = {}

@@ -30,6 +30,7 @@ from rich.console import Console
 from splatu.atomic import atomic_write_text
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRender, UncertaintySource, method_list
 from splatu.camera import Camera
+from splatu.checkpoint import run_folder
 from splatu.data.scene import Views, on_background
 from splatu.errors import SplatuError, require_at_least, writable_dir
 from splatu.figures import (
@@ -279,7 +280,7 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
                      fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None) -> Path:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
     run = _load(load, method, head)
-    folder = writable_dir(Path(load) / "uncertainty" / f"{output_label(method, head)}-eval",
+    folder = writable_dir(run_folder(load) / "uncertainty" / f"{output_label(method, head)}-eval",
                           "run directory (--load writes maps there)")
     root = folder / "maps"
     scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
@@ -297,7 +298,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     run_info = _load(config.load, config.method, config.head)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
     label = output_label(config.method, config.head)
-    out = writable_dir(config.output or Path(config.load) / "uncertainty" / f"{label}-{config.views}",
+    out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                        "--output folder")
     clear_previous_render(out, config.output is None)
     scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,

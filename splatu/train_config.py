@@ -30,8 +30,19 @@ from splatu.losses import UncertaintyLossConfig
 from splatu.model import ModelConfig
 from splatu.optim import OptimConfig
 
-CONFIGS_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+def _configs_dir() -> Path:
+    """The presets: inside the package in an installed wheel (pyproject maps configs/ there), else configs/
+    beside the package in the source tree (a clone, or an editable install)."""
+    package = Path(__file__).resolve().parent
+    installed = package / "configs"
+    return installed if installed.is_dir() else package.parent / "configs"
+
+
+CONFIGS_DIR = _configs_dir()
 DEFAULT_PRESET = "fast"
+FULL_RECIPE = "none"
+"""The preset name of the dataclass defaults themselves: the full 30000-step splatfacto recipe."""
 MAX_SEED = 2**32
 """Seeds are below this, so every seed derived from one (per epoch, per member, per head) fits 64 bits."""
 SPLATFACTO_STEPS = 30000
@@ -55,8 +66,9 @@ class TrainConfig:
     """Choose the colour and u-SH degrees per scene on held-out views (`--degree-choice.on`)."""
     method: str = "splatu"
     """Registered method (splatu, splatfacto, ensemble); it sets defaults before the other flags."""
-    preset: str = "none"
-    """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none = full recipe."""
+    preset: str = FULL_RECIPE
+    """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none (FULL_RECIPE)
+    = the full splatfacto recipe, these dataclass defaults."""
     steps: int = SPLATFACTO_STEPS
     """Number of optimisation steps (one training image per step)."""
     resolution_levels: int = 2
@@ -87,8 +99,9 @@ class TrainConfig:
     progress: bool = True
     """Show progress: a live bar (step, loss, PSNR, #Gaussians, it/s, ETA) on a terminal, plain lines off one."""
     compile_kernels: bool = False
-    """Run the rasterizer's kernels through torch.compile (the presets turn it on: ~2.4x faster training;
-    the first render pays the compile). SPLATU_COMPILE=1 also turns it on."""
+    """Run the rasterizer's kernels through torch.compile: on in both presets (~2.4x faster training; the first
+    render of a process compiles, ~10 s with a warm cache, ~60 s cold); --no-compile-kernels runs eager torch.
+    SPLATU_COMPILE=1 also turns it on."""
 
     def __post_init__(self) -> None:
         self.data = absolute_data(self.data)
@@ -97,6 +110,9 @@ class TrainConfig:
                     "max_nonfinite_steps": self.max_nonfinite_steps}
         for name, value in positive.items():
             require_at_least(value, 1, f"--{name.replace('_', '-')}")
+        if not 0.0 <= self.ssim_lambda <= 1.0:
+            raise SplatuError(f"--ssim-lambda {self.ssim_lambda} is not in [0, 1]", "in the training options",
+                              "pass a weight from 0 (L1 only) to 1 (SSIM only); 3DGS uses 0.2")
         for name in ("resolution_levels", "eval_every_steps", "checkpoint_every", "seed"):
             require_at_least(getattr(self, name), 0, f"--{name.replace('_', '-')}")
         if self.seed >= MAX_SEED:  # camera_index seeds torch with seed · 1,000,003 + epoch, which must fit 64 bits
@@ -153,6 +169,8 @@ def preset_path(preset: str) -> Path:
     path = Path(preset).expanduser()
     if path.is_file():
         return path
+    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        raise SplatuError("preset file not found", f"at {path}", "check the path of the YAML file")
     known = sorted(p.stem for p in CONFIGS_DIR.glob("*.yaml"))
     raise SplatuError(f"unknown preset {preset!r}", f"in {CONFIGS_DIR}",
                       f"use one of {', '.join(known)} or a path to a YAML file")
@@ -175,8 +193,9 @@ def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu") -> Train
     """The config a bare `splatu train --preset P --method M` starts from (the Python entry point)."""
     from splatu.methods import get_method
 
-    values = read_yaml(preset_path(preset))
-    config = apply_values(TrainConfig(), values, str(preset_path(preset)))
+    config = TrainConfig()
+    if preset != FULL_RECIPE:
+        config = apply_values(config, read_yaml(preset_path(preset)), str(preset_path(preset)))
     config = dataclasses.replace(config, preset=preset, method=method)
     return get_method(method).configure(config)
 

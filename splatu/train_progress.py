@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from collections import deque
+
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from splatu.data.scene import Scene
 
 console = Console(stderr=True)
 
@@ -18,7 +22,7 @@ def progress_bar(enabled: bool) -> Progress:
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
         BarColumn(),
-        TextColumn("loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
+        TextColumn("loss {task.fields[loss]:.4f}  train PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
                    "  {task.fields[rate]:5.2f} it/s"),
         TimeRemainingColumn(),
         console=console,
@@ -38,5 +42,32 @@ def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: in
     rich draws no bar until the end."""
     left = round((steps - step) / rate) if rate > 0 else None
     eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
-    return (f"step {step:>6}/{steps}  loss {loss:.4f}  PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
+    return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
             f"  ETA {eta}")
+
+
+RATE_WINDOW = 50
+"""it/s (and the plain lines' ETA) cover the last this-many steps: a mean over the whole session would carry
+the first step's kernel compile (10-60 s) for the rest of the run."""
+
+
+class StepRate:
+    """Steps per second over the last RATE_WINDOW steps, from the times `tick` is called at."""
+
+    def __init__(self, now: float) -> None:
+        self.times: deque[float] = deque([now], maxlen=RATE_WINDOW + 1)
+
+    def tick(self, now: float) -> float:
+        """Record a finished step at time `now`; the current rate."""
+        self.times.append(now)
+        return (len(self.times) - 1) / max(self.times[-1] - self.times[0], 1e-9)
+
+
+def scene_line(scene: Scene) -> str:
+    """What a run trains on, in one line at its start: a wrong split, size or missing point cloud shows at once."""
+    camera = scene.train.cameras[0]
+    extras = "".join(f" + {len(views)} {name}" for name, views in scene.extra_eval.items())
+    points = (f"{scene.points.shape[0]:,} initial points" if scene.points.shape[0]
+              else "no point cloud, so random initial points")
+    return (f"scene {scene.name}: {len(scene.train)} training and {len(scene.eval)} eval{extras} views at "
+            f"{camera.width}x{camera.height}, {points}")

@@ -38,8 +38,8 @@ from splatu.checkpoint import (
     save_checkpoint,
     saved_frame,
 )
-from splatu.config_values import to_dict
-from splatu.data.resolve import load_scene
+from splatu.config_values import changed_options, to_dict
+from splatu.data.resolve import POSTER, load_scene
 from splatu.data.scene import Scene
 from splatu.degree_choice import (
     apply_choice,
@@ -51,7 +51,7 @@ from splatu.degree_choice import (
     with_choice_heads,
 )
 from splatu.densify import DensityController
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, writable_dir
 from splatu.evaluation import evaluate_scene
 from splatu.interrupts import TrainingInterrupted, deferred_interrupt, sigterm_as_ctrl_c
 from splatu.losses import uncertainty_heads
@@ -61,8 +61,23 @@ from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
 from splatu.run_records import MetricsLog, set_aside_later_work
-from splatu.train_config import TrainConfig, eval_background, from_dict, load_config, save_config
-from splatu.train_progress import PLAIN_PROGRESS_LINES, console, eval_line, progress_bar, progress_line
+from splatu.train_config import (
+    TrainConfig,
+    eval_background,
+    from_dict,
+    load_config,
+    preset_config,
+    save_config,
+)
+from splatu.train_progress import (
+    PLAIN_PROGRESS_LINES,
+    StepRate,
+    console,
+    eval_line,
+    progress_bar,
+    progress_line,
+    scene_line,
+)
 from splatu.training_step import StepHook, StepOutcome, TrainImages, TrainState, scene_extent, train_step
 from splatu.world_frame import require_same_frame, scene_frame
 
@@ -145,7 +160,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     log = MetricsLog(run_dir / "metrics.jsonl")
     log.drop_after(state.step)
     smoothed_psnr = float("nan")
-    session_start, session_steps = time.perf_counter(), 0
+    step_rate = StepRate(time.perf_counter())
     on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
     plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
     with progress_bar(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
@@ -163,12 +178,11 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 state.step += 1
                 state.train_seconds += time.perf_counter() - started
                 in_step = False
-                session_steps += 1
                 _account(state, config, outcome, log, run_dir)
                 if outcome.skipped is None:
                     smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
                                      else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
-                rate = session_steps / max(time.perf_counter() - session_start, 1e-9)
+                rate = step_rate.tick(time.perf_counter())
                 progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
                                 gaussians=len(state.model), rate=rate)
                 if plain_every and (state.step % plain_every == 0 or state.step == config.steps):
@@ -366,6 +380,23 @@ def check_options(config: TrainConfig) -> None:
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 
 
+def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
+    """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
+    scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
+    ignored = [name for name in changed_options(given, preset_config(given.preset, given.method))
+               if name not in ("resume", "data.data")]
+    if ignored:
+        flags = " ".join("--" + name.removeprefix("data.").replace("_", "-") for name in ignored)
+        console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
+    if given.data.data != POSTER:
+        return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
+    if saved.data.data != POSTER and not Path(saved.data.data).exists():
+        raise SplatuError(f"the scene this run was trained on no longer exists ({saved.data.data})", f"in {run_dir}",
+                          "pass --data PATH with the scene's new location beside --resume (the run's split and "
+                          "downscale still apply)")
+    return saved
+
+
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
     wall_start = time.perf_counter()
@@ -373,12 +404,13 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         saved_ensemble = ensemble_config(config.resume)
         if saved_ensemble is not None:
             run_dir = Path(config.resume).expanduser()
+            saved_ensemble = resumed_config(config, saved_ensemble, run_dir)
             train_ensemble(saved_ensemble, load_scene(saved_ensemble.data), run_dir, wall_start, hooks)
             return run_dir
         path = resolve_checkpoint(config.resume)
         checkpoint = read_checkpoint(path, RESUME_KEYS)
-        saved = from_dict(checkpoint["config"], str(path))
         run_dir = run_dir_of(path)
+        saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), run_dir)
         step = int(checkpoint["step"])
         if step >= saved.steps and (run_dir / "summary.json").is_file():
             console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
@@ -388,12 +420,17 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         if abandoned is not None:
             console.print(f"resuming from step {step}: the run's later checkpoints and results moved to {abandoned}",
                           soft_wrap=True)
-        train_run(saved, load_scene(saved.data), run_dir, hooks, checkpoint, wall_start)
+        console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
+        scene = load_scene(saved.data)
+        console.print(scene_line(scene), soft_wrap=True)
+        train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
         return run_dir
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)
+    writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     scene = load_scene(config.data)
+    console.print(scene_line(scene), soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)
@@ -413,4 +450,4 @@ def run_command(config: TrainConfig) -> None:
     except TrainingInterrupted as stop:
         print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
         raise SystemExit(130) from None
-    print(f"run saved to {run_dir}", file=sys.stderr)
+    print(f"run saved to {run_dir}")  # on stdout, the one line a script reads

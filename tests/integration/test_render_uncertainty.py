@@ -352,3 +352,22 @@ def test_wrong_method_for_the_run_is_one_line(tiny_run, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "ensemble" in err[0]
+
+
+def test_load_may_name_a_checkpoint_file_and_writes_beside_its_run(tiny_run):
+    """The error messages offer `--load RUN_OR_CHECKPOINT`; a checkpoint used to make the default output
+    folder a path under the .pt file."""
+    from splatu.checkpoint import list_checkpoints
+
+    checkpoint = list_checkpoints(tiny_run)[-1]
+    _render(checkpoint, "--max-views", "2")
+    assert len(json.loads((tiny_run / "uncertainty" / "ours-eval" / "render.json").read_text())["per_view"]) == 2
+    entrypoint(["eval-ause", "--load", str(checkpoint)])
+    assert (tiny_run / "ause_ours.json").is_file()
+
+
+def test_training_into_an_output_folder_that_is_a_file_fails_before_the_scene_loads(tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder")
+    line = _one_line(capsys, ["train", "--data", str(tmp_path / "no_such_scene"), "--output-dir", str(a_file)])
+    assert "cannot write" in line and "--output-dir" in line  # not "scene not found": checked first

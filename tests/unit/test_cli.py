@@ -108,7 +108,7 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["render-uncertainty", "--gif-fps", "0"], ["render-uncertainty", "--fisher-probes", "0"],
     ["render-uncertainty", "--max-views", "-1"], ["render-uncertainty", "--orbit-frames", "0"],
     ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
-    ["train", "--seed", "-1"], ["train", "--seed", str(2**44)],
+    ["train", "--seed", "-1"], ["train", "--seed", str(2**44)], ["train", "--ssim-lambda", "2"],
 ])
 def test_an_option_out_of_range_is_one_line_before_any_work(capsys, tmp_path, argv):
     """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a NaN blamed on

@@ -174,7 +174,7 @@ def test_loss_weight_scales_the_loss():
 
 
 @pytest.mark.parametrize(("spec", "message"), [
-    ("lam", "bad uncertainty head"), ("colour=1", "bad uncertainty head"), ("lam=0.1,lam=0.2", "bad uncertainty head"),
+    ("lam", "bad uncertainty head"), ("colour=1", "unknown key 'colour'"), ("lam=0.1,lam=0.2", "'lam' given twice"),
     ("lam=abc", "lam='abc' is not a number"), ("kind=median", "unknown loss kind"),
     ("degree=4", "asks for degree 4, above the u-SH degree 3"), ("degree=-1", "negative degree"),
     ("lam=0.7", "not in \\[0, 0.5\\)"),

@@ -557,7 +557,7 @@ def test_evaluation_composites_rgba_targets_on_the_render_background():
     assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)
 
 
-PROGRESS_LINE = re.compile(r"step +(\d+)/(\d+)  loss \d\.\d{4}  PSNR ")
+PROGRESS_LINE = re.compile(r"step +(\d+)/(\d+)  loss \d\.\d{4}  train PSNR ")
 
 
 @pytest.mark.parametrize("force_color", [None, "1"])
@@ -589,7 +589,7 @@ def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
 
 def test_progress_and_eval_lines_read_plainly():
     assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
-        "step    500/2000  loss 0.0512  PSNR 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
+        "step    500/2000  loss 0.0512  train PSNR 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
     assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
     assert train_progress.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
     metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
@@ -721,3 +721,45 @@ def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
     assert first == second
     unmasked = evaluation.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
     assert unmasked["psnr"] != first["psnr"]
+
+
+def test_it_per_second_forgets_the_compile_of_the_first_step():
+    rate = train_progress.StepRate(now=0.0)
+    now = 30.0  # the first step compiles the kernels
+    assert rate.tick(now) == pytest.approx(1 / 30)
+    for _ in range(train_progress.RATE_WINDOW):
+        now += 0.25
+        last = rate.tick(now)
+    assert last == pytest.approx(4.0)  # a session mean would still read 51 / 42.5 = 1.2
+
+
+def test_resume_keeps_the_runs_options_says_which_it_ignores_and_takes_a_moved_scene(tmp_path, capsys):
+    saved = dataclasses.replace(preset_config(), data=DataConfig(data=str(tmp_path / "old"), eval_split="every-n"))
+    given = dataclasses.replace(preset_config(), steps=60, seed=3, resume=tmp_path)
+    with pytest.raises(SplatuError, match=r"no longer exists .*pass --data PATH"):
+        trainer.resumed_config(given, saved, tmp_path)
+    assert "ignoring --steps --seed" in capsys.readouterr().err
+    moved = dataclasses.replace(given, data=DataConfig(data=str(tmp_path / "new")), steps=preset_config().steps)
+    resumed = trainer.resumed_config(moved, saved, tmp_path)
+    assert resumed.data.data == str(tmp_path / "new") and resumed.data.eval_split == "every-n"  # only the path moves
+    assert resumed.steps == saved.steps and resumed.seed == saved.seed
+    assert "ignoring --seed" in capsys.readouterr().err
+
+
+def test_the_run_starts_by_saying_what_it_trains_on_and_ends_with_its_folder_on_stdout(tmp_path, scene, capsys,
+                                                                                   monkeypatch):
+    monkeypatch.setattr(trainer, "train", lambda config: tmp_path / "run")
+    trainer.run_command(tiny_config(tmp_path))
+    assert capsys.readouterr().out == f"run saved to {tmp_path / 'run'}\n"
+    assert train_progress.scene_line(scene) == "scene tiny: 6 training and 2 eval views at 32x24, 300 initial points"
+    no_points = dataclasses.replace(scene, points=torch.zeros(0, 3), extra_eval={"interp": scene.eval})
+    assert train_progress.scene_line(no_points) == (
+        "scene tiny: 6 training and 2 eval + 2 interp views at 32x24, no point cloud, so random initial points")
+
+
+@pytest.mark.parametrize("junk", [b"hello, not a checkpoint\n", b"PK\x03\x04" + b"\x00" * 64, b"\x80\x02K\x01."])
+def test_any_junk_in_a_checkpoint_file_is_one_line(tmp_path, junk):
+    path = tmp_path / "step-0000010.pt"
+    path.write_bytes(junk)
+    with pytest.raises(SplatuError, match=r"corrupt or unreadable checkpoint|not a splatu checkpoint"):
+        read_checkpoint(path)
