@@ -150,7 +150,9 @@ def run(config: EvalAuseConfig) -> None:
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:
-        from splatu.render_uncertainty import output_label, render_eval_maps
+        from splatu.render_uncertainty import check_method_options, output_label, render_eval_maps
+
+        check_method_options(config.method, config.density_aware, config.fisher_probes)
 
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)

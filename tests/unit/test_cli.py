@@ -109,10 +109,13 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["render-uncertainty", "--max-views", "-1"], ["render-uncertainty", "--orbit-frames", "0"],
     ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
     ["train", "--seed", "-1"], ["train", "--seed", str(2**44)], ["train", "--ssim-lambda", "2"],
+    ["render-uncertainty", "--orbit-frames", "4"], ["render-uncertainty", "--density-aware"],
+    ["render-uncertainty", "--method", "random", "--fisher-probes", "4"], ["eval-ause", "--density-aware"],
 ])
-def test_an_option_out_of_range_is_one_line_before_any_work(capsys, tmp_path, argv):
+def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tmp_path, argv):
     """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a NaN blamed on
-    the model (--fisher-probes 0), an overflow in the camera shuffle (a huge seed)."""
+    the model (--fisher-probes 0), an overflow in the camera shuffle (a huge seed); or to be ignored silently
+    (an orbit option without --views orbit, a method option with another method)."""
     with pytest.raises(SystemExit) as exc:
         entrypoint([*argv, "--load" if argv[0] != "train" else "--data", str(tmp_path / "absent")])
     assert exc.value.code == 2
