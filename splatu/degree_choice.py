@@ -219,10 +219,15 @@ def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: li
     randoms = []
     for i, (rgb, gt) in enumerate(zip(renders, targets, strict=True)):
         valid = None if masks is None else masks[i].numpy() > 0
+        if valid is not None and not valid.any():
+            continue  # its mask file excludes the whole view: nothing to rank
         for c, head in enumerate(heads):
             scores = score_image(rgb.numpy(), gt.numpy(), maps[i][..., c], valid, metrics=("mae",))
             per_head[head.degree].append(float(scores["ause_mae"]))
         randoms.append(float(scores["random_ause_mae"]))
+    if not randoms:
+        raise SplatuError("every held-out view's mask excludes all of its pixels", "in the scene's mask files",
+                          "train with fixed degrees (drop --degree-choice.on), or fix the masks")
     return {d: float(np.mean(per_head[d])) for d in sorted(per_head)}, float(np.mean(randoms))
 
 

@@ -173,9 +173,10 @@ def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[Render
 
 
 def map_entries(views: list[RenderedView]) -> list[MapEntry]:
-    """The views that have ground truth, as the entries eval-ause scores."""
+    """The views that have ground truth and a pixel to score, as the entries eval-ause scores: a view its mask
+    file excludes entirely has no sparsification curve."""
     return [MapEntry(v.name, v.maps["rgb"], v.gt, v.maps["uncertainty"], v.mask, v.unobserved)
-            for v in views if v.gt is not None]
+            for v in views if v.gt is not None and (v.mask is None or v.mask.any())]
 
 
 def write_maps_layout(root: Path, views: list[RenderedView]) -> None:

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -322,3 +323,19 @@ def test_ctrl_c_during_the_choice_resumes_by_choosing_again(tmp_path, scene, mon
     resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
     assert len(calls) == 2
     assert_same_run(resumed_dir, full_dir)
+
+
+def test_held_out_scoring_skips_a_view_its_mask_excludes_and_refuses_when_all_are():
+    from splatu.degree_choice import head_ause
+    from splatu.losses import UncertaintyLossConfig, uncertainty_heads
+
+    heads = uncertainty_heads(UncertaintyLossConfig(extra_heads=("degree=1",)), 3)
+    g = torch.Generator().manual_seed(0)
+    renders = [torch.rand(6, 8, 3, generator=g) for _ in range(2)]
+    targets = [torch.rand(6, 8, 3, generator=g) for _ in range(2)]
+    maps = [np.random.default_rng(i).random((6, 8, len(heads))) for i in range(2)]
+    masks = torch.stack([torch.ones(6, 8), torch.zeros(6, 8)])
+    both = head_ause(renders, targets, maps, heads, masks)
+    assert both == head_ause(renders[:1], targets[:1], maps[:1], heads, masks[:1])
+    with pytest.raises(SplatuError, match="every held-out view's mask"):
+        head_ause(renders[1:], targets[1:], maps[1:], heads, masks[1:])

@@ -135,3 +135,14 @@ def test_rgba_ground_truth_is_composited_on_the_background_the_method_renders_on
     for view in rendered:
         np.testing.assert_allclose(view.gt, rgb * alpha, atol=1e-6)
         np.testing.assert_allclose(view.maps["rgb"], 0.0, atol=1e-12)
+
+
+def test_a_view_its_mask_excludes_entirely_is_left_out_of_the_maps_not_fatal():
+    from splatu.render_uncertainty import RenderedView, map_entries
+
+    rng = np.random.default_rng(1)
+    views = []
+    for name, keep in (("kept", True), ("masked_out", False)):
+        maps = {"rgb": rng.random((6, 8, 3)), "uncertainty": rng.random((6, 8))}
+        views.append(RenderedView(name, maps, gt=rng.random((6, 8, 3)), mask=np.full((6, 8), keep)))
+    assert [entry.name for entry in map_entries(views)] == ["kept"]
