@@ -56,6 +56,11 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args or os.environ.get("SPLATU_DEBUG", "") not in ("", "0")
     args = [a for a in args if a != "--debug"]
+    if args == ["--version"]:
+        from splatu import __version__
+
+        print(f"splatu {__version__}")
+        return
     keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
     try:
         main(args)

@@ -121,3 +121,10 @@ def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tm
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --") and err.count("\n") == 1, err
+
+
+def test_version(capsys):
+    from splatu import __version__
+
+    entrypoint(["--version"])
+    assert capsys.readouterr().out == f"splatu {__version__}\n"
