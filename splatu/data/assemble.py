@@ -21,6 +21,8 @@ from splatu.errors import SplatuError
 
 DEFAULT_EVAL_FRACTION = 0.22
 """eval_block=0 holds out this fraction of frames (the paper held out 50 of 226 poster frames)."""
+MIN_DOWNSCALED_SIDE = 8
+"""--downscale may not shrink an image below this many pixels a side: there would be nothing to train on."""
 
 
 def _read_eval_list(path: Path | None) -> list[str]:
@@ -40,12 +42,16 @@ def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], 
                           f"in {raw.source}", "add more images to the scene")
     extras: dict[str, list[int]] = {}
     own = cfg.eval_split == "auto" and "train" in raw.file_splits and "eval" in raw.file_splits
+    if own and cfg.eval_block:
+        stand_in = " (the built-in poster's block is --poster.eval-block)" if raw.name == "poster" else ""
+        raise SplatuError("--eval-block is not used: the scene has its own train/eval split", f"in {raw.source}",
+                          f"drop --eval-block{stand_in}, or pass --eval-split contiguous to split by blocks")
     if own:
         train, held_out = raw.file_splits["train"], raw.file_splits["eval"]
         extras = {k: v for k, v in raw.file_splits.items() if k not in ("train", "eval")}
     elif cfg.eval_split in ("auto", "contiguous"):
         block = cfg.eval_block or max(1, round(DEFAULT_EVAL_FRACTION * n_frames))
-        train, held_out = contiguous_split(n_frames, block, cfg.split_seed)
+        train, held_out = contiguous_split(n_frames, block, cfg.split_seed, where=f"in {raw.source}")
     elif cfg.eval_split == "every-n":
         train, held_out = every_n_split(n_frames, cfg.eval_every)
     else:
@@ -56,6 +62,18 @@ def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], 
             raise SplatuError(f"the {split} split is empty", f"in {raw.source}",
                               "choose another --eval-split or fix the scene's split lists")
     return train, held_out, extras, own
+
+
+def check_downscaled_size(frames: list[Frame], downscale: int) -> None:
+    """Refuse a --downscale that leaves images too small to train on, naming the largest usable one."""
+    for frame in frames:
+        width, height = frame.camera.width, frame.camera.height
+        if downscale > 1 and min(width, height) < MIN_DOWNSCALED_SIDE:
+            full_w, full_h = frame.image.width, frame.image.height
+            largest = min(full_w, full_h) // MIN_DOWNSCALED_SIDE
+            raise SplatuError(f"--downscale {downscale} shrinks the {full_w}x{full_h} image to {width}x{height} px, "
+                              f"below {MIN_DOWNSCALED_SIDE} px a side", f"in {frame.image.path}",
+                              f"pass --downscale {largest} or less" if largest > 1 else "drop --downscale")
 
 
 def _stack(recipes: list[PixelRecipe | None], cache: ImageCache) -> list[np.ndarray | None]:
@@ -110,6 +128,7 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
 
 def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
     """Split, normalise (cameras of all frames define centre and scale) and decode a parsed scene."""
+    check_downscaled_size(raw.frames, cfg.downscale or 1)
     train, held_out, extras, own = choose_split(raw, cfg)
     centers = torch.stack([f.camera.center() for f in raw.frames])
     center, scale = normalization(centers)

@@ -7,6 +7,7 @@ OpenCV using the exactly equivalent OpenCV coefficients.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +24,28 @@ SPARSE_CANDIDATES = ("sparse/0", "sparse", "colmap/sparse/0")
 """Where a scene folder may keep its model, relative to the folder (images/ beside sparse/)."""
 
 
+MODEL_FILES = ("cameras", "images", "points3D")
+"""A COLMAP model: these three files, all .bin or all .txt."""
+
+
 def find_sparse_dir(root: Path) -> Path | None:
-    """The folder holding cameras.{bin,txt}, images.*, points3D.* under a scene folder, if any."""
+    """The folder holding a COLMAP model (or any of its files, so a missing one can be named) under a scene folder."""
     for candidate in SPARSE_CANDIDATES:
         folder = root / candidate
-        if any((folder / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+        if any((folder / f"{name}.{ext}").is_file() for name in MODEL_FILES for ext in ("bin", "txt")):
             return folder
     return None
+
+
+def model_files(sparse_dir: Path) -> dict[str, Path]:
+    """The model's cameras, images and points3D files in one format, or a one-line error naming the missing ones."""
+    found = {ext: [name for name in MODEL_FILES if (sparse_dir / f"{name}.{ext}").is_file()] for ext in ("bin", "txt")}
+    ext = max(("bin", "txt"), key=lambda e: len(found[e]))  # the format most files are in; bin on a tie
+    missing = [f"{name}.{ext}" for name in MODEL_FILES if name not in found[ext]]
+    if missing:
+        raise SplatuError(f"the COLMAP model has no {' or '.join(missing)}", f"in {sparse_dir}",
+                          "export the whole model (cameras, images and points3D, all .bin or all .txt) from COLMAP")
+    return {name: sparse_dir / f"{name}.{ext}" for name in MODEL_FILES}
 
 
 def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Distortion | None]:
@@ -67,19 +83,70 @@ def _source_path(images_dir: Path, name: str, downscale: int) -> tuple[Path, int
     return images_dir / name, 1
 
 
+def _is_number(token: str, kind: type = float) -> bool:
+    """Whether COLMAP's C++ reader would parse `token` as a finite `kind` (it rejects nan and inf)."""
+    try:
+        return bool(np.isfinite(kind(token)))
+    except ValueError:
+        return False
+
+
+def _valid_text_line(name: str, tokens: list[str]) -> bool:
+    """Whether one data line of a COLMAP text file has the fields COLMAP's reader expects."""
+    numbers = [_is_number(t) for t in tokens]
+    if name == "cameras":
+        return len(tokens) >= 5 and _is_number(tokens[0], int) and all(numbers[2:])
+    if name == "points3D":
+        return len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers)
+    pose = len(tokens) >= 10 and _is_number(tokens[0], int) and all(numbers[1:8]) and _is_number(tokens[8], int)
+    return pose or (len(tokens) % 3 == 0 and all(numbers))  # images: a pose line or a line of 2D points
+
+
+def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
+    """(line number, line) of the first data line of a COLMAP text file that cannot be parsed, if any."""
+    with path.open(errors="replace") as lines:
+        for number, line in enumerate(lines, start=1):
+            if line.strip() and not line.startswith("#") and not _valid_text_line(name, line.split()):
+                return number, line.strip()
+    return None
+
+
 def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
+    """The model through pycolmap; a text file it cannot parse is named with its first bad line."""
+    files = model_files(sparse_dir)
     try:
         return pycolmap.Reconstruction(str(sparse_dir))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on unreadable models
-        raise SplatuError(f"pycolmap cannot read the COLMAP model ({str(err).splitlines()[0][:120]})",
-                          f"in {sparse_dir}", "re-export cameras, images and points3D from COLMAP") from None
+        reason = re.sub(r"^\[[^]]*\]\s*", "", (str(err).strip().splitlines() or [type(err).__name__])[0])
+    fix = "fix that line or export the model from COLMAP again"
+    for name, path in files.items():
+        bad = first_bad_line(path, name) if path.suffix == ".txt" else None
+        if bad is not None:
+            raise SplatuError(f"cannot parse {path.name} line {bad[0]} ({bad[1][:60]!r})", f"in {path}", fix)
+    raise SplatuError(f"pycolmap cannot read the COLMAP model ({reason})", f"in {sparse_dir}",
+                      "export cameras, images and points3D from COLMAP again")
+
+
+def _world_to_camera(image: pycolmap.Image, where: str) -> np.ndarray:
+    """The image's 4x4 pose; pycolmap keeps the quaternion as written, so a zero one would silently be identity."""
+    pose = image.cam_from_world()
+    norm = pose.rotation.norm()
+    fix = "re-run the reconstruction or delete the image from the model"
+    if not np.isfinite(norm) or norm < 1e-6:
+        raise SplatuError(f"image {image.name} has a zero or non-finite rotation quaternion", where, fix)
+    pose.rotation.normalize()
+    world_to_camera = np.eye(4)
+    world_to_camera[:3] = pose.matrix()
+    if not np.isfinite(world_to_camera).all():
+        raise SplatuError(f"image {image.name} has a non-finite pose", where, fix)
+    return world_to_camera
 
 
 def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     """Registered images (sorted by name) with undistorted cameras, and points3D with colours."""
     reconstruction = read_reconstruction(sparse_dir)
     images_dir = root / "images"
-    cameras_file = next(p for p in (sparse_dir / "cameras.bin", sparse_dir / "cameras.txt") if p.is_file())
+    files = model_files(sparse_dir)
     intrinsics: dict[int, tuple[np.ndarray, Distortion | None, np.ndarray]] = {}
     frames: list[Frame] = []
     for image in sorted(reconstruction.images.values(), key=lambda im: im.name):
@@ -87,15 +154,15 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
             continue
         colmap_camera = reconstruction.cameras[image.camera_id]
         if image.camera_id not in intrinsics:
-            K, distortion = opencv_camera(colmap_camera, f"in {cameras_file} (camera {image.camera_id})")
+            where = f"in {files['cameras']} (camera {image.camera_id})"
+            if colmap_camera.width <= 0 or colmap_camera.height <= 0:
+                raise SplatuError(f"camera size {colmap_camera.width}x{colmap_camera.height} is not positive", where,
+                                  "give the camera its image width and height in pixels")
+            K, distortion = opencv_camera(colmap_camera, where)
             K_new = undistorted_intrinsics(K, distortion, colmap_camera.width, colmap_camera.height)
             intrinsics[image.camera_id] = (K, distortion, K_new)
         K, distortion, K_new = intrinsics[image.camera_id]
-        world_to_camera = np.eye(4)
-        world_to_camera[:3] = image.cam_from_world().matrix()
-        if not np.isfinite(world_to_camera).all():
-            raise SplatuError(f"image {image.name} has a non-finite pose", f"in {sparse_dir}",
-                              "re-run the reconstruction or delete the image from the model")
+        world_to_camera = _world_to_camera(image, f"in {files['images']}")
         camera = Camera(
             K=torch.tensor(K_new, dtype=torch.float64),
             world_to_camera=torch.tensor(world_to_camera, dtype=torch.float64),

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Literal
 
 from splatu.data.poster.config import PosterConfig
+from splatu.errors import SplatuError, require_at_least
 
 
 @dataclass
@@ -19,7 +20,8 @@ class DataConfig:
     eval_split: Literal["auto", "contiguous", "every-n", "list"] = "auto"
     """auto: the scene file's own train/eval lists when present, else contiguous."""
     eval_block: int = 0
-    """Length of the contiguous eval block; 0 means 22% of the frames (the paper held out 50 of 226)."""
+    """Length of the contiguous eval block; 0 means 22% of the frames (the paper held out 50 of 226). Refused when
+    the split does not use it (every-n, list, or auto on a scene with its own split)."""
     eval_every: int = 8
     """every-n split: hold out frames 0, n, 2n, ..."""
     eval_list: Path | None = None
@@ -32,3 +34,22 @@ class DataConfig:
     """Where decoded, undistorted and resized images are cached; None means $SPLATU_CACHE or ~/.cache/splatu."""
     poster: PosterConfig = field(default_factory=PosterConfig)
     """The built-in stand-in, used by `--data poster` when the real capture is absent."""
+
+    def validate(self) -> None:
+        """Check what needs no scene, so a bad or ignored flag fails before anything loads or is built."""
+        if self.downscale is not None:
+            require_at_least(self.downscale, 1, "--downscale")
+        require_at_least(self.eval_block, 0, "--eval-block")
+        require_at_least(self.eval_every, 2, "--eval-every")
+        if len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background):
+            raise SplatuError(f"--background must be three RGB values in [0, 1] (got {self.background})",
+                              "in the options", "pass e.g. --background 1 1 1 (white) or 0 0 0 (black)")
+        ignored = [
+            ("--eval-list", self.eval_list is not None, ("list",)),
+            ("--eval-every", self.eval_every != DataConfig.eval_every, ("every-n",)),
+            ("--eval-block", self.eval_block != 0, ("auto", "contiguous")),
+        ]
+        for flag, given, used_by in ignored:
+            if given and self.eval_split not in used_by:
+                raise SplatuError(f"{flag} is not used by --eval-split {self.eval_split}", "in the options",
+                                  f"pass --eval-split {used_by[-1]} to use {flag}, or drop {flag}")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -112,11 +113,75 @@ def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: 
     return new_K
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_END = b"\x00\x00\x00\x00IEND"
+"""The IEND chunk (zero length, then its type) that closes every complete PNG."""
+JPEG_SOI = b"\xff\xd8"
+JPEG_MARKER_IN_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
+"""In entropy-coded data 0xFF is stuffing (FF 00), a restart (FF D0-D7) or fill (FF FF); anything else is a marker."""
+JPEG_STANDALONE = {0x01, *range(0xD0, 0xD8)}
+"""Markers without a length field: TEM and RST0-7."""
+
+
+def jpeg_is_complete(data: bytes) -> bool:
+    """Whether a JPEG reaches its end-of-image marker, walking segments by their lengths.
+
+    Walking (rather than searching for FF D9) skips the EXIF thumbnail's own end marker inside
+    APP1, and stops at the first real EOI, so phone trailers after it are accepted.
+    """
+    pos = len(JPEG_SOI)
+    while True:
+        pos = data.find(b"\xff", pos)
+        while 0 <= pos < len(data) - 1 and data[pos + 1] == 0xFF:
+            pos += 1  # fill bytes before a marker
+        if pos < 0 or pos + 1 >= len(data):
+            return False
+        marker = data[pos + 1]
+        if marker == 0xD9:
+            return True
+        if marker in JPEG_STANDALONE:
+            pos += 2
+            continue
+        if pos + 4 > len(data):
+            return False
+        end = pos + 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+        if end > len(data):
+            return False
+        if marker != 0xDA:
+            pos = end
+            continue
+        found = JPEG_MARKER_IN_SCAN.search(data, end)  # start of scan: skip its entropy-coded data
+        if found is None:
+            return False
+        pos = found.start()
+
+
+def truncated_format(data: bytes) -> str | None:
+    """"JPEG" or "PNG" when `data` is such a file cut short, else None.
+
+    libjpeg decodes a truncated JPEG with only a warning, filling the rest grey; the check
+    makes that an error. OpenCV already refuses a truncated PNG, but without saying why.
+    """
+    if data.startswith(JPEG_SOI) and not jpeg_is_complete(data):
+        return "JPEG"
+    if data.startswith(PNG_SIGNATURE) and data.rfind(PNG_END) < 0:
+        return "PNG"
+    return None
+
+
 def read_image(path: Path) -> np.ndarray:
     """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order."""
     if not path.is_file():
         raise SplatuError("image not found", f"in {path}", "check the file path in the scene description")
-    pixels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise SplatuError(f"cannot read image ({err.strerror})", f"in {path}", "check the file's permissions") from None
+    kind = truncated_format(data)
+    if kind is not None:
+        raise SplatuError(f"cannot decode image (truncated {kind}: the file ends before its end marker)",
+                          f"in {path}", "copy or export the file again in full, or remove its frame")
+    pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if pixels is None:
         raise SplatuError("cannot decode image (corrupt or unsupported format)", f"in {path}",
                           "replace the file with a valid PNG/JPEG or remove its frame")
@@ -129,7 +194,7 @@ def read_image(path: Path) -> np.ndarray:
 
 def _read_depth(recipe: PixelRecipe) -> np.ndarray:
     """A depth map from .npy (float, scene units) or an integer image times depth_scale."""
-    fix = "write depth as a finite float32 .npy of shape (H, W) or a 16-bit PNG"
+    fix = "write depth as a finite float32 .npy with one value per pixel, or as a 16-bit PNG"
     if recipe.path.suffix != ".npy":
         depth = read_image(recipe.path).astype(np.float32) * recipe.depth_scale
     elif not recipe.path.is_file():
@@ -137,10 +202,12 @@ def _read_depth(recipe: PixelRecipe) -> np.ndarray:
     else:
         try:
             depth = np.load(recipe.path)
-        except (OSError, ValueError) as err:
-            raise SplatuError(f"cannot read depth map ({err})", f"in {recipe.path}", fix) from None
+        except (OSError, ValueError, EOFError):
+            depth = None
+        if not isinstance(depth, np.ndarray) or depth.dtype.kind not in "biuf":
+            raise SplatuError("depth map is not a valid .npy array of numbers", f"in {recipe.path}", fix)
     if depth.ndim != 2 or not np.isfinite(depth).all():
-        raise SplatuError("depth map must be a finite (H, W) array", f"in {recipe.path}", fix)
+        raise SplatuError("depth map must be a finite 2-D array (one value per pixel)", f"in {recipe.path}", fix)
     return depth.astype(np.float32)
 
 

@@ -37,8 +37,8 @@ PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
 RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 """Radial-only models: their k1, k2 are OpenCV's with p1 = p2 = 0."""
 
-SPLIT_KEYS = {"train": "train_filenames", "eval": "val_filenames", "interp": "test_filenames"}
-"""The file's explicit split lists (nerfstudio keys) and the Scene split each one fills."""
+SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
+"""The file's explicit split lists (nerfstudio keys)."""
 
 
 def read_json(path: Path) -> dict[str, Any]:
@@ -61,9 +61,11 @@ def frame_entry(frame: object, index: int, json_path: Path) -> tuple[str, str, n
     """A transforms.json frame's (name, where-text for errors, camera-to-world), validated in one place
     for both nerfstudio and NeRF-synthetic files."""
     if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
-        raise SplatuError(f"frame {index} has no file_path", f"in {json_path}", "give every frame a file_path")
+        raise SplatuError(f"frames[{index}] has no file_path", f"in {json_path}", "give every frame a file_path")
     name = frame_name(frame["file_path"])
     where = f"in frame {name!r} of {json_path}"
+    if "transform_matrix" not in frame:
+        raise SplatuError("frame has no transform_matrix", where, "give every frame its 4x4 camera-to-world matrix")
     c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
     return name, where, c2w
 
@@ -88,8 +90,10 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     fy = values["fl_y"] if values["fl_y"] is not None else fx
     cx = values["cx"] if values["cx"] is not None else width / 2
     cy = values["cy"] if values["cy"] is not None else height / 2
-    if fx <= 0 or fy <= 0 or width <= 0 or height <= 0:
-        raise SplatuError("focal lengths and image size must be positive", where, "fix fl_x, fl_y, w, h")
+    if width <= 0 or height <= 0:
+        raise SplatuError(f"image size {width}x{height} is not positive", where, "give w and h in pixels")
+    if fx <= 0 or fy <= 0:
+        raise SplatuError("focal lengths must be positive", where, "fix fl_x and fl_y")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width, height
 
 
@@ -119,18 +123,28 @@ def _source_path(root: Path, file_path: str, downscale: int) -> tuple[Path, int]
     return original, 1
 
 
-def _extra(color: PixelRecipe, root: Path, file_path: object, kind: PixelKind,
+def _extra(color: PixelRecipe, root: Path, frame: Mapping[str, Any], key: str, kind: PixelKind, name: str,
            depth_unit: object = None) -> PixelRecipe | None:
-    """A per-frame mask or depth map, warped exactly like the frame's image (but never pre-downscaled).
+    """The frame's mask or depth map named by `key`, warped exactly like its image (but never pre-downscaled).
 
     Depth in .npy files is taken as is; depth images are integers times depth_unit_scale_factor
     (nerfstudio's convention, default 1e-3: millimetres).
     """
-    if file_path is None:
+    if frame.get(key) is None:
         return None
-    path = root / str(file_path)
+    path = root / str(frame[key])
+    if not path.is_file():
+        noun = "depth map" if kind == "depth" else "mask"
+        raise SplatuError(f"{noun} not found (the {key} of frame {name!r})", f"in {path}",
+                          f"fix the frame's {key} or remove it")
     depth_scale = 1.0 if kind != "depth" or path.suffix == ".npy" else float(depth_unit or 1e-3)  # type: ignore[arg-type]
     return replace(color, path=path, kind=kind, source_downscale=1, depth_scale=depth_scale)
+
+
+def _by_file_path(frames_json: list[Any]) -> list[tuple[int, Any]]:
+    """(index in the file, frame) sorted by file path, so errors can still count frames as the file does."""
+    return sorted(enumerate(frames_json),
+                  key=lambda item: str(item[1].get("file_path", "")) if isinstance(item[1], dict) else "")
 
 
 def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
@@ -141,10 +155,9 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
-    frames_json = sorted(frames_json, key=lambda f: str(f.get("file_path", "")) if isinstance(f, dict) else "")
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
-    for index, frame in enumerate(frames_json):
+    for index, frame in _by_file_path(frames_json):
         name, where, c2w = frame_entry(frame, index, json_path)
         K, width, height = _intrinsics(frame, top, where)
         distortion = _distortion(frame, top, where)
@@ -170,9 +183,9 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
             name=name,
             camera=camera,
             image=color,
-            mask=_extra(color, root, frame.get("mask_path"), "mask"),
-            depth=_extra(color, root, frame.get("depth_file_path"), "depth", top.get("depth_unit_scale_factor")),
-            observed=_extra(color, root, frame.get("observed_mask_path"), "mask"),
+            mask=_extra(color, root, frame, "mask_path", "mask", name),
+            depth=_extra(color, root, frame, "depth_file_path", "depth", name, top.get("depth_unit_scale_factor")),
+            observed=_extra(color, root, frame, "observed_mask_path", "mask", name),
         ))
     points, colors = np.zeros((0, 3), np.float32), None
     if top.get("ply_file_path"):
@@ -181,18 +194,44 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
                     file_splits=_file_splits(top, [f.name for f in frames], json_path))
 
 
+def _listed_frames(value: object, key: str, index: Mapping[str, int], json_path: Path) -> list[int]:
+    """A split list's frames as indices; a name that is not a frame is an error, as in nerfstudio."""
+    if not isinstance(value, list) or not all(isinstance(n, str) for n in value):
+        raise SplatuError(f"{key} must be a list of file paths", f"in {json_path}", f"fix or remove {key}")
+    listed = [frame_name(n) for n in value]
+    unknown = [n for n in listed if n not in index]
+    if unknown:
+        raise SplatuError(f"{key} names a frame that is not in frames ({unknown[0]!r})", f"in {json_path}",
+                          "list file paths exactly as the frames give them")
+    return [index[n] for n in listed]
+
+
 def _file_splits(top: Mapping[str, Any], names: list[str], json_path: Path) -> dict[str, list[int]]:
-    """The file's own train/val/test lists as frame indices; empty when it has no train and val lists."""
-    if not all(isinstance(top.get(SPLIT_KEYS[s]), list) for s in ("train", "eval")):
+    """The file's own split lists as frame indices ("train", "eval" and the extra "interp"); empty without lists.
+
+    As in nerfstudio, a file with any split list must have the lists it needs: train_filenames, and
+    val_filenames as the eval split. Where nerfstudio stops for want of val_filenames, a file with
+    test_filenames uses them as the eval split (they name the views it holds out, as NeRF-synthetic's
+    test split does); with both, test_filenames is the extra "interp" set. A frame in the train list
+    and an eval list is refused: its scores would measure a view the model trained on.
+    """
+    present = [key for key in SPLIT_KEYS if key in top]
+    if not present:
         return {}
     index = {name: i for i, name in enumerate(names)}
-    splits: dict[str, list[int]] = {}
-    for split, key in SPLIT_KEYS.items():
-        listed = [frame_name(str(n)) for n in top.get(key) or []]
-        unknown = [n for n in listed if n not in index]
-        if unknown:
-            raise SplatuError(f"{key} names a frame that is not in frames ({unknown[0]!r})", f"in {json_path}",
-                              "list file paths exactly as the frames give them")
-        if listed or split in ("train", "eval"):  # an empty train or eval list is an error later, not ignored
-            splits[split] = [index[n] for n in listed]
+    lists = {key: _listed_frames(top[key], key, index, json_path) for key in present}
+    if "train_filenames" not in lists or len(lists) == 1:
+        missing = "train_filenames" if "train_filenames" not in lists else "val_filenames or test_filenames"
+        raise SplatuError(f"the file has {' and '.join(present)} but no {missing}", f"in {json_path}",
+                          f"add {missing.split()[0]} (or remove the split lists to split by --eval-split)")
+    eval_key = "val_filenames" if "val_filenames" in lists else "test_filenames"
+    splits = {"train": lists["train_filenames"], "eval": lists[eval_key]}
+    if eval_key == "val_filenames" and lists.get("test_filenames"):
+        splits["interp"] = lists["test_filenames"]
+    trained = set(splits["train"])
+    for split, key in (("eval", eval_key), ("interp", "test_filenames")):
+        both = [names[i] for i in splits.get(split, []) if i in trained]
+        if both:
+            raise SplatuError(f"frame {both[0]!r} is in both train_filenames and {key}", f"in {json_path}",
+                              "remove it from one list: a model must not be scored on a view it trained on")
     return splits

@@ -77,22 +77,31 @@ def _link_images(images: Path, output: Path) -> None:
     link.symlink_to(images.resolve(), target_is_directory=True)
 
 
-def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
-    """Run SfM on cfg.images and return the scene folder holding sparse/0."""
-    console = console or Console(stderr=True)
-    names = _photos(cfg.images)
-    output = cfg.output or default_output(cfg.images)
-    database, sparse = output / "database.db", output / "sparse" / "0"
-    if (database.exists() or sparse.exists()) and not cfg.overwrite:
-        raise SplatuError("a COLMAP database or model already exists", f"in {output}",
-                          "pass --overwrite or choose another --output")
-    output.mkdir(parents=True, exist_ok=True)
-    database.unlink(missing_ok=True)
-    if sparse.exists():
-        shutil.rmtree(sparse)
-    pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.WARNING
-    console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
+def _remove_partial(created: list[Path]) -> None:
+    """Delete what a failed run made (database, model folders, the output folder itself), so a retry needs no
+    --overwrite; anything that was there before the run stays."""
+    for path in created:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
+
+def _photos_read(database: Path, names: list[str], images: Path) -> None:
+    """Stop early, naming the cause, when COLMAP could not read enough of the photos to match any pair."""
+    db = pycolmap.Database.open(database)
+    try:
+        read = db.num_images()
+    finally:
+        db.close()
+    if read < 2:
+        raise SplatuError(f"COLMAP could read only {read} of {len(names)} photos", f"in {images}",
+                          "replace unreadable files with JPEG/PNG photos (COLMAP's warnings above name them)")
+
+
+def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, console: Console) -> None:
+    """Extract, match and map; the largest model goes to <output>/sparse/0."""
+    database, sparse = output / "database.db", output / "sparse" / "0"
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -102,6 +111,7 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     _stage(console, "extracting SIFT features", lambda: pycolmap.extract_features(
         database, cfg.images, image_names=names, camera_mode=mode, reader_options=reader,
         extraction_options=extraction, device=pycolmap.Device.cpu))
+    _photos_read(database, names, cfg.images)
     match = pycolmap.match_exhaustive if cfg.matcher == "exhaustive" else pycolmap.match_sequential
     _stage(console, f"matching features ({cfg.matcher})", lambda: match(database, device=pycolmap.Device.cpu))
 
@@ -120,15 +130,39 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
         database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
     shutil.rmtree(models_dir)
     if not models:
+        retry = "try --matcher exhaustive" if cfg.matcher == "sequential" else "check they show one static scene"
         raise SplatuError("COLMAP could not reconstruct the scene (no model)", f"from {cfg.images}",
-                          "take more overlapping photos, or try --matcher exhaustive")
+                          f"take more overlapping photos, or {retry}")
     best = max(models.values(), key=lambda r: r.num_reg_images())  # type: ignore[union-attr]
     sparse.mkdir(parents=True, exist_ok=True)
     best.write(sparse)
-    _link_images(cfg.images, output)
     console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
                   f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
                   soft_wrap=True)
+
+
+def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
+    """Run SfM on cfg.images and return the scene folder holding sparse/0; a failed run leaves nothing behind."""
+    console = console or Console(stderr=True)
+    names = _photos(cfg.images)
+    output = cfg.output or default_output(cfg.images)
+    database, sparse = output / "database.db", output / "sparse" / "0"
+    if (database.exists() or sparse.exists()) and not cfg.overwrite:
+        raise SplatuError("a COLMAP database or model already exists", f"in {output}",
+                          "pass --overwrite or choose another --output")
+    created = [path for path in (output, output / "sparse") if not path.exists()] + [database, sparse]
+    output.mkdir(parents=True, exist_ok=True)
+    database.unlink(missing_ok=True)
+    if sparse.exists():
+        shutil.rmtree(sparse)
+    pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.WARNING
+    console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
+    try:
+        _reconstruct(cfg, names, output, console)
+        _link_images(cfg.images, output)
+    except BaseException:
+        _remove_partial(created)
+        raise
     console.print(f"train on it with: splatu train --data {output}", soft_wrap=True)
     return output
 

@@ -69,10 +69,8 @@ def scene_path(cfg: DataConfig) -> Path:
 
 def load_scene(cfg: DataConfig) -> Scene:
     """The scene `cfg` names, split, normalised and decoded (through the on-disk image cache)."""
+    cfg.validate()
     downscale = 1 if cfg.downscale is None else cfg.downscale
-    if downscale < 1:
-        raise SplatuError(f"downscale must be a positive integer (got {downscale})", "in --downscale",
-                          "pass --downscale 1, 2, 4 or 8")
     raw = read_scene_files(scene_path(cfg), downscale, cfg.background)
     if cfg.data == POSTER:
         raw.name = POSTER  # the real capture or the stand-in: either way, runs are filed under "poster"

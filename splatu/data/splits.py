@@ -10,17 +10,16 @@ from __future__ import annotations
 import random
 from collections.abc import Sequence
 
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, require_at_least
 
 
-def contiguous_split(n_frames: int, block: int, seed: int) -> tuple[list[int], list[int]]:
-    """Hold out `block` consecutive frames starting at a seeded random position."""
+def contiguous_split(n_frames: int, block: int, seed: int, option: str = "--eval-block",
+                     where: str = "in the split options") -> tuple[list[int], list[int]]:
+    """Hold out `block` consecutive frames starting at a seeded random position; `option` is the flag that set
+    `block`, named in the error when it does not fit."""
     if not 0 < block < n_frames:
-        raise SplatuError(
-            f"a contiguous eval block of {block} frames needs between 1 and {n_frames - 1} frames",
-            f"in a scene of {n_frames} frames",
-            "choose a smaller --eval-block",
-        )
+        raise SplatuError(f"{option} {block} is out of range: a scene of {n_frames} frames can hold out 1 to "
+                          f"{n_frames - 1} of them", where, f"pass {option} between 1 and {n_frames - 1}")
     start = random.Random(seed).randrange(0, n_frames - block + 1)
     eval_idx = list(range(start, start + block))
     train_idx = [i for i in range(n_frames) if not start <= i < start + block]
@@ -29,9 +28,7 @@ def contiguous_split(n_frames: int, block: int, seed: int) -> tuple[list[int], l
 
 def every_n_split(n_frames: int, n: int) -> tuple[list[int], list[int]]:
     """nerfstudio's rule: every n-th frame (0, n, 2n, ...) is held out."""
-    if n < 2 or n_frames < 2:
-        raise SplatuError(f"every-n split needs n >= 2 and 2+ frames (got n={n})",
-                          f"in a scene of {n_frames} frames", "use --eval-every 8 or more frames")
+    require_at_least(n, 2, "--eval-every")
     eval_idx = list(range(0, n_frames, n))
     train_idx = [i for i in range(n_frames) if i % n != 0]
     return train_idx, eval_idx

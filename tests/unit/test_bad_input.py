@@ -5,12 +5,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from splatu.cli import entrypoint
+from splatu.data.assemble import assemble
 from splatu.data.config import DataConfig
-from splatu.data.resolve import load_scene
+from splatu.data.images import ImageCache
+from splatu.data.process_images import ProcessImagesConfig, process_images
+from splatu.data.resolve import load_scene, read_scene_files
 from splatu.errors import SplatuError
 from tests.synthetic_scenes import noise_image, write_nerfstudio_scene, write_rgb
 
@@ -70,14 +74,67 @@ def test_unknown_nerfstudio_camera_model(tmp_path):
     assert "EQUIRECTANGULAR" in error.what and "transforms.json" in error.where
 
 
-def test_unknown_colmap_camera_model(tmp_path):
-    sparse = tmp_path / "scene" / "sparse" / "0"
+def write_colmap(root: Path, camera: str = "1 PINHOLE 8 6 5 5 4 3",
+                 poses: tuple[str, ...] = ("1 0 0 0", "1 0 0 0"), points: str = "") -> Path:
+    """A two-image COLMAP text model (no image files: these errors come before decoding); returns sparse/0."""
+    sparse = root / "sparse" / "0"
     sparse.mkdir(parents=True)
-    (sparse / "cameras.txt").write_text("1 FULL_OPENCV 8 6 5 5 4 3 0.1 0 0 0 0 0 0 0\n")
-    (sparse / "images.txt").write_text("1 1 0 0 0 0 0 0 1 a.png\n\n2 1 0 0 0 1 0 0 1 b.png\n\n")
-    (sparse / "points3D.txt").write_text("")
+    (sparse / "cameras.txt").write_text(f"# a comment\n{camera}\n")
+    lines = [f"{i + 1} {quat} {i} 0 0 1 {'ab'[i]}.png\n\n" for i, quat in enumerate(poses)]
+    (sparse / "images.txt").write_text("".join(lines))
+    (sparse / "points3D.txt").write_text(points)
+    return sparse
+
+
+def test_unknown_colmap_camera_model(tmp_path):
+    write_colmap(tmp_path / "scene", camera="1 FULL_OPENCV 8 6 5 5 4 3 0.1 0 0 0 0 0 0 0")
     error = load_error(tmp_path / "scene", tmp_path)
     assert "FULL_OPENCV" in error.what and "cameras.txt" in error.where
+
+
+@pytest.mark.parametrize("camera", ["1 PINHOLE 0 6 5 5 4 3", "1 PINHOLE 8 0 5 5 4 3"])
+def test_colmap_camera_of_zero_size_names_the_camera(tmp_path, camera):
+    write_colmap(tmp_path / "scene", camera=camera)
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert "is not positive" in error.what and error.where.endswith("cameras.txt (camera 1)")
+
+
+def test_colmap_zero_quaternion_is_refused_not_read_as_identity(tmp_path):
+    write_colmap(tmp_path / "scene", poses=("1 0 0 0", "0 0 0 0"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert "b.png has a zero" in error.what and error.where.endswith("images.txt")
+
+
+@pytest.mark.parametrize("missing", ["cameras.txt", "images.txt", "points3D.txt"])
+def test_colmap_model_missing_a_file_names_it(tmp_path, missing):
+    (write_colmap(tmp_path / "scene") / missing).unlink()
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == f"the COLMAP model has no {missing}" and error.where.endswith("sparse/0")
+
+
+@pytest.mark.parametrize(("file", "edit", "line"), [
+    ("images.txt", lambda text: text.replace("2 1 0 0 0", "2 nan 0 0 0"), 3),
+    ("images.txt", lambda text: "garbage line here\n" + text, 1),
+    ("points3D.txt", lambda text: "1 0.5 0.5 2 255 0 0 0.1\n1 x y z\n", 2),
+    ("cameras.txt", lambda text: text.replace("5 5 4 3", "inf 5 4 3"), 2),
+])
+def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, file, edit, line):
+    path = write_colmap(tmp_path / "scene") / file
+    path.write_text(edit(path.read_text()))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what.startswith(f"cannot parse {file} line {line} (") and error.where == f"in {path}"
+
+
+@pytest.mark.parametrize(("ext", "kind"), [(".jpg", "JPEG"), (".png", "PNG")])
+def test_truncated_image_names_the_file(tmp_path, ext, kind):
+    """libjpeg decodes a cut JPEG with only a warning (the rest grey); both formats are refused by content."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    encoded = cv2.imencode(ext, noise_image(2, 40, 30))[1].tobytes()
+    (root / cameras[2].name).write_bytes(encoded[: len(encoded) * 2 // 3])
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what.startswith(f"cannot decode image (truncated {kind}")
+    assert error.where.endswith(cameras[2].name)
 
 
 def test_image_size_that_disagrees_with_the_intrinsics(tmp_path):
@@ -114,6 +171,102 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     edit_transforms(root, poison)
     error = load_error(root, tmp_path)
     assert "non-finite" in error.what and cameras[1].name in error.where
+
+
+@pytest.mark.parametrize(("lists", "message"), [
+    ({"val_filenames": [1]}, "has val_filenames but no train_filenames"),
+    ({"train_filenames": [0, 1, 2]}, "has train_filenames but no val_filenames or test_filenames"),
+    ({"train_filenames": [0, 1], "test_filenames": [2, 3]}, None),
+    ({"train_filenames": [0, 1, 2], "test_filenames": [3, "images/nope.png"]}, "test_filenames names a frame"),
+    ({"train_filenames": [0, 1, 2], "val_filenames": [2, 3]}, "'images/frame_002.png' is in both train_filenames"),
+    ({"train_filenames": [0, 1], "val_filenames": [2], "test_filenames": [1, 3]}, "is in both train_filenames and "
+                                                                                  "test_filenames"),
+])
+def test_split_lists_must_be_complete_known_and_disjoint(tmp_path, lists, message):
+    root = tmp_path / "scene"
+    names = [c.name for c in write_nerfstudio_scene(root, n=4)]
+    edit_transforms(root, lambda c: c.update({k: [names[i] if isinstance(i, int) else i for i in v]
+                                              for k, v in lists.items()}))
+    if message is None:  # train + test without val: test is the eval split, as NeRF-synthetic's test split is
+        scene = load_scene(DataConfig(data=str(root), cache_dir=tmp_path / "cache"))
+        assert scene.train.names == names[:2] and scene.eval.names == names[2:] and not scene.extra_eval
+        return
+    error = load_error(root, tmp_path)
+    assert message in error.what and "transforms.json" in error.where
+
+
+@pytest.mark.parametrize(("options", "flag"), [
+    ({"eval_list": Path("eval.txt")}, "--eval-list"),
+    ({"eval_split": "contiguous", "eval_every": 4}, "--eval-every"),
+    ({"eval_split": "every-n", "eval_block": 2}, "--eval-block"),
+])
+def test_flags_the_chosen_split_would_ignore_are_refused(tmp_path, options, flag):
+    error = load_error(tmp_path / "not-even-loaded", tmp_path, **options)
+    assert error.what.startswith(f"{flag} is not used by --eval-split") and flag in error.fix
+
+
+@pytest.mark.parametrize(("name", "stand_in"), [("scene", False), ("poster", True)])
+def test_eval_block_with_the_scene_s_own_split_is_refused(tmp_path, name, stand_in):
+    root = tmp_path / "scene"
+    names = [c.name for c in write_nerfstudio_scene(root, n=6)]
+    edit_transforms(root, lambda c: c.update(train_filenames=names[:4], val_filenames=names[4:]))
+    raw = read_scene_files(root, 1, (1.0, 1.0, 1.0))
+    raw.name = name  # load_scene names every `--data poster` scene "poster"
+    with pytest.raises(SplatuError) as caught:
+        assemble(raw, DataConfig(eval_block=2), ImageCache(tmp_path / "cache"))
+    assert "--eval-block is not used" in caught.value.what and "--eval-split contiguous" in caught.value.fix
+    assert ("--poster.eval-block" in caught.value.fix) == stand_in
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"eval_block": -3}, "--eval-block must be at least 0 (got -3)"),
+    ({"eval_split": "every-n", "eval_every": 0}, "--eval-every must be at least 2 (got 0)"),
+    ({"downscale": 0}, "--downscale must be at least 1 (got 0)"),
+    ({"background": (1.5, 0.0, 0.0)}, "--background must be three RGB values in [0, 1]"),
+    ({"background": (float("nan"), 0.0, 0.0)}, "--background must be three RGB values in [0, 1]"),
+])
+def test_out_of_range_options_say_the_valid_range(tmp_path, options, message):
+    write_nerfstudio_scene(tmp_path / "scene", n=4)
+    error = load_error(tmp_path / "scene", tmp_path, **options)
+    assert error.what.startswith(message)
+
+
+def test_eval_block_too_large_says_the_valid_range(tmp_path):
+    write_nerfstudio_scene(tmp_path / "scene", n=4)
+    error = load_error(tmp_path / "scene", tmp_path, eval_split="contiguous", eval_block=4)
+    assert "out of range" in error.what and error.fix == "pass --eval-block between 1 and 3"
+
+
+def test_downscale_that_leaves_no_pixels_names_the_image_size(tmp_path):
+    cameras = write_nerfstudio_scene(tmp_path / "scene", n=4, width=40, height=30)
+    error = load_error(tmp_path / "scene", tmp_path, downscale=1000)
+    assert error.what.startswith("--downscale 1000 shrinks the 40x30 image to 1x1 px")
+    assert error.fix == "pass --downscale 3 or less" and error.where.endswith(cameras[0].name)
+    assert load_scene(DataConfig(data=str(tmp_path / "scene"), downscale=3, cache_dir=tmp_path / "cache"))
+
+
+def test_missing_mask_says_mask_and_names_mask_path(tmp_path):
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][1].update(mask_path="masks/gone.png"))
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == f"mask not found (the mask_path of frame {cameras[1].name!r})"
+    assert error.where.endswith("masks/gone.png") and "mask_path" in error.fix
+
+
+def test_frame_without_file_path_is_counted_as_in_the_file(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][2].pop("file_path"))  # it would sort first
+    assert load_error(root, tmp_path).what == "frames[2] has no file_path"
+
+
+def test_frame_without_transform_matrix_says_so(tmp_path):
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][3].pop("transform_matrix"))
+    error = load_error(root, tmp_path)
+    assert error.what == "frame has no transform_matrix" and cameras[3].name in error.where
 
 
 def test_empty_split_from_the_file_lists(tmp_path):
@@ -157,6 +310,39 @@ def test_bad_depth_map_names_the_file(tmp_path):
     error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
     assert "finite" in error.what and error.where.endswith("d.npy")
     assert cameras  # the scene itself is valid; only the depth is bad
+
+
+def test_corrupt_depth_npy_is_named_without_numpy_advice(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4, width=8, height=6)
+    np.save(root / "d.npy", np.array([{"not": "depth"}], dtype=object), allow_pickle=True)
+    edit_transforms(root, lambda c: [f.update(depth_file_path="d.npy") for f in c["frames"]])
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == "depth map is not a valid .npy array of numbers" and error.where.endswith("d.npy")
+
+
+def test_failed_process_images_leaves_nothing_so_a_retry_needs_no_overwrite(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("a.jpg", "b.jpg"):
+        (photos / name).write_text("not a photo")
+    config = ProcessImagesConfig(images=photos, output=tmp_path / "out")
+    for _attempt in range(2):
+        with pytest.raises(SplatuError) as caught:
+            process_images(config)
+        assert caught.value.what == "COLMAP could read only 0 of 2 photos"
+        assert not (tmp_path / "out").exists()
+
+
+def test_process_images_without_a_model_does_not_suggest_the_default_matcher(tmp_path):
+    photos = tmp_path / "images"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 64, 64))  # unrelated noise: nothing matches
+    (tmp_path / "database.db").write_text("an old one")
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, overwrite=True))
+    assert "no model" in caught.value.what and "--matcher" not in caught.value.fix
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):

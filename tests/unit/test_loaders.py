@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from splatu.data.config import DataConfig
-from splatu.data.images import Distortion, ImageCache, PixelRecipe, load_pixels
+from splatu.data.images import Distortion, ImageCache, PixelRecipe, load_pixels, truncated_format
 from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
@@ -193,6 +193,21 @@ def _write_colmap_text(root: Path, model: str, params: list[float], cameras) -> 
     (sparse / "points3D.txt").write_text("1 10.0 -3.0 2.0 255 0 128 0.5\n2 10.5 -3.0 2.5 0 255 0 0.5\n")
 
 
+def test_colmap_quaternion_that_is_not_unit_is_normalised(tmp_path):
+    """pycolmap keeps a quaternion as written; a scaled one must still give the rotation, not a scaled matrix."""
+    cameras = ring_cameras(5, 40, 30)
+    _write_colmap_text(tmp_path / "unit", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    _write_colmap_text(tmp_path / "scaled", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    images_txt = tmp_path / "scaled" / "sparse" / "0" / "images.txt"
+    lines = [line.split() for line in images_txt.read_text().splitlines()]
+    images_txt.write_text("\n".join(" ".join([t[0], *(str(2 * float(q)) for q in t[1:5]), *t[5:]]) if t else ""
+                                   for t in lines) + "\n")
+    unit, scaled = (load_scene(config(tmp_path / name, tmp_path, eval_split="every-n", eval_every=3))
+                    for name in ("unit", "scaled"))
+    for a, b in zip(unit.train.cameras, scaled.train.cameras, strict=True):
+        assert torch.allclose(a.world_to_camera, b.world_to_camera, atol=1e-5)
+
+
 def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
     w = math.sqrt(max(0.0, 1 + np.trace(rotation))) / 2
     return (w, (rotation[2, 1] - rotation[1, 2]) / (4 * w), (rotation[0, 2] - rotation[2, 0]) / (4 * w),
@@ -269,6 +284,37 @@ def test_a_cache_entry_emptied_or_torn_is_recomputed(tmp_path, damage):
     entry.write_bytes(damage)  # a full disk or a crash left this behind
     assert np.array_equal(load_pixels(recipe, cache), first)
     assert np.array_equal(np.load(entry), cache.load(recipe))
+
+
+def _with_exif_thumbnail(jpeg: bytes, thumbnail: bytes) -> bytes:
+    """`jpeg` with an APP1 (EXIF) segment holding a whole JPEG thumbnail, end-of-image marker and all."""
+    payload = b"Exif\x00\x00" + thumbnail
+    return jpeg[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + jpeg[2:]
+
+
+def test_truncation_check_accepts_whole_jpegs_of_every_kind_and_refuses_any_cut():
+    image = noise_image(0, 96, 64)
+    plain, progressive, restarts = (cv2.imencode(".jpg", image, flags)[1].tobytes() for flags in (
+        [], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 1]))
+    exif = _with_exif_thumbnail(plain, cv2.imencode(".jpg", image[:16, :16])[1].tobytes())
+    assert cv2.imdecode(np.frombuffer(exif, np.uint8), cv2.IMREAD_UNCHANGED).shape == image.shape
+    for whole in (plain, progressive, restarts, exif):
+        assert truncated_format(whole) is None
+        assert truncated_format(whole + b"phone trailer \xff\xd8 data") is None  # after EOI: ignored, as by libjpeg
+        cuts = range(4, len(whole) - 1, 37)
+        assert [truncated_format(whole[:cut]) for cut in cuts] == ["JPEG"] * len(cuts)
+    png = cv2.imencode(".png", image)[1].tobytes()
+    assert truncated_format(png) is None and truncated_format(png[:-12]) == "PNG"  # no IEND chunk
+
+
+@pytest.mark.skipif(not Path("/work/shared/data/fox/images").is_dir(), reason="needs the fox capture in /work/shared")
+def test_truncation_check_accepts_a_real_capture_quickly():
+    files = sorted(Path("/work/shared/data/fox/images").glob("*.jpg"))
+    contents = [path.read_bytes() for path in files]
+    start = time.perf_counter()
+    assert [truncated_format(data) for data in contents] == [None] * len(files)
+    assert time.perf_counter() - start < 0.05 * len(files)  # measured ~0.5 ms per 0.5 MB photo
+    assert truncated_format(contents[0][: len(contents[0]) // 2]) == "JPEG"
 
 
 def test_ply_reader_ascii_and_binary(tmp_path):

@@ -239,6 +239,13 @@ def test_bad_settings_give_one_line_errors(change, tmp_path):
     assert not any(tmp_path.iterdir())
 
 
+def test_eval_block_error_names_the_poster_flag(tmp_path):
+    with pytest.raises(SplatuError) as err:
+        build_poster_standin(PosterConfig(**{**TINY.__dict__, "eval_block": 30}), tmp_path)
+    assert err.value.what.startswith("--poster.eval-block 30 is out of range")
+    assert err.value.fix == f"pass --poster.eval-block between 1 and {TINY.frames - 1}"
+
+
 def test_without_specular_only_the_highlights_go():
     scene = build_scene()
     front = _make_camera((0.1, 1.3, 1.1), TARGET)

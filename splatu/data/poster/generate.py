@@ -40,6 +40,7 @@ GENERATOR_VERSION = 1
 def validate(cfg: PosterConfig) -> None:
     """Reject settings that cannot make a usable scene, with a one-line error."""
     checks = [
+        (cfg.frames >= 4, f"frames={cfg.frames} is too few", "use 4 or more (--poster.frames)"),
         (cfg.width >= 8 and cfg.height >= 8, f"image size {cfg.width}x{cfg.height} is too small", "use 8 px or more"),
         (cfg.interp_every >= 2, f"interp_every={cfg.interp_every} must be at least 2", "use 8 (the default)"),
         (cfg.points >= 0, f"points={cfg.points} is negative", "use 0 or more initial points"),
@@ -57,7 +58,8 @@ def validate(cfg: PosterConfig) -> None:
 def standin_splits(cfg: PosterConfig) -> tuple[list[int], list[int], list[int]]:
     """(train, val, test) frame indices: val is the seeded contiguous block (an unseen angle); of the
     rest, every interp_every-th frame, starting mid-stride so each is flanked by training frames, is test."""
-    remaining, val = contiguous_split(cfg.frames, cfg.eval_block, cfg.seed)
+    remaining, val = contiguous_split(cfg.frames, cfg.eval_block, cfg.seed, "--poster.eval-block",
+                                      "in the poster stand-in settings")
     offset = cfg.interp_every // 2
     test = [f for k, f in enumerate(remaining) if k % cfg.interp_every == offset]
     train = [f for k, f in enumerate(remaining) if k % cfg.interp_every != offset]
