@@ -1,6 +1,6 @@
 """The training loop: splatfacto-style 3DGS with the uncertainty SH learned in the same step.
 
-It drives `train_step` (splatu.train_step) from a fresh or restored state to the last step, with periodic
+It drives `train_step` (splatu.training_step) from a fresh or restored state to the last step, with periodic
 evaluation, checkpoints, the mid-run choice of SH degrees, and a clean stop on Ctrl-C or SIGTERM, then
 finishes the run (final checkpoint, evaluation, PLY, summary.json).
 
@@ -375,7 +375,7 @@ def ensemble_config(run_dir: Path) -> TrainConfig | None:
 def check_options(config: TrainConfig) -> None:
     """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
     may build the stand-in) and before a run folder is made and `latest` pointed at it."""
-    for part in (config.model, config.optim, config.densify, config.degree_choice):
+    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
         part.validate()
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 

@@ -669,7 +669,8 @@ def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
 
 
 @pytest.mark.parametrize("flag", [["--model.sh-degree", "5"], ["--optim.means-lr", "0"],
-                                  ["--densify.refine-every", "0"], ["--uncertainty.lam", "0.7"]])
+                                  ["--densify.refine-every", "0"], ["--uncertainty.lam", "0.7"],
+                                  ["--eval-list", "eval.txt"]])
 def test_a_bad_option_fails_before_the_scene_loads_and_makes_no_run_folder(tmp_path, monkeypatch, capsys, flag):
     def no_scene(data_config):
         raise AssertionError("the scene was loaded before the options were checked")
