@@ -7,6 +7,7 @@ import numpy as np
 import torch
 
 from splatu.data.scene import Scene, Views, on_background
+from splatu.errors import SplatuError
 from splatu.losses import psnr, ssim
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
@@ -29,10 +30,16 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
             if not bool((views.valid[i] > 0).any()):
                 continue  # a view its mask file excludes entirely has nothing to score
             rgb, gt = rgb * views.valid[i][..., None], gt * views.valid[i][..., None]
-        psnrs.append(psnr(rgb, gt, mask=None if views.valid is None else views.valid[i] > 0))
+        kept = None if views.valid is None else views.valid[i] > 0
+        psnrs.append(psnr(rgb, gt, mask=kept))
         ssims.append(float(ssim(rgb, gt)))
-        if views.observed is not None and bool(views.observed[i].any()):
-            observed.append(psnr(rgb, gt, mask=views.observed[i]))
+        if views.observed is not None:
+            seen = views.observed[i] if kept is None else views.observed[i] & kept
+            if bool(seen.any()):
+                observed.append(psnr(rgb, gt, mask=seen))
+    if not psnrs:
+        raise SplatuError("every view of an evaluated set is excluded by its mask file", "in the scene's mask files",
+                          "fix the masks, or hold out other views (--eval-split)")
     metrics = {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)), "num_images": len(psnrs)}
     if observed:
         metrics["psnr_observed"] = float(np.mean(observed))

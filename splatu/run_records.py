@@ -47,9 +47,10 @@ ABANDONED_DIR = "abandoned"
 
 def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     """Resuming from a checkpoint older than the run's newest abandons what came after it. Move the later
-    checkpoints, their metrics lines, and a finished run's summary.json and splat.ply into
-    abandoned/<time>/: nothing trained is lost, and `--resume RUN`, `render-uncertainty` and `eval-ause`,
-    which take the newest checkpoint, never pick up the abandoned branch. Returns that folder, or None."""
+    checkpoints, their metrics lines, a finished run's summary.json and splat.ply, and the renders and AUSE
+    reports made of it into abandoned/<time>/: nothing trained is lost, and `--resume RUN`,
+    `render-uncertainty` and `eval-ause`, which take the newest checkpoint, never pick up the abandoned
+    branch. Returns that folder, or None."""
     later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
     if not later:
         return None
@@ -57,7 +58,8 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     folder.mkdir(parents=True, exist_ok=True)
     dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
-    for path in [*later, run_dir / "summary.json", run_dir / "splat.ply"]:
-        if path.is_file():
+    reports = [*run_dir.glob("ause_*"), run_dir / "uncertainty"]  # renders and scores of the abandoned model
+    for path in [*later, run_dir / "summary.json", run_dir / "splat.ply", *reports]:
+        if path.exists():
             path.replace(folder / path.name)
     return folder

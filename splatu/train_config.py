@@ -115,9 +115,10 @@ class TrainConfig:
                               "pass a weight from 0 (L1 only) to 1 (SSIM only); 3DGS uses 0.2")
         for name in ("resolution_levels", "eval_every_steps", "checkpoint_every", "seed"):
             require_at_least(getattr(self, name), 0, f"--{name.replace('_', '-')}")
-        if self.seed >= MAX_SEED:  # camera_index seeds torch with seed · 1,000,003 + epoch, which must fit 64 bits
+        if self.seed + self.ensemble > MAX_SEED:  # camera_index seeds torch with seed · 1,000,003 + epoch (64 bits);
+            # an ensemble's members take seed, seed + 1, …
             raise SplatuError(f"--seed {self.seed} is too large", "in the training options",
-                              f"pass a seed below {MAX_SEED:,}")
+                              f"pass a seed below {MAX_SEED - self.ensemble + 1:,}")
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:

@@ -39,6 +39,7 @@ from splatu.checkpoint import (
     saved_frame,
 )
 from splatu.config_values import changed_options, to_dict
+from splatu.data.assemble import refuse_unused_eval_block
 from splatu.data.resolve import POSTER, load_scene
 from splatu.data.scene import Scene
 from splatu.degree_choice import (
@@ -62,6 +63,7 @@ from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
 from splatu.run_records import MetricsLog, set_aside_later_work
 from splatu.train_config import (
+    DEFAULT_PRESET,
     TrainConfig,
     eval_background,
     from_dict,
@@ -300,6 +302,11 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
+    if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
+        abandoned = set_aside_later_work(run_dir, state.step)
+        if abandoned is not None:
+            console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
+                          f"{abandoned}", soft_wrap=True)
     # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
     state, config = run_loop(state, config, scene, run_dir, hooks)
@@ -331,6 +338,11 @@ def record_session(run_dir: Path, seconds: float) -> list[float]:
     return sessions
 
 
+def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
+    """Each member's run folder inside an ensemble run."""
+    return [run_dir / "members" / str(k) for k in range(config.ensemble)]
+
+
 def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
                    hooks: Sequence[StepHook] = ()) -> dict:
     """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
@@ -344,7 +356,7 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
     """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
-    members = [run_dir / "members" / str(k) for k in range(config.ensemble)]
+    members = ensemble_members(run_dir, config)
     try:
         for k, member_dir in enumerate(members):
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
@@ -377,14 +389,17 @@ def check_options(config: TrainConfig) -> None:
     may build the stand-in) and before a run folder is made and `latest` pointed at it."""
     for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
         part.validate()
+    config.data.refuse_unused_flags()
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 
 
 def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
     """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
-    ignored = [name for name in changed_options(given, preset_config(given.preset, given.method))
-               if name not in ("resume", "data.data")]
+    chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
+              if getattr(given, name) != default]  # the base of the comparison below, so never in it
+    ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
+                        if name not in ("resume", "data.data")]
     if ignored:
         flags = " ".join("--" + name.removeprefix("data.").replace("_", "-") for name in ignored)
         console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
@@ -405,6 +420,10 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         if saved_ensemble is not None:
             run_dir = Path(config.resume).expanduser()
             saved_ensemble = resumed_config(config, saved_ensemble, run_dir)
+            if all((member / "summary.json").is_file() for member in ensemble_members(run_dir, saved_ensemble)):
+                console.print(f"already finished: every member of {run_dir} is trained; nothing to resume",
+                              soft_wrap=True)
+                return run_dir
             train_ensemble(saved_ensemble, load_scene(saved_ensemble.data), run_dir, wall_start, hooks)
             return run_dir
         path = resolve_checkpoint(config.resume)
@@ -416,10 +435,6 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
             console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
                           soft_wrap=True)
             return run_dir
-        abandoned = set_aside_later_work(run_dir, step)
-        if abandoned is not None:
-            console.print(f"resuming from step {step}: the run's later checkpoints and results moved to {abandoned}",
-                          soft_wrap=True)
         console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
         scene = load_scene(saved.data)
         console.print(scene_line(scene), soft_wrap=True)
@@ -430,6 +445,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     check_options(config)
     writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     scene = load_scene(config.data)
+    refuse_unused_eval_block(config.data, scene)
     console.print(scene_line(scene), soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder

@@ -42,10 +42,6 @@ def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], 
                           f"in {raw.source}", "add more images to the scene")
     extras: dict[str, list[int]] = {}
     own = cfg.eval_split == "auto" and "train" in raw.file_splits and "eval" in raw.file_splits
-    if own and cfg.eval_block:
-        stand_in = " (the built-in poster's block is --poster.eval-block)" if raw.name == "poster" else ""
-        raise SplatuError("--eval-block is not used: the scene has its own train/eval split", f"in {raw.source}",
-                          f"drop --eval-block{stand_in}, or pass --eval-split contiguous to split by blocks")
     if own:
         train, held_out = raw.file_splits["train"], raw.file_splits["eval"]
         extras = {k: v for k, v in raw.file_splits.items() if k not in ("train", "eval")}
@@ -147,4 +143,14 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
         center=center.to(torch.float32),
         scale=scale,
         extra_eval={name: views(indices) for name, indices in extras.items()},
+        own_split=own,
     )
+
+
+def refuse_unused_eval_block(cfg: DataConfig, scene: Scene) -> None:
+    """A new run's --eval-block must shape its split: refused when the scene's file brings its own. Only new
+    runs check this; a saved config that carried an ignored --eval-block still loads."""
+    if cfg.eval_block and scene.own_split:
+        stand_in = " (the built-in poster's block is --poster.eval-block)" if scene.name == "poster" else ""
+        raise SplatuError("--eval-block is not used: the scene has its own train/eval split", f"in {scene.source}",
+                          f"drop --eval-block{stand_in}, or pass --eval-split contiguous to split by blocks")

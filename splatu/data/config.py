@@ -36,7 +36,7 @@ class DataConfig:
     """The built-in stand-in, used by `--data poster` when the real capture is absent."""
 
     def validate(self) -> None:
-        """Check what needs no scene, so a bad or ignored flag fails before anything loads or is built."""
+        """Check the ranges, so a bad value fails before anything loads or is built."""
         if self.downscale is not None:
             require_at_least(self.downscale, 1, "--downscale")
         require_at_least(self.eval_block, 0, "--eval-block")
@@ -44,6 +44,10 @@ class DataConfig:
         if len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise SplatuError(f"--background must be three RGB values in [0, 1] (got {self.background})",
                               "in the options", "pass e.g. --background 1 1 1 (white) or 0 0 0 (black)")
+
+    def refuse_unused_flags(self) -> None:
+        """A new run's split flags must all shape its split. Only new runs check this (`splatu train`): a saved
+        config that carried an ignored flag still loads for render, eval and resume."""
         ignored = [
             ("--eval-list", self.eval_list is not None, ("list",)),
             ("--eval-every", self.eval_every != DataConfig.eval_every, ("every-n",)),

@@ -81,3 +81,5 @@ class Scene:
     scale: float = 1.0
     extra_eval: dict[str, Views] = field(default_factory=dict)
     """More held-out sets, e.g. "interp": every 8th frame of the training path (built-in scene)."""
+    own_split: bool = False
+    """Whether the split is the scene file's own lists (not one made by --eval-split)."""

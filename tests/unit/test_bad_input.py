@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from splatu.cli import entrypoint
-from splatu.data.assemble import assemble
+from splatu.data.assemble import assemble, refuse_unused_eval_block
 from splatu.data.config import DataConfig
 from splatu.data.images import ImageCache
 from splatu.data.process_images import ProcessImagesConfig, process_images
@@ -200,9 +200,14 @@ def test_split_lists_must_be_complete_known_and_disjoint(tmp_path, lists, messag
     ({"eval_split": "contiguous", "eval_every": 4}, "--eval-every"),
     ({"eval_split": "every-n", "eval_block": 2}, "--eval-block"),
 ])
-def test_flags_the_chosen_split_would_ignore_are_refused(tmp_path, options, flag):
-    error = load_error(tmp_path / "not-even-loaded", tmp_path, **options)
-    assert error.what.startswith(f"{flag} is not used by --eval-split") and flag in error.fix
+def test_flags_the_chosen_split_would_ignore_are_refused_for_a_new_run_only(tmp_path, options, flag):
+    config = DataConfig(data=str(tmp_path / "scene"), cache_dir=tmp_path / "cache", **options)
+    with pytest.raises(SplatuError) as caught:
+        config.refuse_unused_flags()
+    assert caught.value.what.startswith(f"{flag} is not used by --eval-split") and flag in caught.value.fix
+    write_nerfstudio_scene(tmp_path / "scene", n=6)
+    if "eval_list" not in options:  # a saved run's config that carried the ignored flag still loads
+        assert len(load_scene(config).train) > 0
 
 
 @pytest.mark.parametrize(("name", "stand_in"), [("scene", False), ("poster", True)])
@@ -212,10 +217,13 @@ def test_eval_block_with_the_scene_s_own_split_is_refused(tmp_path, name, stand_
     edit_transforms(root, lambda c: c.update(train_filenames=names[:4], val_filenames=names[4:]))
     raw = read_scene_files(root, 1, (1.0, 1.0, 1.0))
     raw.name = name  # load_scene names every `--data poster` scene "poster"
+    scene = assemble(raw, DataConfig(eval_block=2), ImageCache(tmp_path / "cache"))  # a saved config still loads
+    assert scene.own_split and scene.eval.names == names[4:]
     with pytest.raises(SplatuError) as caught:
-        assemble(raw, DataConfig(eval_block=2), ImageCache(tmp_path / "cache"))
+        refuse_unused_eval_block(DataConfig(eval_block=2), scene)
     assert "--eval-block is not used" in caught.value.what and "--eval-split contiguous" in caught.value.fix
     assert ("--poster.eval-block" in caught.value.fix) == stand_in
+    refuse_unused_eval_block(DataConfig(), scene)
 
 
 @pytest.mark.parametrize(("options", "message"), [

@@ -27,6 +27,7 @@ from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
 from splatu.train_config import (
+    MAX_SEED,
     TrainConfig,
     default_config,
     from_dict,
@@ -722,6 +723,14 @@ def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
     assert first == second
     unmasked = evaluation.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
     assert unmasked["psnr"] != first["psnr"]
+    # observed pixels the mask excludes are not counted as zero error: every pixel observed reads as the mask alone
+    observed = [dataclasses.replace(views, observed=torch.ones(views.images.shape[:3], dtype=torch.bool))
+                for views in masked]
+    scores = [evaluation.evaluate_views(model, views, 1, background) for views in observed]
+    assert scores[0]["psnr_observed"] == scores[0]["psnr"] == scores[1]["psnr_observed"]
+    nothing_kept = dataclasses.replace(masked[0], valid=torch.zeros_like(masked[0].valid))
+    with pytest.raises(SplatuError, match="every view of an evaluated set is excluded"):
+        evaluation.evaluate_views(model, nothing_kept, 1, background)
 
 
 def test_it_per_second_forgets_the_compile_of_the_first_step():
@@ -747,11 +756,12 @@ def test_resume_keeps_the_runs_options_says_which_it_ignores_and_takes_a_moved_s
     assert "ignoring --seed" in capsys.readouterr().err
 
 
-def test_the_run_starts_by_saying_what_it_trains_on_and_ends_with_its_folder_on_stdout(tmp_path, scene, capsys,
-                                                                                   monkeypatch):
-    monkeypatch.setattr(trainer, "train", lambda config: tmp_path / "run")
-    trainer.run_command(tiny_config(tmp_path))
-    assert capsys.readouterr().out == f"run saved to {tmp_path / 'run'}\n"
+def test_the_run_starts_by_saying_what_it_trains_on_and_ends_with_its_folder_on_stdout(tmp_path, scene, capsys):
+    trainer.run_command(tiny_config(tmp_path, steps=2, checkpoint_every=0))
+    out, err = capsys.readouterr()
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert out == f"run saved to {run_dir}\n"
+    assert err.splitlines()[0] == "scene tiny: 6 training and 2 eval views at 32x24, 300 initial points"
     assert train_progress.scene_line(scene) == "scene tiny: 6 training and 2 eval views at 32x24, 300 initial points"
     no_points = dataclasses.replace(scene, points=torch.zeros(0, 3), extra_eval={"interp": scene.eval})
     assert train_progress.scene_line(no_points) == (
@@ -764,3 +774,46 @@ def test_any_junk_in_a_checkpoint_file_is_one_line(tmp_path, junk):
     path.write_bytes(junk)
     with pytest.raises(SplatuError, match=r"corrupt or unreadable checkpoint|not a splatu checkpoint"):
         read_checkpoint(path)
+
+
+def test_a_resume_that_fails_to_load_leaves_the_run_whole(tmp_path, scene, monkeypatch):
+    run_dir = trainer.train(tiny_config(tmp_path))  # checkpoints at steps 6 and 12, summary, PLY
+    before = sorted(p.relative_to(run_dir) for p in run_dir.rglob("*"))
+
+    def moved_away(data_config):
+        raise SplatuError("scene not found", "in /nowhere", "pass --data")
+
+    monkeypatch.setattr(trainer, "load_scene", moved_away)
+    with pytest.raises(SplatuError, match="scene not found"):
+        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(run_dir)[0]))
+    assert sorted(p.relative_to(run_dir) for p in run_dir.rglob("*")) == before  # nothing set aside
+
+
+def test_resume_names_a_preset_or_method_it_ignores(tmp_path, capsys):
+    saved = preset_config()
+    for flag, given in (("--preset", preset_config("quality")), ("--method", preset_config(method="splatfacto"))):
+        trainer.resumed_config(dataclasses.replace(given, resume=tmp_path), saved, tmp_path)
+        assert f"ignoring {flag}" in capsys.readouterr().err
+
+
+def test_an_ensembles_seeds_must_all_fit():
+    TrainConfig(seed=MAX_SEED - 3, ensemble=3)
+    with pytest.raises(SplatuError, match="too large"):
+        TrainConfig(seed=MAX_SEED - 2, ensemble=3)
+
+
+def test_resuming_a_finished_ensemble_changes_nothing(tmp_path, scene, capsys):
+    run_dir = trainer.train(_ensemble_config(tmp_path))
+    files = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
+    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert "already finished" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == files
+
+
+def test_a_new_runs_eval_block_must_shape_its_split(tmp_path, monkeypatch):
+    own = dataclasses.replace(tiny_scene(), own_split=True)
+    monkeypatch.setattr(trainer, "load_scene", lambda data_config: own)
+    config = tiny_config(tmp_path, data=DataConfig(data="poster", eval_block=3))
+    with pytest.raises(SplatuError, match="--eval-block is not used"):
+        trainer.train(config)
+    assert not (tmp_path / "outputs" / "tiny").exists()
