@@ -288,6 +288,9 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
+    if not map_entries(views):
+        raise SplatuError("no eval view has a pixel to score (each is excluded by its mask file)",
+                          "in the scene's mask files", "fix the masks, or hold out other views (--eval-split)")
     shutil.rmtree(root, ignore_errors=True)  # our own folder: stale views of an earlier render must not be scored
     write_maps_layout(root, views)
     atomic_write_text(root / "timing.json", json.dumps({"train_seconds": run.train_seconds,

@@ -146,3 +146,21 @@ def test_a_view_its_mask_excludes_entirely_is_left_out_of_the_maps_not_fatal():
         maps = {"rgb": rng.random((6, 8, 3)), "uncertainty": rng.random((6, 8))}
         views.append(RenderedView(name, maps, gt=rng.random((6, 8, 3)), mask=np.full((6, 8), keep)))
     assert [entry.name for entry in map_entries(views)] == ["kept"]
+
+
+def test_eval_ause_says_so_when_every_eval_view_is_masked_out(tmp_path, monkeypatch):
+    """It used to render, write no maps, then report the maps folder as missing."""
+    from types import SimpleNamespace
+
+    from splatu import render_uncertainty as R
+
+    blank = R.RenderedView("v", {"rgb": np.zeros((4, 4, 3)), "uncertainty": np.zeros((4, 4))},
+                           gt=np.zeros((4, 4, 3)), mask=np.zeros((4, 4), bool))
+    scene = SimpleNamespace(eval=None, train=None)
+    monkeypatch.setattr(R, "_load", lambda load, method, head: None)
+    monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None)))
+    monkeypatch.setattr(R, "view_spec", lambda *args: None)
+    monkeypatch.setattr(R, "render_views", lambda source, spec: ([blank], [0.1]))
+    with pytest.raises(SplatuError, match="no eval view has a pixel to score"):
+        R.render_eval_maps(tmp_path, "ours")
+    assert not (tmp_path / "uncertainty" / "ours-eval" / "maps").exists()
