@@ -81,12 +81,13 @@ def read_entry(root: Path, name: str) -> MapEntry:
     u_path = root / "uncertainty" / f"{name}.npy"
     try:
         uncertainty = np.load(require_file(u_path, "uncertainty map", "write it with numpy.save"), allow_pickle=False)
-    except (ValueError, EOFError, OSError) as err:  # empty, truncated or foreign files
-        raise SplatuError(f"uncertainty map is not a readable .npy ({type(err).__name__}: {err})", f"in {u_path}",
+    except (ValueError, EOFError, OSError):  # empty, truncated, pickled or foreign files
+        raise SplatuError("uncertainty map is not a valid .npy array of numbers", f"in {u_path}",
                           "write it with numpy.save(path, float_array)") from None
     if uncertainty.shape != rgb.shape[:2] or not np.issubdtype(uncertainty.dtype, np.number):
-        raise SplatuError(f"uncertainty map has shape {uncertainty.shape} {uncertainty.dtype}, "
-                          f"expected a float {rgb.shape[0]}x{rgb.shape[1]} array", f"in {u_path}",
+        size = "x".join(map(str, uncertainty.shape[::-1])) if uncertainty.ndim == 2 else f"shape {uncertainty.shape}"
+        raise SplatuError(f"uncertainty map is {size} {uncertainty.dtype}, but the render is "
+                          f"{rgb.shape[1]}x{rgb.shape[0]}", f"in {u_path}",
                           "save one float value per pixel of the render")
     uncertainty = uncertainty.astype(np.float64)
     if not np.isfinite(uncertainty).all():

@@ -96,8 +96,11 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     write_entry(root, read_entry(root, "view_0"))
     np.save(root / "uncertainty" / "view_0.npy", np.full((24, 32), np.nan))
     assert "NaN" in _one_line_error(capsys, "--maps", str(root))
-    np.save(root / "uncertainty" / "view_0.npy", np.zeros((5, 5)))
-    assert "shape (5, 5)" in _one_line_error(capsys, "--maps", str(root))
+    np.save(root / "uncertainty" / "view_0.npy", np.zeros((5, 7)))
+    assert "uncertainty map is 7x5 float64, but the render is 32x24" in _one_line_error(capsys, "--maps", str(root))
+    np.save(root / "uncertainty" / "view_0.npy", np.array([{"a": 1}]), allow_pickle=True)
+    line = _one_line_error(capsys, "--maps", str(root))
+    assert "not a valid .npy array of numbers" in line and "allow_pickle" not in line
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
     assert "exactly one" in _one_line_error(capsys)
 
