@@ -18,6 +18,7 @@ import tyro
 
 from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
+from splatu.interrupts import exit_code
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,6 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
             raise
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
         print("interrupted", file=sys.stderr)
-        sys.exit(130)
+        sys.exit(exit_code(stop))

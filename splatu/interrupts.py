@@ -6,6 +6,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,12 +14,32 @@ from typing import Any
 class TrainingInterrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
 
-    def __init__(self, what: str, run_dir: Path, step: int) -> None:
+    def __init__(self, what: str, run_dir: Path, step: int, signal_number: int = signal.SIGINT) -> None:
         self.message = f"{what}; resume with `splatu train --resume {run_dir}`"
         super().__init__(self.message)
         self.what = what
         self.run_dir = run_dir
         self.step = step
+        self.signal_number = signal_number
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM outside the steps (loading the scene, between ensemble members), unwinding as Ctrl-C does."""
+
+    signal_number = signal.SIGTERM
+
+
+def exit_code(stop: KeyboardInterrupt) -> int:
+    """128 + the signal that stopped the command, the shell's convention: 130 for Ctrl-C, 143 for SIGTERM."""
+    return 128 + int(getattr(stop, "signal_number", signal.SIGINT))
+
+
+@dataclass
+class StopRequest:
+    """A Ctrl-C or SIGTERM received during training, to act on at the end of the step."""
+
+    requested: bool = False
+    signal_number: int = signal.SIGINT
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -26,17 +47,17 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextmanager
-def deferred_interrupt() -> Iterator[dict[str, bool]]:
+def deferred_interrupt() -> Iterator[StopRequest]:
     """First Ctrl-C (or SIGTERM): finish the current step, then stop cleanly; a second one aborts at once."""
-    flag = {"requested": False}
+    flag = StopRequest()
     if threading.current_thread() is not threading.main_thread():
         yield flag
         return
 
     def handler(signum: int, frame: Any) -> None:
-        if flag["requested"]:
+        if flag.requested:
             raise KeyboardInterrupt
-        flag["requested"] = True
+        flag.requested, flag.signal_number = True, signum
 
     previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
@@ -54,7 +75,10 @@ def sigterm_as_ctrl_c() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    def terminated(signum: int, frame: Any) -> None:
+        raise Terminated
+
+    before = signal.signal(signal.SIGTERM, terminated)
     try:
         yield
     finally:

@@ -54,7 +54,7 @@ from splatu.degree_choice import (
 from splatu.densify import DensityController
 from splatu.errors import SplatuError, writable_dir
 from splatu.evaluation import evaluate_scene
-from splatu.interrupts import TrainingInterrupted, deferred_interrupt, sigterm_as_ctrl_c
+from splatu.interrupts import TrainingInterrupted, deferred_interrupt, exit_code, sigterm_as_ctrl_c
 from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
@@ -191,16 +191,16 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
                                                 len(state.model), rate), highlight=False, soft_wrap=True)
                 if (config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps
-                        and not interrupt["requested"]):  # a stop request must not wait for a whole evaluation
+                        and not interrupt.requested):  # a stop request must not wait for a whole evaluation
                     _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
                     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
                 for hook in hooks:
                     hook(state.step, state)
-                if interrupt["requested"]:
+                if interrupt.requested:
                     raise KeyboardInterrupt
         except KeyboardInterrupt:
-            raise _interrupted(state, config, run_dir, mid_step=in_step) from None
+            raise _interrupted(state, config, run_dir, in_step, interrupt.signal_number) from None
     return state, config
 
 
@@ -265,14 +265,16 @@ def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: Metrics
     return results
 
 
-def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool) -> TrainingInterrupted:
+def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool,
+                 signal_number: int) -> TrainingInterrupted:
     """Save (only at a step boundary, where the state is consistent) and say how to resume."""
     if mid_step:
         found = list_checkpoints(run_dir)
         where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
-        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}", run_dir, state.step)
+        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}", run_dir, state.step,
+                                   signal_number)
     path = save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
-    return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step)
+    return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step, signal_number)
 
 
 def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
@@ -365,7 +367,7 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
                 train_member(member, scene, member_dir, hooks)
             except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
-                                          run_dir, stop.step) from None
+                                          run_dir, stop.step, stop.signal_number) from None
     finally:
         sessions = record_session(run_dir, time.perf_counter() - wall_start)
     record = {"members": [str(m.relative_to(run_dir)) for m in members],
@@ -459,11 +461,12 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
 
 
 def run_command(config: TrainConfig) -> None:
-    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130."""
+    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130 or
+    143 (128 + the signal, as the shell reports a process the signal ended)."""
     try:
         with sigterm_as_ctrl_c():
             run_dir = train(config)
     except TrainingInterrupted as stop:
         print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
-        raise SystemExit(130) from None
+        raise SystemExit(exit_code(stop)) from None
     print(f"run saved to {run_dir}")  # on stdout, the one line a script reads

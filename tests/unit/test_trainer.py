@@ -425,8 +425,24 @@ def test_sigterm_is_ctrl_c_for_the_whole_train_command(monkeypatch, tmp_path, ca
     monkeypatch.setattr(trainer, "load_scene", killed_while_loading)
     with pytest.raises(SystemExit) as exc:
         entrypoint(["train", "--data", str(tmp_path), "--output-dir", str(tmp_path / "out")])
-    assert exc.value.code == 130 and "interrupted" in capsys.readouterr().err
+    assert exc.value.code == 128 + signal.SIGTERM and "interrupted" in capsys.readouterr().err  # 143, as a shell
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stopped_training_exits_with_128_plus_the_signal(tmp_path, scene, capsys, monkeypatch, signum):
+    step_once = training_step.train_step
+
+    def signal_during_step_2(state, config, images):
+        if state.step == 1:
+            os.kill(os.getpid(), signum)
+        return step_once(state, config, images)
+
+    monkeypatch.setattr(trainer, "train_step", signal_during_step_2)
+    with pytest.raises(SystemExit) as exc:
+        trainer.run_command(tiny_config(tmp_path, steps=4, checkpoint_every=0))
+    assert exc.value.code == 128 + signum
+    assert "interrupted at step 2" in capsys.readouterr().err
 
 
 def test_downsampled_targets_match_their_scaled_cameras():
