@@ -51,3 +51,12 @@ def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> d
     sets = {"eval": scene.eval, **scene.extra_eval}
     return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config))
             for name, views in sets.items()}
+
+
+def refuse_unscorable_sets(scene: Scene) -> None:
+    """A held-out set whose mask files exclude every pixel could never be scored: refused when the scene loads,
+    not by the final evaluation after the whole training (which every resume would then repeat)."""
+    for name, views in {"eval": scene.eval, **scene.extra_eval}.items():
+        if views.valid is not None and not bool((views.valid > 0).any()):
+            raise SplatuError(f"the mask files exclude every pixel of the {name} set's views", f"in {scene.source}",
+                              "fix the masks, or hold out other views (--eval-split)")

@@ -82,9 +82,11 @@ def read_entry(root: Path, name: str) -> MapEntry:
     try:
         uncertainty = np.load(require_file(u_path, "uncertainty map", "write it with numpy.save"), allow_pickle=False)
     except (ValueError, EOFError, OSError):  # empty, truncated, pickled or foreign files
+        uncertainty = None
+    if not isinstance(uncertainty, np.ndarray) or uncertainty.dtype.kind not in "iuf":  # an .npz, bools, strings
         raise SplatuError("uncertainty map is not a valid .npy array of numbers", f"in {u_path}",
-                          "write it with numpy.save(path, float_array)") from None
-    if uncertainty.shape != rgb.shape[:2] or not np.issubdtype(uncertainty.dtype, np.number):
+                          "write it with numpy.save(path, float_array)")
+    if uncertainty.shape != rgb.shape[:2]:
         size = "x".join(map(str, uncertainty.shape[::-1])) if uncertainty.ndim == 2 else f"shape {uncertainty.shape}"
         raise SplatuError(f"uncertainty map is {size} {uncertainty.dtype}, but the render is "
                           f"{rgb.shape[1]}x{rgb.shape[0]}", f"in {u_path}",

@@ -53,7 +53,7 @@ from splatu.degree_choice import (
 )
 from splatu.densify import DensityController
 from splatu.errors import SplatuError, writable_dir
-from splatu.evaluation import evaluate_scene
+from splatu.evaluation import evaluate_scene, refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, deferred_interrupt, exit_code, sigterm_as_ctrl_c
 from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
@@ -301,9 +301,9 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     keep_freed_memory()  # likewise: without it the first training of a process page-faults ~20% of its time away
     if checkpoint is None and config.degree_choice.on:
         config = with_choice_heads(config)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, run_dir / "config.yml")
     state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(config, run_dir / "config.yml")  # after the checks of restored_state: a refused resume changes nothing
     if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
         abandoned = set_aside_later_work(run_dir, state.step)
         if abandoned is not None:
@@ -422,11 +422,18 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         if saved_ensemble is not None:
             run_dir = Path(config.resume).expanduser()
             saved_ensemble = resumed_config(config, saved_ensemble, run_dir)
-            if all((member / "summary.json").is_file() for member in ensemble_members(run_dir, saved_ensemble)):
+            members = ensemble_members(run_dir, saved_ensemble)
+            if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
                 console.print(f"already finished: every member of {run_dir} is trained; nothing to resume",
                               soft_wrap=True)
                 return run_dir
-            train_ensemble(saved_ensemble, load_scene(saved_ensemble.data), run_dir, wall_start, hooks)
+            scene = load_scene(saved_ensemble.data)
+            refuse_unscorable_sets(scene)
+            started = [found[-1] for found in map(list_checkpoints, members) if found]
+            if started:  # members not yet started would otherwise train on whatever scene --data now names
+                require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
+                                   "resume with the scene as it was, or start a new run")
+            train_ensemble(saved_ensemble, scene, run_dir, wall_start, hooks)
             return run_dir
         path = resolve_checkpoint(config.resume)
         checkpoint = read_checkpoint(path, RESUME_KEYS)
@@ -439,6 +446,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
             return run_dir
         console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
         scene = load_scene(saved.data)
+        refuse_unscorable_sets(scene)
         console.print(scene_line(scene), soft_wrap=True)
         train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
         return run_dir
@@ -448,6 +456,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     scene = load_scene(config.data)
     refuse_unused_eval_block(config.data, scene)
+    refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder

@@ -48,6 +48,15 @@ def model_files(sparse_dir: Path) -> dict[str, Path]:
     return {name: sparse_dir / f"{name}.{ext}" for name in MODEL_FILES}
 
 
+MAX_IMAGE_SIDE = 1 << 16
+"""Larger than any camera's image side; pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19."""
+
+
+def _signed(size: int) -> int:
+    """A size pycolmap read as an unsigned 64-bit integer, as the signed number the file holds."""
+    return size - (1 << 64) if size >= 1 << 63 else size
+
+
 def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Distortion | None]:
     """K and OpenCV distortion equivalent to a COLMAP camera; unsupported models are a one-line error."""
     model = camera.model.name
@@ -71,6 +80,9 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     else:
         raise SplatuError(f"unsupported COLMAP camera model {model}", where,
                           f"use one of {', '.join(SUPPORTED_MODELS)} (or run colmap image_undistorter first)")
+    if not (np.isfinite(p).all() and fx > 0 and fy > 0):
+        raise SplatuError(f"camera parameters {p} need a positive, finite focal length", where,
+                          "fix the camera's parameters in the model, or re-run the reconstruction")
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     distortion = Distortion("OPENCV", coeffs) if any(coeffs) else None
     return K, distortion
@@ -155,8 +167,9 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
         colmap_camera = reconstruction.cameras[image.camera_id]
         if image.camera_id not in intrinsics:
             where = f"in {files['cameras']} (camera {image.camera_id})"
-            if colmap_camera.width <= 0 or colmap_camera.height <= 0:
-                raise SplatuError(f"camera size {colmap_camera.width}x{colmap_camera.height} is not positive", where,
+            width, height = (_signed(size) for size in (colmap_camera.width, colmap_camera.height))
+            if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
+                raise SplatuError(f"camera size {width}x{height} is not a plausible image size", where,
                                   "give the camera its image width and height in pixels")
             K, distortion = opencv_camera(colmap_camera, where)
             K_new = undistorted_intrinsics(K, distortion, colmap_camera.width, colmap_camera.height)

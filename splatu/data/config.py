@@ -36,11 +36,14 @@ class DataConfig:
     """The built-in stand-in, used by `--data poster` when the real capture is absent."""
 
     def validate(self) -> None:
-        """Check the ranges, so a bad value fails before anything loads or is built."""
+        """Check the ranges, so a bad value fails before anything loads or is built. Only the values the split
+        reads: a saved config that carried an unused out-of-range one still loads."""
         if self.downscale is not None:
             require_at_least(self.downscale, 1, "--downscale")
-        require_at_least(self.eval_block, 0, "--eval-block")
-        require_at_least(self.eval_every, 2, "--eval-every")
+        if self.eval_split in ("auto", "contiguous"):
+            require_at_least(self.eval_block, 0, "--eval-block")
+        if self.eval_split == "every-n":
+            require_at_least(self.eval_every, 2, "--eval-every")
         if len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise SplatuError(f"--background must be three RGB values in [0, 1] (got {self.background})",
                               "in the options", "pass e.g. --background 1 1 1 (white) or 0 0 0 (black)")

@@ -203,7 +203,7 @@ def _listed_frames(value: object, key: str, index: Mapping[str, int], json_path:
     if unknown:
         raise SplatuError(f"{key} names a frame that is not in frames ({unknown[0]!r})", f"in {json_path}",
                           "list file paths exactly as the frames give them")
-    return [index[n] for n in listed]
+    return [index[n] for n in dict.fromkeys(listed)]  # a name listed twice is one view, as in nerfstudio
 
 
 def _file_splits(top: Mapping[str, Any], names: list[str], json_path: Path) -> dict[str, list[int]]:

@@ -8,6 +8,7 @@ layout `--data <output>` detects as COLMAP.
 from __future__ import annotations
 
 import shutil
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -67,14 +68,16 @@ def _stage(console: Console, label: str, work: Callable[[], object]) -> object:
     return result
 
 
-def _link_images(images: Path, output: Path) -> None:
+def _images_link(images: Path, output: Path) -> Path | None:
+    """<output>/images, to be linked to the photos after the SfM; None when it already is. A different folder
+    there is refused before any work, so a finished model is never thrown away over it."""
     link = output / "images"
     if link.exists() and link.resolve() == images.resolve():
-        return
+        return None
     if link.exists() or link.is_symlink():
         raise SplatuError("the output already has a different images folder", f"in {link}",
                           "choose another --output or remove that folder")
-    link.symlink_to(images.resolve(), target_is_directory=True)
+    return link
 
 
 def _remove_partial(created: list[Path]) -> None:
@@ -115,8 +118,7 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
     match = pycolmap.match_exhaustive if cfg.matcher == "exhaustive" else pycolmap.match_sequential
     _stage(console, f"matching features ({cfg.matcher})", lambda: match(database, device=pycolmap.Device.cpu))
 
-    models_dir = output / "sparse" / "models"
-    models_dir.mkdir(parents=True, exist_ok=True)
+    models_dir = Path(tempfile.mkdtemp(prefix=".models-", dir=output))  # never a folder the user had
     registered = [0]
 
     def count(n_images: int) -> Callable[[], None]:
@@ -126,9 +128,11 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
 
         return report
 
-    models = _stage(console, "incremental mapping", lambda: pycolmap.incremental_mapping(
-        database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
-    shutil.rmtree(models_dir)
+    try:
+        models = _stage(console, "incremental mapping", lambda: pycolmap.incremental_mapping(
+            database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
+    finally:
+        shutil.rmtree(models_dir, ignore_errors=True)
     if not models:
         retry = "try --matcher exhaustive" if cfg.matcher == "sequential" else "check they show one static scene"
         raise SplatuError("COLMAP could not reconstruct the scene (no model)", f"from {cfg.images}",
@@ -150,6 +154,7 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     if (database.exists() or sparse.exists()) and not cfg.overwrite:
         raise SplatuError("a COLMAP database or model already exists", f"in {output}",
                           "pass --overwrite or choose another --output")
+    link = _images_link(cfg.images, output)
     created = [path for path in (output, output / "sparse") if not path.exists()] + [database, sparse]
     output.mkdir(parents=True, exist_ok=True)
     database.unlink(missing_ok=True)
@@ -159,7 +164,8 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
     try:
         _reconstruct(cfg, names, output, console)
-        _link_images(cfg.images, output)
+        if link is not None:
+            link.symlink_to(cfg.images.resolve(), target_is_directory=True)
     except BaseException:
         _remove_partial(created)
         raise

@@ -1,7 +1,9 @@
+
 """Every kind of bad scene input fails with one SplatuError line: what, which file, how to fix."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -92,11 +94,17 @@ def test_unknown_colmap_camera_model(tmp_path):
     assert "FULL_OPENCV" in error.what and "cameras.txt" in error.where
 
 
-@pytest.mark.parametrize("camera", ["1 PINHOLE 0 6 5 5 4 3", "1 PINHOLE 8 0 5 5 4 3"])
-def test_colmap_camera_of_zero_size_names_the_camera(tmp_path, camera):
+@pytest.mark.parametrize(("camera", "message"), [
+    ("1 PINHOLE 0 6 5 5 4 3", "camera size 0x6 is not a plausible image size"),
+    ("1 PINHOLE 8 0 5 5 4 3", "camera size 8x0 is not a plausible image size"),
+    ("1 PINHOLE -8 6 5 5 4 3", "camera size -8x6 is not a plausible image size"),  # pycolmap reads it unsigned
+    ("1 PINHOLE 8 6 0 5 4 3", "need a positive, finite focal length"),
+    ("1 SIMPLE_PINHOLE 8 6 -5 4 3", "need a positive, finite focal length"),
+])
+def test_colmap_camera_of_impossible_size_or_focal_names_the_camera(tmp_path, camera, message):
     write_colmap(tmp_path / "scene", camera=camera)
     error = load_error(tmp_path / "scene", tmp_path)
-    assert "is not positive" in error.what and error.where.endswith("cameras.txt (camera 1)")
+    assert message in error.what and error.where.endswith("cameras.txt (camera 1)")
 
 
 def test_colmap_zero_quaternion_is_refused_not_read_as_identity(tmp_path):
@@ -177,6 +185,7 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     ({"val_filenames": [1]}, "has val_filenames but no train_filenames"),
     ({"train_filenames": [0, 1, 2]}, "has train_filenames but no val_filenames or test_filenames"),
     ({"train_filenames": [0, 1], "test_filenames": [2, 3]}, None),
+    ({"train_filenames": [0, 1, 0], "test_filenames": [2, 3, 3]}, None),  # a name listed twice is one view
     ({"train_filenames": [0, 1, 2], "test_filenames": [3, "images/nope.png"]}, "test_filenames names a frame"),
     ({"train_filenames": [0, 1, 2], "val_filenames": [2, 3]}, "'images/frame_002.png' is in both train_filenames"),
     ({"train_filenames": [0, 1], "val_filenames": [2], "test_filenames": [1, 3]}, "is in both train_filenames and "
@@ -193,6 +202,16 @@ def test_split_lists_must_be_complete_known_and_disjoint(tmp_path, lists, messag
         return
     error = load_error(root, tmp_path)
     assert message in error.what and "transforms.json" in error.where
+
+
+def test_a_saved_config_with_an_unused_out_of_range_value_still_loads(tmp_path):
+    """Before these checks an ignored --eval-every 1 was accepted and saved; render and eval replay it."""
+    write_nerfstudio_scene(tmp_path / "scene", n=6)
+    config = DataConfig(data=str(tmp_path / "scene"), cache_dir=tmp_path / "cache", eval_split="contiguous",
+                        eval_every=1)
+    assert len(load_scene(config).eval) > 0
+    with pytest.raises(SplatuError, match="--eval-every must be at least 2"):
+        dataclasses.replace(config, eval_split="every-n").validate()
 
 
 @pytest.mark.parametrize(("options", "flag"), [
@@ -351,6 +370,20 @@ def test_process_images_without_a_model_does_not_suggest_the_default_matcher(tmp
         process_images(ProcessImagesConfig(images=photos, overwrite=True))
     assert "no model" in caught.value.what and "--matcher" not in caught.value.fix
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
+
+
+def test_a_conflicting_images_folder_is_refused_before_the_sfm_runs(tmp_path, monkeypatch):
+    """It used to be found after the whole reconstruction, whose model the cleanup then deleted."""
+    from splatu.data import process_images as P
+
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    (tmp_path / "out" / "images").mkdir(parents=True)
+    monkeypatch.setattr(P, "_reconstruct", lambda *args: pytest.fail("the SfM ran"))
+    with pytest.raises(SplatuError, match="different images folder"):
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["images"]
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):

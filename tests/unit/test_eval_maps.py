@@ -101,6 +101,11 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     np.save(root / "uncertainty" / "view_0.npy", np.array([{"a": 1}]), allow_pickle=True)
     line = _one_line_error(capsys, "--maps", str(root))
     assert "not a valid .npy array of numbers" in line and "allow_pickle" not in line
+    with open(root / "uncertainty" / "view_0.npy", "wb") as f:  # an .npz under a .npy name
+        np.savez(f, u=np.zeros((24, 32)))
+    assert "not a valid .npy array of numbers" in _one_line_error(capsys, "--maps", str(root))
+    np.save(root / "uncertainty" / "view_0.npy", np.zeros((24, 32), bool))
+    assert "not a valid .npy array of numbers" in _one_line_error(capsys, "--maps", str(root))
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
     assert "exactly one" in _one_line_error(capsys)
 

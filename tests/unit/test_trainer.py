@@ -833,3 +833,31 @@ def test_a_new_runs_eval_block_must_shape_its_split(tmp_path, monkeypatch):
     with pytest.raises(SplatuError, match="--eval-block is not used"):
         trainer.train(config)
     assert not (tmp_path / "outputs" / "tiny").exists()
+
+
+def test_an_eval_set_its_masks_exclude_entirely_is_refused_before_training(tmp_path, monkeypatch):
+    base = tiny_scene()
+    masked_out = dataclasses.replace(base.eval, valid=torch.zeros(base.eval.images.shape[:3]))
+    blank = dataclasses.replace(base, eval=masked_out)
+    monkeypatch.setattr(trainer, "load_scene", lambda data_config: blank)
+    with pytest.raises(SplatuError, match="exclude every pixel of the eval set"):
+        trainer.train(tiny_config(tmp_path))
+    assert not (tmp_path / "outputs" / "tiny").exists()  # not after the training, at its final evaluation
+
+
+def test_a_resume_refused_for_a_moved_normalisation_leaves_the_config_alone(tmp_path, scene):
+    run_dir = trainer.train(tiny_config(tmp_path, steps=8, checkpoint_every=4))
+    (run_dir / "summary.json").unlink()
+    saved = (run_dir / "config.yml").read_bytes()
+    scene.center = torch.tensor([0.0, 0.0, 1.0])  # the scene --data now names is normalised differently
+    given = dataclasses.replace(tiny_config(tmp_path), resume=run_dir, data=DataConfig(data=str(tmp_path / "other")))
+    with pytest.raises(SplatuError, match="normalisation"):
+        trainer.train(given)
+    assert (run_dir / "config.yml").read_bytes() == saved
+
+
+def test_an_ensemble_whose_record_was_never_written_is_finished_by_a_resume(tmp_path, scene):
+    run_dir = trainer.train(_ensemble_config(tmp_path))
+    (run_dir / "ensemble.json").unlink()  # stopped after the last member, before the record
+    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert json.loads((run_dir / "ensemble.json").read_text())["members"] == ["members/0", "members/1", "members/2"]
