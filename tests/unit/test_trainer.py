@@ -645,14 +645,19 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
     assert (run_dir / "summary.json").is_file()
 
 
-def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene):
+def _stopped_at_step_7(tmp_path) -> Path:
+    """The run folder of a tiny training stopped by Ctrl-C after step 7, its only checkpoint."""
     def ctrl_c_at_7(step, state):
         if step == 7:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
         trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
-    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    return (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+
+
+def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene):
+    run_dir = _stopped_at_step_7(tmp_path)
     with (run_dir / "metrics.jsonl").open("a") as log:
         log.write('{"event": "train", "step": 8, "lo')  # SIGKILL in the middle of an append
     trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
@@ -669,13 +674,7 @@ def test_resuming_a_finished_run_changes_nothing(tmp_path, scene, capsys):
 
 
 def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
-    def ctrl_c_at_7(step, state):
-        if step == 7:
-            raise KeyboardInterrupt
-
-    with pytest.raises(interrupts.TrainingInterrupted):
-        trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
-    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    run_dir = _stopped_at_step_7(tmp_path)
     first_session = read_checkpoint(list_checkpoints(run_dir)[-1])["wall_seconds"]
     assert first_session > 0
     started = time.perf_counter()
