@@ -123,7 +123,7 @@ class TrainImages:
             if valid is not None:
                 colour = colour * valid.unsqueeze(-1)
             extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
-            images = torch.cat([colour, *extras], dim=-1)
+            images = torch.cat([colour, *extras], dim=-1) if extras else colour  # no copy of a plain image set
             if level > 0:
                 probe = self.views.cameras[0].scaled(0.5**level)
                 size = (probe.height, probe.width)

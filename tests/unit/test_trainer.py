@@ -860,3 +860,12 @@ def test_an_ensemble_whose_record_was_never_written_is_finished_by_a_resume(tmp_
     (run_dir / "ensemble.json").unlink()  # stopped after the last member, before the record
     trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert json.loads((run_dir / "ensemble.json").read_text())["members"] == ["members/0", "members/1", "members/2"]
+
+
+def test_full_resolution_targets_of_a_plain_scene_are_not_copied():
+    """A scene's images can be GBs; without alpha or masks, level 0 must share them, not hold a second copy."""
+    views = tiny_scene().train
+    images = training_step.TrainImages(views)
+    _, target = images.get(0, 0)
+    assert target.untyped_storage().data_ptr() == views.images.untyped_storage().data_ptr()
+    assert images.weight(0, 0) is None
