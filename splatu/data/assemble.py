@@ -148,9 +148,11 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
 
 
 def refuse_unused_eval_block(cfg: DataConfig, scene: Scene) -> None:
-    """A new run's --eval-block must shape its split: refused when the scene's file brings its own. Only new
-    runs check this; a saved config that carried an ignored --eval-block still loads."""
-    if cfg.eval_block and scene.own_split:
-        stand_in = " (the built-in poster's block is --poster.eval-block)" if scene.name == "poster" else ""
-        raise SplatuError("--eval-block is not used: the scene has its own train/eval split", f"in {scene.source}",
-                          f"drop --eval-block{stand_in}, or pass --eval-split contiguous to split by blocks")
+    """A new run's --eval-block and --split-seed must shape its split: refused when the scene's file brings its
+    own. Only new runs check this; a saved config that carried an ignored one still loads."""
+    if (cfg.eval_block or cfg.split_seed) and scene.own_split:
+        flag, poster_flag = ("--eval-block", "--poster.eval-block") if cfg.eval_block else ("--split-seed",
+                                                                                          "--poster.seed")
+        stand_in = f" (the built-in poster's is {poster_flag})" if scene.name == "poster" else ""
+        raise SplatuError(f"{flag} is not used: the scene has its own train/eval split", f"in {scene.source}",
+                          f"drop {flag}{stand_in}, or pass --eval-split contiguous to split by blocks")

@@ -55,6 +55,7 @@ class DataConfig:
             ("--eval-list", self.eval_list is not None, ("list",)),
             ("--eval-every", self.eval_every != DataConfig.eval_every, ("every-n",)),
             ("--eval-block", self.eval_block != 0, ("auto", "contiguous")),
+            ("--split-seed", self.split_seed != DataConfig.split_seed, ("auto", "contiguous")),
         ]
         for flag, given, used_by in ignored:
             if given and self.eval_split not in used_by:

@@ -218,6 +218,7 @@ def test_a_saved_config_with_an_unused_out_of_range_value_still_loads(tmp_path):
     ({"eval_list": Path("eval.txt")}, "--eval-list"),
     ({"eval_split": "contiguous", "eval_every": 4}, "--eval-every"),
     ({"eval_split": "every-n", "eval_block": 2}, "--eval-block"),
+    ({"eval_split": "every-n", "split_seed": 3}, "--split-seed"),
 ])
 def test_flags_the_chosen_split_would_ignore_are_refused_for_a_new_run_only(tmp_path, options, flag):
     config = DataConfig(data=str(tmp_path / "scene"), cache_dir=tmp_path / "cache", **options)
@@ -243,6 +244,10 @@ def test_eval_block_with_the_scene_s_own_split_is_refused(tmp_path, name, stand_
     assert "--eval-block is not used" in caught.value.what and "--eval-split contiguous" in caught.value.fix
     assert ("--poster.eval-block" in caught.value.fix) == stand_in
     refuse_unused_eval_block(DataConfig(), scene)
+    with pytest.raises(SplatuError) as caught:
+        refuse_unused_eval_block(DataConfig(split_seed=4), scene)
+    assert caught.value.what.startswith("--split-seed is not used")
+    assert ("--poster.seed" in caught.value.fix) == stand_in
 
 
 @pytest.mark.parametrize(("options", "message"), [
