@@ -19,7 +19,10 @@ from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
 
-SUPPORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+PARAMETER_COUNTS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
+"""The camera models we read, and how many parameters each takes (f or fx fy, cx cy, then distortion): a
+cameras.txt line with another count fails pycolmap's VerifyParams check, whose message names no file or line."""
+SUPPORTED_MODELS = tuple(PARAMETER_COUNTS)
 SPARSE_CANDIDATES = ("sparse/0", "sparse", "colmap/sparse/0")
 """Where a scene folder may keep its model, relative to the folder (images/ beside sparse/)."""
 
@@ -107,7 +110,9 @@ def _valid_text_line(name: str, tokens: list[str]) -> bool:
     """Whether one data line of a COLMAP text file has the fields COLMAP's reader expects."""
     numbers = [_is_number(t) for t in tokens]
     if name == "cameras":
-        return len(tokens) >= 5 and _is_number(tokens[0], int) and all(numbers[2:])
+        count = PARAMETER_COUNTS.get(tokens[1]) if len(tokens) > 1 else None
+        return (len(tokens) >= 5 and _is_number(tokens[0], int) and all(numbers[2:])
+                and (count is None or len(tokens) == 4 + count))
     if name == "points3D":
         return len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers)
     pose = len(tokens) >= 10 and _is_number(tokens[0], int) and all(numbers[1:8]) and _is_number(tokens[8], int)

@@ -125,6 +125,7 @@ def test_colmap_model_missing_a_file_names_it(tmp_path, missing):
     ("images.txt", lambda text: "garbage line here\n" + text, 1),
     ("points3D.txt", lambda text: "1 0.5 0.5 2 255 0 0 0.1\n1 x y z\n", 2),
     ("cameras.txt", lambda text: text.replace("5 5 4 3", "inf 5 4 3"), 2),
+    ("cameras.txt", lambda text: text.replace("5 5 4 3", "5 5 4"), 2),  # PINHOLE takes 4 parameters
 ])
 def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, file, edit, line):
     path = write_colmap(tmp_path / "scene") / file
