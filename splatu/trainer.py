@@ -39,7 +39,7 @@ from splatu.checkpoint import (
     saved_frame,
 )
 from splatu.config_values import changed_options, to_dict
-from splatu.data.assemble import refuse_unused_eval_block
+from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene
 from splatu.data.scene import Scene
 from splatu.degree_choice import (
@@ -455,7 +455,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     check_options(config)
     writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     scene = load_scene(config.data)
-    refuse_unused_eval_block(config.data, scene)
+    refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
     if config.degree_choice.on:

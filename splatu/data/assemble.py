@@ -147,7 +147,7 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
     )
 
 
-def refuse_unused_eval_block(cfg: DataConfig, scene: Scene) -> None:
+def refuse_split_flags_the_scene_overrides(cfg: DataConfig, scene: Scene) -> None:
     """A new run's --eval-block and --split-seed must shape its split: refused when the scene's file brings its
     own. Only new runs check this; a saved config that carried an ignored one still loads."""
     if (cfg.eval_block or cfg.split_seed) and scene.own_split:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from splatu.cli import entrypoint
-from splatu.data.assemble import assemble, refuse_unused_eval_block
+from splatu.data.assemble import assemble, refuse_split_flags_the_scene_overrides
 from splatu.data.config import DataConfig
 from splatu.data.images import ImageCache
 from splatu.data.process_images import ProcessImagesConfig, process_images
@@ -241,12 +241,12 @@ def test_eval_block_with_the_scene_s_own_split_is_refused(tmp_path, name, stand_
     scene = assemble(raw, DataConfig(eval_block=2), ImageCache(tmp_path / "cache"))  # a saved config still loads
     assert scene.own_split and scene.eval.names == names[4:]
     with pytest.raises(SplatuError) as caught:
-        refuse_unused_eval_block(DataConfig(eval_block=2), scene)
+        refuse_split_flags_the_scene_overrides(DataConfig(eval_block=2), scene)
     assert "--eval-block is not used" in caught.value.what and "--eval-split contiguous" in caught.value.fix
     assert ("--poster.eval-block" in caught.value.fix) == stand_in
-    refuse_unused_eval_block(DataConfig(), scene)
+    refuse_split_flags_the_scene_overrides(DataConfig(), scene)
     with pytest.raises(SplatuError) as caught:
-        refuse_unused_eval_block(DataConfig(split_seed=4), scene)
+        refuse_split_flags_the_scene_overrides(DataConfig(split_seed=4), scene)
     assert caught.value.what.startswith("--split-seed is not used")
     assert ("--poster.seed" in caught.value.fix) == stand_in
 
