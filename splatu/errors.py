@@ -9,6 +9,8 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 
 class SplatuError(Exception):
     """A problem with the user's input, reported without a traceback."""
@@ -32,6 +34,18 @@ def require_at_least(value: float, minimum: float, flag: str) -> None:
     if not (value == value and abs(value) != float("inf") and value >= minimum):
         raise SplatuError(f"{flag} must be at least {minimum:g} (got {value})", "in the options",
                           f"pass {flag} of at least {minimum:g}")
+
+
+def load_number_array(path: Path, what: str, fix: str) -> np.ndarray:
+    """The .npy array of numbers at `path`, or one line saying it is not one: np.load raises many types on an
+    empty, truncated, pickled or foreign file, and loads an .npz or a bool or string array without complaint."""
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (ValueError, EOFError, OSError):
+        array = None
+    if not isinstance(array, np.ndarray) or array.dtype.kind not in "iuf":
+        raise SplatuError(f"{what} is not a valid .npy array of numbers", f"in {path}", fix)
+    return array
 
 
 def writable_dir(path: Path, option: str) -> Path:

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from splatu.errors import SplatuError, require_file
+from splatu.errors import SplatuError, load_number_array, require_file
 
 FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
 
@@ -79,13 +79,8 @@ def read_entry(root: Path, name: str) -> MapEntry:
                           f"but the render is {rgb.shape[1]}x{rgb.shape[0]}", f"in {gt_path}",
                           "write both at the same resolution")
     u_path = root / "uncertainty" / f"{name}.npy"
-    try:
-        uncertainty = np.load(require_file(u_path, "uncertainty map", "write it with numpy.save"), allow_pickle=False)
-    except (ValueError, EOFError, OSError):  # empty, truncated, pickled or foreign files
-        uncertainty = None
-    if not isinstance(uncertainty, np.ndarray) or uncertainty.dtype.kind not in "iuf":  # an .npz, bools, strings
-        raise SplatuError("uncertainty map is not a valid .npy array of numbers", f"in {u_path}",
-                          "write it with numpy.save(path, float_array)")
+    uncertainty = load_number_array(require_file(u_path, "uncertainty map", "write it with numpy.save"),
+                                    "uncertainty map", "write it with numpy.save(path, float_array)")
     if uncertainty.shape != rgb.shape[:2]:
         size = "x".join(map(str, uncertainty.shape[::-1])) if uncertainty.ndim == 2 else f"shape {uncertainty.shape}"
         raise SplatuError(f"uncertainty map is {size} {uncertainty.dtype}, but the render is "

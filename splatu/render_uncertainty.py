@@ -15,7 +15,6 @@ render wrote there is removed first, see `clear_previous_render`):
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 import time
@@ -305,17 +304,16 @@ ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_f
 def check_method_options(method: UncertaintyMethod, density_aware: bool, fisher_probes: int) -> None:
     """Refuse, in one line, an option `method` never reads (density-aware is the ensemble's, probes are Fisher's),
     rather than ignore it silently. Shared with eval-ause."""
-    default_probes = next(f.default for f in dataclasses.fields(RenderUncertaintyConfig) if f.name == "fisher_probes")
     for flag, is_set, reader in (("--density-aware", density_aware, "ensemble"),
-                                 ("--fisher-probes", fisher_probes != default_probes, "fisher")):
+                                 ("--fisher-probes", fisher_probes != RenderUncertaintyConfig.fisher_probes, "fisher")):
         if is_set and method != reader:
             raise SplatuError(f"{flag} only applies with --method {reader}", "in the command's options",
                               f"drop {flag}, or pass --method {reader}")
 
 
 def run(config: RenderUncertaintyConfig) -> None:
-    defaults = {f.name: f.default for f in dataclasses.fields(RenderUncertaintyConfig)}
-    orbit_only = [f"--{n.replace('_', '-')}" for n in ORBIT_OPTIONS if getattr(config, n) != defaults[n]]
+    orbit_only = [f"--{n.replace('_', '-')}" for n in ORBIT_OPTIONS
+                  if getattr(config, n) != getattr(RenderUncertaintyConfig, n)]  # the class holds the defaults
     if orbit_only and config.views != "orbit":
         flags = " ".join(orbit_only)
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from splatu.atomic import atomic_write
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, load_number_array
 
 PixelKind = Literal["color", "mask", "depth"]
 CACHE_VERSION = 1
@@ -200,12 +200,7 @@ def _read_depth(recipe: PixelRecipe) -> np.ndarray:
     elif not recipe.path.is_file():
         raise SplatuError("depth map not found", f"in {recipe.path}", "fix depth_file_path or remove it")
     else:
-        try:
-            depth = np.load(recipe.path)
-        except (OSError, ValueError, EOFError):
-            depth = None
-        if not isinstance(depth, np.ndarray) or depth.dtype.kind not in "biuf":
-            raise SplatuError("depth map is not a valid .npy array of numbers", f"in {recipe.path}", fix)
+        depth = load_number_array(recipe.path, "depth map", fix)
     if depth.ndim != 2 or not np.isfinite(depth).all():
         raise SplatuError("depth map must be a finite 2-D array (one value per pixel)", f"in {recipe.path}", fix)
     return depth.astype(np.float32)
