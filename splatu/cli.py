@@ -8,6 +8,8 @@ and exit 2; `--debug` or SPLATU_DEBUG=1 shows the traceback instead.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -19,6 +21,7 @@ import tyro
 from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
 from splatu.interrupts import exit_code
+from splatu.usage_errors import usage_error
 
 
 @dataclass(frozen=True)
@@ -42,13 +45,23 @@ def main(argv: Sequence[str]) -> None:
     defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}
     descriptions = {name: cmd.description for name, cmd in commands.items()}
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
-    config = tyro.cli(
-        config_type,
-        args=list(argv),
-        prog="splatu",
-        description="3D Gaussian Splatting on the CPU with view-dependent uncertainty. A user error prints one "
-                    "line and exits 2; add --debug (or set SPLATU_DEBUG=1) for its traceback.",
-    )
+    tyro_errors = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(tyro_errors):
+            config = tyro.cli(
+                config_type,
+                args=list(argv),
+                prog="splatu",
+                description="3D Gaussian Splatting on the CPU with view-dependent uncertainty. A user error prints "
+                            "one line and exits 2; add --debug (or set SPLATU_DEBUG=1) for its traceback.",
+            )
+    except SystemExit as stop:
+        error = usage_error(tyro_errors.getvalue(), f"splatu {chosen}" if chosen else "splatu")
+        if stop.code in (0, None) or error is None:
+            sys.stderr.write(tyro_errors.getvalue())
+            raise
+        raise error from None
+    sys.stderr.write(tyro_errors.getvalue())  # tyro's warnings, if any
     name = next(n for n, d in defaults.items() if type(d) is type(config))
     commands[name].run(config)
 

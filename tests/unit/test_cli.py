@@ -128,3 +128,37 @@ def test_version(capsys):
 
     entrypoint(["--version"])
     assert capsys.readouterr().out == f"splatu {__version__}\n"
+
+
+@pytest.mark.parametrize(("argv", "said", "hint"), [
+    (["train", "--steps", "abc"], "--steps: invalid literal for int()", "pass --steps INT (see `splatu train --help`)"),
+    (["train", "--stepz", "3"], "unrecognized options: --stepz, 3",
+     "did you mean --steps? (see `splatu train --help`)"),
+    (["trian"], "unrecognized options: trian", "available subcommands: train, render-uncertainty"),
+    (["render-uncertainty", "--views", "bogus"], "invalid choice 'bogus' for argument '--views'",
+     "see `splatu render-uncertainty --help`"),
+    (["train", "--steps"], "missing value for argument '--steps'", "see `splatu train --help`"),
+    ([], "expected one of {train, render-uncertainty, eval-ause, process-images}", "see `splatu --help`"),
+])
+def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
+    """tyro draws a parse error as a box of up to 15 lines; like every other user error, it is one line."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(argv)
+    assert exc.value.code == 2
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1 and captured.err.startswith("error: "), captured.err
+    assert said in captured.err and hint in captured.err and "│" not in captured.err, captured.err
+
+
+def test_help_still_prints_in_full(capsys):
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "--steps" in out and "--uncertainty.off" in out
+
+
+def test_a_box_usage_error_does_not_know_is_left_to_tyro():
+    from splatu.usage_errors import usage_error
+
+    assert usage_error("usage: splatu [-h]\nsplatu: error: something new\n", "splatu") is None

@@ -1,0 +1,73 @@
+"""tyro's parse-error boxes, retold as splatu's one-line user errors.
+
+tyro reports a mistyped flag or value in a boxed panel of a dozen lines, with the helptext of every flag it
+guesses. Every other user error here is one line (`SplatuError`), so the box is read back and shortened to
+what is wrong and how to fix it: tyro's own message, the flags it suggests, and the subcommand's `--help`.
+Anything that does not read as such a box is left to tyro's own output.
+"""
+
+from __future__ import annotations
+
+import re
+
+from splatu.errors import SplatuError
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # tyro colours its boxes when stdout is a terminal
+_RULE = re.compile(r"^(─+|-+)$")
+
+
+def _box_lines(text: str) -> list[str]:
+    """The content lines of tyro's box: drawn with │ sides (a UTF-8 stdout), or as a title line, a rule of
+    dashes and lines indented by two spaces (any other stdout encoding). Empty when `text` is neither."""
+    lines = [_ANSI.sub("", line).rstrip() for line in text.splitlines()]
+    if any(line.startswith("╭") for line in lines):
+        return [line[2:-1].rstrip() for line in lines if line.startswith("│") and line.endswith("│")]
+    first_rule = next((i for i, line in enumerate(lines) if _RULE.match(line.strip())), None)
+    if first_rule is None or first_rule != 1:
+        return []
+    return [line[2:] for line in lines[first_rule + 1:]]
+
+
+def _box_sections(text: str) -> list[list[str]]:
+    """The box's content cut into sections at its rules, without blank lines."""
+    sections: list[list[str]] = [[]]
+    for line in _box_lines(text):
+        if _RULE.match(line.strip()):
+            sections.append([])
+        elif line.strip():
+            sections[-1].append(line)
+    return [s for s in sections if s]
+
+
+def _flag_names(lines: list[str]) -> list[str]:
+    """The flags under "Perhaps you meant:": the lines indented by exactly four spaces name them."""
+    names = []
+    for line in lines:
+        if line.startswith("    ") and not line.startswith("     "):
+            name = line.split()[0].rstrip(",")
+            if name.startswith("-") and name not in names:
+                names.append(name)
+    return names
+
+
+def usage_error(tyro_output: str, help_command: str) -> SplatuError | None:
+    """The one-line error for tyro's parse-error box `tyro_output`, or None when it is not one."""
+    sections = _box_sections(tyro_output)
+    if not sections:
+        return None
+    message = " ".join(line.strip() for line in sections[0]).rstrip(".")
+    message = re.sub(r"^Error parsing ", "", message)
+    message = message[:1].lower() + message[1:]
+    hints = []
+    for section in sections[1:]:
+        heading = section[0].strip()
+        if heading.startswith("Perhaps you meant"):
+            names = _flag_names(section[1:])
+            if names:
+                hints.append(f"did you mean {' or '.join(names)}?")
+        elif heading.startswith("Argument helptext") and len(section) > 1:
+            hints.append(f"pass {section[1].strip()}")
+        elif heading.startswith("Available subcommands"):
+            hints.append(heading[:1].lower() + heading[1:])
+    see_help = f"see `{help_command} --help`"
+    return SplatuError(message, "on the command line", f"{'; '.join(hints)} ({see_help})" if hints else see_help)
