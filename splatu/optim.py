@@ -62,8 +62,8 @@ def _learning_rates(cfg: OptimConfig, scene_extent: float) -> dict[str, float]:
 class Optimizers:
     """One Adam per parameter of a GaussianModel; the means' learning rate decays exponentially.
 
-    Adam is the fused kernel: on the CPU it is ~6× faster than the default loop (measured: 0.018 s vs 0.108 s
-    for a 20000×15×3 parameter) with the same update rule.
+    Adam is the fused kernel: one fused loop per parameter on the CPU instead of the default implementation's
+    separate elementwise ops, with the same update rule.
     """
 
     def __init__(self, model: GaussianModel, cfg: OptimConfig, scene_extent: float, max_steps: int) -> None:

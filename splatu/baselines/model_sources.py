@@ -29,7 +29,8 @@ class OursSource:
 SPREAD_SCALE = 0.1
 """RGB std of a pixel's blended colours that maps to spread 0.5 (s / (s + SPREAD_SCALE)). AUSE depends only on
 each map's ranking, so the scale matters only where the spread is combined with U; in a one-off check (not a
-script in benchmarks/), 0.03 to 0.3 changed the combination's AUSE-MAE by at most 0.008 on poster and fox."""
+script in benchmarks/, figures not recorded), scales from 0.03 to 0.3 changed the combination's AUSE-MAE only
+slightly on poster and fox."""
 
 
 VARIANCE_ROUNDING = 1e-5

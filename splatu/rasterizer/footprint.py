@@ -85,9 +85,11 @@ def block_entries(
         # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable
         # sort of each round by block alone leaves every block's list front to back. torch's CPU sort
         # of a 1-D integer tensor of ≥ 32,768 elements is a parallel radix sort, one pass per key
-        # byte, and one round's keys fit in cache: 16 sorts of 395k random int32 keys take about half
-        # the time of one sort of 6.3M, and int16 keys (any image of < 32,768 blocks) half again
-        # (measured, torch 2.13 CPU, 2 threads; the 100k benchmark case has 6.3M entries in 16 rounds).
+        # byte, and one round's keys fit in cache. The change from one int64 sort of all 6.3M entries of
+        # the 100k benchmark case to a sort per round (which also fused the row spans) took its footprint
+        # pass alone to 0.18–0.24× the time. int16 keys (any image of < 32,768 blocks) halve the passes
+        # again: a stable sort of 395k keys took 2.65 ms as int16 against 5.03 ms as int32 (scratch
+        # timings, torch 2.13 CPU, 2 threads; docs/results.md).
         ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
         rounds = max(1, min(MAX_ROUNDS, ent_rec.numel() // ROUND_MIN_ENTRIES))
         depth_round = torch.div(torch.arange(ids.numel(), device=ids.device) * rounds, max(1, ids.numel()),
@@ -113,8 +115,8 @@ def _expand(start: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
     """Ranges start[m], start[m] + 1, … of counts[m] items each, concatenated: (owner m, value) per item.
 
     The value is start[owner] + (item − first item of owner), computed as one gather of start − first
-    plus the item index, in start's dtype. The owners are int32: torch's repeat_interleave is 3–4×
-    faster making int32 than int64 (measured, torch 2.13 CPU, 1.6M ranges of 0–7 items).
+    plus the item index, in start's dtype. The owners are int32: torch's repeat_interleave making 5.7M owners
+    took 21 ms as int32 against 61–83 ms as int64 (scratch timings, torch 2.13 CPU; docs/results.md).
     """
     total = int(counts.sum())
     if total > MAX_ENTRIES:

@@ -8,7 +8,7 @@ after `set_compile(True)`, through `torch.compile`, which fuses each into one lo
 Compositor layout (row_block_spans instead takes 1-D per-row-record inputs): an entry q is one
 Gaussian on one block of B pixels of a row; element [x, q] is that Gaussian at column x of the
 block. Columns come first so that the running sums down each
-pixel's list (along q) are contiguous: torch's cumsum is ~10× faster along the contiguous dim.
+pixel's list (along q) are contiguous: torch's CPU cumsum is much slower across a strided dim.
 u_q = x0_q + 0.5 − mean_x and dy_q = row_q + 0.5 − mean_y, so the offset of pixel centre from
 mean is (t, dy) with t = x + u_q. A pair is valid when σ ≥ 0, α ≥ 1/255 and the pixel is inside
 the image; valid pairs are exactly those with log(1 − α) < 0.
@@ -150,9 +150,10 @@ _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
 
 
 def set_compile(enabled: bool) -> bool:
-    """Route the kernels through torch.compile: about 2× faster per render once compiled, but the
-    first render of a process compiles for ~10 s (warm inductor cache) to ~60 s (cold). Also on
-    with the environment variable SPLATU_COMPILE=1. Returns the previous setting."""
+    """Route the kernels through torch.compile: about 1.6–1.7× faster per render (forward + backward, the
+    rasterizer benchmark in docs/results.md) once compiled, but the first render of a process compiles for
+    ~10 s (warm inductor cache) to about a minute (cold). Also on with the environment variable
+    SPLATU_COMPILE=1. Returns the previous setting."""
     global _use_compile
     previous, _use_compile = _use_compile, enabled
     return previous

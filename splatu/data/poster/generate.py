@@ -143,7 +143,7 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
 @contextmanager
 def _single_thread() -> Iterator[None]:
     """Run torch on one thread: its small elementwise ops gain little from two, and on a shared
-    2-core machine two spinning threads ran 15x slower (measured) than one."""
+    2-core machine two threads that spin waiting for each other ran far slower than one."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
