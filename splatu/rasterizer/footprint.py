@@ -36,9 +36,8 @@ ROUND_MIN_ENTRIES = 1 << 18
 entries per round on average, because each round has a fixed cost (about a dozen small ops and
 kernel launches per chunk) that rivals its work below that size. Measured on the benchmark scenes
 (benchmarks/rasterizer.py), in evaluated pixel–Gaussian elements per contributing pair: 20k case
-1.72 with its 4 rounds (2.36 in one round), 100k case 1.54 with 16 (3.83 in one); wall time was
-lowest with 2^18 among 2^16…2^20. A training render of the poster stand-in (~300k entries) is one
-round, so rounds neither help nor cost there."""
+1.72 with its 4 rounds (2.36 in one round), 100k case 1.54 with 16 (3.83 in one). A training render of
+the poster stand-in (~300k entries) is one round, so rounds neither help nor cost there."""
 
 
 @dataclass
