@@ -40,7 +40,7 @@ from splatu.checkpoint import (
 )
 from splatu.config_values import changed_options, to_dict
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
-from splatu.data.resolve import POSTER, load_scene
+from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
 from splatu.data.scene import Scene
 from splatu.degree_choice import (
     apply_choice,
@@ -392,6 +392,7 @@ def check_options(config: TrainConfig) -> None:
     for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
         part.validate()
     config.data.refuse_unused_flags()
+    refuse_unused_poster_options(config.data)
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 
 

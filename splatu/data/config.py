@@ -33,7 +33,7 @@ class DataConfig:
     cache_dir: Path | None = None
     """Where decoded, undistorted and resized images are cached; None means $SPLATU_CACHE or ~/.cache/splatu."""
     poster: PosterConfig = field(default_factory=PosterConfig)
-    """The built-in stand-in, used by `--data poster` when the real capture is absent."""
+    """The built-in stand-in, used by `--data poster` when the real capture is absent (refused otherwise)."""
 
     def validate(self) -> None:
         """Check the ranges, so a bad value fails before anything loads or is built. Only the values the split

@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from splatu.config_values import changed_options
 from splatu.data.assemble import assemble
 from splatu.data.blender import is_blender, load_blender
 from splatu.data.colmap import find_sparse_dir, load_colmap
@@ -20,6 +21,7 @@ from splatu.data.frames import RawScene
 from splatu.data.images import ImageCache, default_cache_dir
 from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.poster import build_poster_standin
+from splatu.data.poster.config import PosterConfig
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
 
@@ -57,14 +59,32 @@ def read_scene_files(path: Path, downscale: int, background: tuple[float, float,
                       f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
 
 
+def real_poster_capture() -> Path | None:
+    """The first place that holds the real poster capture, if any."""
+    return next((place for place in real_poster_candidates() if (place / "transforms.json").is_file()), None)
+
+
 def scene_path(cfg: DataConfig) -> Path:
     """The folder or file `--data` names; for `poster`, the real capture or the generated stand-in."""
     if cfg.data != POSTER:
         return Path(cfg.data).expanduser()
-    for place in real_poster_candidates():
-        if (place / "transforms.json").is_file():
-            return place
-    return standin_path(cfg)
+    return real_poster_capture() or standin_path(cfg)
+
+
+def refuse_unused_poster_options(cfg: DataConfig) -> None:
+    """A new run's `--poster.*` options must shape the scene it trains on: they build the stand-in only, so they
+    are refused on another scene, and when the real capture is found and used instead. Saved configs still load."""
+    changed = [f"--poster.{name.replace('_', '-')}" for name in changed_options(cfg.poster, PosterConfig())]
+    if not changed:
+        return
+    flags, shape = ", ".join(changed), "shapes" if len(changed) == 1 else "shape"
+    if cfg.data != POSTER:
+        raise SplatuError(f"{flags} only {shape} the built-in poster stand-in, not --data {cfg.data}",
+                          "in the options", f"drop {flags}")
+    real = real_poster_capture()
+    if real is not None:
+        raise SplatuError(f"{flags} {shape} the built-in stand-in, but --data poster trains on the real capture",
+                          f"in {real}", f"drop {flags}, or move the capture away to train on the stand-in")
 
 
 def load_scene(cfg: DataConfig) -> Scene:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -19,7 +20,8 @@ from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
-from splatu.data.resolve import load_scene
+from splatu.data.resolve import load_scene, refuse_unused_poster_options
+from splatu.errors import SplatuError
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
 
 
@@ -359,3 +361,21 @@ def test_real_poster_capture_is_preferred_when_present(tmp_path, monkeypatch):
     scene = load_scene(DataConfig(cache_dir=tmp_path / "cache"))
     assert scene.source == str(tmp_path / "datasets" / "poster" / "transforms.json")
     assert not list((tmp_path / "cache").glob("poster-standin-*"))
+
+
+def test_poster_options_are_refused_where_they_would_shape_nothing(tmp_path, monkeypatch):
+    """`--poster.*` builds the stand-in; with the real capture present, or on another scene, it used to be ignored."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("SPLATU_DATA", raising=False)
+    reseeded = DataConfig(poster=PosterConfig(seed=3, point_noise=0.0))
+    refuse_unused_poster_options(reseeded)  # the stand-in: they shape it
+    refuse_unused_poster_options(DataConfig(data=str(tmp_path)))  # defaults: nothing given
+    with pytest.raises(SplatuError, match=r"--poster.seed, --poster.point-noise only shape the built-in"):
+        refuse_unused_poster_options(dataclasses.replace(reseeded, data=str(tmp_path)))
+    monkeypatch.setenv("SPLATU_DATA", str(tmp_path / "datasets"))
+    write_nerfstudio_scene(tmp_path / "datasets" / "poster", n=5, width=8, height=6)
+    with pytest.raises(SplatuError, match=r"trains on the real capture, in .*datasets/poster"):
+        refuse_unused_poster_options(reseeded)
+    refuse_unused_poster_options(DataConfig())
+    with pytest.raises(SplatuError, match=r"^--poster.frames shapes the built-in stand-in"):
+        refuse_unused_poster_options(DataConfig(poster=PosterConfig(frames=40)))
