@@ -115,8 +115,18 @@ def _valid_text_line(name: str, tokens: list[str]) -> bool:
                 and (count is None or len(tokens) == 4 + count))
     if name == "points3D":
         return len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers)
-    pose = len(tokens) >= 10 and _is_number(tokens[0], int) and all(numbers[1:8]) and _is_number(tokens[8], int)
-    return pose or (len(tokens) % 3 == 0 and all(numbers))  # images: a pose line or a line of 2D points
+    return _is_pose(tokens) or _is_points(tokens)
+
+
+def _is_points(tokens: list[str]) -> bool:
+    """Whether an images.txt line is a line of 2D points (X, Y, POINT3D_ID triples; empty for none)."""
+    return len(tokens) % 3 == 0 and all(_is_number(t) for t in tokens)
+
+
+def _is_pose(tokens: list[str]) -> bool:
+    """Whether an images.txt line is a pose line: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME."""
+    return (len(tokens) >= 10 and _is_number(tokens[0], int) and all(_is_number(t) for t in tokens[1:8])
+            and _is_number(tokens[8], int) and not _is_points(tokens))
 
 
 def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
@@ -128,20 +138,47 @@ def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
     return None
 
 
+def pose_line_in_place_of_points(path: Path) -> int | None:
+    """The number of the first images.txt line where COLMAP's reader expects an image's 2D points but finds the
+    next image's pose. The reader takes the line after each pose line as its points, blank or not, so a file
+    whose empty points lines were removed reads as every other image, silently."""
+    expect_points = False
+    with path.open(errors="replace") as lines:
+        for number, line in enumerate(lines, start=1):
+            if expect_points:
+                if _is_pose(line.split()):
+                    return number
+                expect_points = False
+            elif not line.startswith("#"):
+                expect_points = _is_pose(line.split())
+    return None
+
+
 def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
-    """The model through pycolmap; a text file it cannot parse is named with its first bad line."""
+    """The model through pycolmap; a text file it cannot parse, or would misread, is named with its line."""
     files = model_files(sparse_dir)
     try:
-        return pycolmap.Reconstruction(str(sparse_dir))
+        reconstruction = pycolmap.Reconstruction(str(sparse_dir))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on unreadable models
-        reason = re.sub(r"^\[[^]]*\]\s*", "", (str(err).strip().splitlines() or [type(err).__name__])[0])
-    fix = "fix that line or export the model from COLMAP again"
+        raise _unreadable(sparse_dir, files, err) from None
+    images = files["images"]
+    if images.suffix == ".txt" and (number := pose_line_in_place_of_points(images)) is not None:
+        raise SplatuError(f"{images.name} line {number} is an image's pose where COLMAP reads the 2D points of the "
+                          "image on the line before, so every other image would be lost", f"in {images}",
+                          "give each image two lines, its pose then its 2D points (an empty line when it has none)")
+    return reconstruction
+
+
+def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:
+    """The error for a model pycolmap could not read: a text file's first bad line, else pycolmap's reason."""
     for name, path in files.items():
         bad = first_bad_line(path, name) if path.suffix == ".txt" else None
         if bad is not None:
-            raise SplatuError(f"cannot parse {path.name} line {bad[0]} ({bad[1][:60]!r})", f"in {path}", fix)
-    raise SplatuError(f"pycolmap cannot read the COLMAP model ({reason})", f"in {sparse_dir}",
-                      "export cameras, images and points3D from COLMAP again")
+            return SplatuError(f"cannot parse {path.name} line {bad[0]} ({bad[1][:60]!r})", f"in {path}",
+                               "fix that line or export the model from COLMAP again")
+    reason = re.sub(r"^\[[^]]*\]\s*", "", (str(err).strip().splitlines() or [type(err).__name__])[0])
+    return SplatuError(f"pycolmap cannot read the COLMAP model ({reason})", f"in {sparse_dir}",
+                       "export cameras, images and points3D from COLMAP again")
 
 
 def _world_to_camera(image: pycolmap.Image, where: str) -> np.ndarray:

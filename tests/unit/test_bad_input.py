@@ -9,6 +9,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 
 from splatu.cli import entrypoint
@@ -132,6 +133,18 @@ def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, fil
     path.write_text(edit(path.read_text()))
     error = load_error(tmp_path / "scene", tmp_path)
     assert error.what.startswith(f"cannot parse {file} line {line} (") and error.where == f"in {path}"
+
+
+def test_colmap_images_txt_without_its_empty_points_lines_is_refused_not_half_read(tmp_path):
+    """pycolmap takes the line after each pose as its 2D points, so with the empty lines removed it read the
+    model as every other image, silently (checked here: it reads 1 of these 2 images)."""
+    sparse = write_colmap(tmp_path / "scene")
+    images = sparse / "images.txt"
+    images.write_text("# a comment\n" + "".join(line + "\n" for line in images.read_text().splitlines() if line))
+    assert len(pycolmap.Reconstruction(str(sparse)).images) == 1
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what.startswith("images.txt line 3 is an image's pose where COLMAP reads the 2D points")
+    assert error.where == f"in {images}"
 
 
 @pytest.mark.parametrize(("ext", "kind"), [(".jpg", "JPEG"), (".png", "PNG")])
