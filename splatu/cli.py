@@ -21,6 +21,7 @@ import tyro
 from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
 from splatu.interrupts import exit_code
+from splatu.option_help import hand_option_help_to_tyro
 from splatu.usage_errors import usage_error
 
 
@@ -44,6 +45,8 @@ def main(argv: Sequence[str]) -> None:
     # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
     defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}
     descriptions = {name: cmd.description for name, cmd in commands.items()}
+    for config in defaults.values():
+        hand_option_help_to_tyro(type(config))
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
     tyro_errors = io.StringIO()
     try:

@@ -1,3 +1,5 @@
+import itertools
+import os
 import subprocess
 import sys
 
@@ -162,3 +164,17 @@ def test_a_box_usage_error_does_not_know_is_left_to_tyro():
     from splatu.usage_errors import usage_error
 
     assert usage_error("usage: splatu [-h]\nsplatu: error: something new\n", "splatu") is None
+
+
+@pytest.mark.parametrize("command", ["train", "render-uncertainty", "eval-ause", "process-images"])
+def test_option_help_wraps_only_where_the_terminal_is_full(command):
+    """tyro 1.0 kept every line break of an indented option docstring, so --help cut sentences short at any
+    width. Each help line now ends only where the next word would not fit."""
+    out = subprocess.run([sys.executable, "-m", "splatu", command, "--help"], capture_output=True, text=True,
+                         timeout=120, env={**os.environ, "COLUMNS": "100", "PYTHONIOENCODING": "utf-8"})
+    rows = [line[2:-2] for line in out.stdout.splitlines() if line.startswith("│ ")]
+    help_rows = [(row, row.startswith("      ") and row.strip() != "") for row in rows]
+    assert sum(is_help for _, is_help in help_rows) > 5
+    short = [(a.strip(), b.strip()) for (a, a_help), (b, b_help) in itertools.pairwise(help_rows)
+             if a_help and b_help and len(a.rstrip()) + 1 + len(b.split()[0]) <= len(a)]
+    assert not short, short
