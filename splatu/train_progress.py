@@ -52,14 +52,19 @@ the first step's kernel compile (10-60 s) for the rest of the run."""
 
 
 class StepRate:
-    """Steps per second over the last RATE_WINDOW steps, from the times `tick` is called at."""
+    """Steps per second over the last RATE_WINDOW steps, from the times `tick` is called at. The first step of a
+    session compiles the kernels, so from the second step on the window starts after it."""
 
     def __init__(self, now: float) -> None:
         self.times: deque[float] = deque([now], maxlen=RATE_WINDOW + 1)
+        self.compile_step_in_window = True
 
     def tick(self, now: float) -> float:
         """Record a finished step at time `now`; the current rate."""
         self.times.append(now)
+        if self.compile_step_in_window and len(self.times) == 3:
+            self.times.popleft()
+            self.compile_step_in_window = False
         return (len(self.times) - 1) / max(self.times[-1] - self.times[0], 1e-9)
 
 

@@ -752,10 +752,12 @@ def test_it_per_second_forgets_the_compile_of_the_first_step():
     rate = train_progress.StepRate(now=0.0)
     now = 30.0  # the first step compiles the kernels
     assert rate.tick(now) == pytest.approx(1 / 30)
+    now += 0.25
+    assert rate.tick(now) == pytest.approx(4.0)  # from the second step on, the compile is not in the window
     for _ in range(train_progress.RATE_WINDOW):
-        now += 0.25
+        now += 0.5
         last = rate.tick(now)
-    assert last == pytest.approx(4.0)  # a session mean would still read 51 / 42.5 = 1.2
+    assert last == pytest.approx(2.0)  # a session mean would read 52 / 55.25 = 0.94
 
 
 def test_resume_keeps_the_runs_options_says_which_it_ignores_and_takes_a_moved_scene(tmp_path, capsys):
