@@ -79,11 +79,13 @@ def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, 
 
 
 def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncertainty",
-                  output: Path | None = None) -> dict[str, Any]:
-    """Score a maps directory, write the JSON and the curve plot beside it, and return the report."""
+                  output: Path | None = None, options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Score a maps directory, write the JSON and the curve plot beside it, and return the report; `options`
+    (what rendered the maps) are recorded in it."""
     entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
     report, curves = score_entries(entries, metric)
     report["method"] = label
+    report["options"] = options or {"maps": str(maps_dir)}
     output = checked_output(output or maps_dir / "ause.json")
     atomic_write_text(output, json.dumps(report, indent=2))
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
@@ -92,10 +94,14 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
 
 
 def checked_output(output: Path) -> Path:
-    """The JSON path, its folder created and proven writable, so a bad --output is one line and not a traceback."""
+    """The JSON path, its folder created and proven writable, so a bad --output is one line and not a traceback.
+    It must end in .json: the plot goes beside it with the suffix .png, and would overwrite a .png path."""
     if output.is_dir():
         raise SplatuError("--output is a folder, eval-ause writes a JSON file (and a .png beside it)", f"in {output}",
                           f"pass a file path such as {output / 'ause.json'}")
+    if output.suffix != ".json":
+        raise SplatuError("--output must name a .json file (the curve plot is written beside it as .png)",
+                          f"in {output}", f"pass a path such as {output.with_suffix('.json')}")
     writable_dir(output.parent, "--output (a .json path in a writable folder)")
     return output
 
@@ -152,14 +158,15 @@ def run(config: EvalAuseConfig) -> None:
     else:
         from splatu.render_uncertainty import check_method_options, output_label, render_eval_maps
 
-        check_method_options(config.method, config.density_aware, config.fisher_probes)
+        check_method_options(config.method, config.density_aware, config.fisher_probes, config.seed)
 
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)
         maps_dir = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
                                     config.seed, data=config.data, head=config.head)
-        label = output_label(config.method, config.head)
+        label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
-        report = evaluate_maps(maps_dir, config.metric, label, output)
+        options = {name: getattr(config, name) for name in LOAD_ONLY_OPTIONS}
+        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options})
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

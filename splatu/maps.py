@@ -13,7 +13,7 @@ the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import cv2
 import numpy as np
@@ -36,9 +36,20 @@ class MapEntry:
 
 
 def safe_name(name: str) -> str:
-    """A view name usable as a file stem: path separators and the extension removed."""
-    stem = name.replace("\\", "/").strip("/").replace("/", "_")
-    return stem.rsplit(".", 1)[0] if "." in stem else stem
+    """A view name usable as a file stem: the last component's extension removed, path separators made `_`."""
+    return str(PurePosixPath(name.replace("\\", "/").strip("/")).with_suffix("")).replace("/", "_")
+
+
+def file_stems(names: list[str]) -> list[str]:
+    """`safe_name` of each view, refusing two views that would share files (one would overwrite the other)."""
+    stems = [safe_name(name) for name in names]
+    first_of: dict[str, str] = {}
+    for name, stem in zip(names, stems, strict=True):
+        if stem in first_of:
+            raise SplatuError(f"views {first_of[stem]!r} and {name!r} would both be written as {stem!r}",
+                              "in the scene's image names", "rename one of the two images")
+        first_of[stem] = name
+    return stems
 
 
 def _read_png(path: Path) -> np.ndarray:
@@ -54,15 +65,24 @@ def _read_png(path: Path) -> np.ndarray:
 
 
 def _read_rgb(path: Path) -> np.ndarray:
+    """RGB of a colour PNG; one with transparent pixels is refused, as its colour there is not what a render shows."""
     image = _read_png(path)
     if image.ndim != 3 or image.shape[2] < 3:
         raise SplatuError(f"expected a colour image, got shape {image.shape}", f"in {path}", "save it as RGB")
+    if image.shape[2] > 3 and image[..., 3].min() < 1.0:
+        raise SplatuError("image has transparent pixels", f"in {path}",
+                          "composite it on the background the render used and save it as RGB")
     return image[..., :3]
 
 
 def _read_binary(path: Path, shape: tuple[int, ...]) -> np.ndarray:
+    """Non-zero pixels of a mask PNG: grey or colour values, or the alpha channel of one whose colour is uniform."""
     image = _read_png(path)
-    binary = (image if image.ndim == 2 else image.max(axis=-1)) > 0
+    if image.ndim == 3:
+        has_alpha = image.shape[2] in (2, 4)  # grey or RGB, plus alpha
+        colour = image[..., : image.shape[2] - has_alpha].max(axis=-1)
+        image = image[..., -1] if has_alpha and colour.min() == colour.max() else colour
+    binary = image > 0
     if binary.shape != shape:
         raise SplatuError(f"mask is {binary.shape[1]}x{binary.shape[0]} but the render is {shape[1]}x{shape[0]}",
                           f"in {path}", "write masks at the render's size")

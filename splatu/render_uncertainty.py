@@ -43,7 +43,7 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
-from splatu.maps import MapEntry, safe_name, write_entry
+from splatu.maps import MapEntry, file_stems, write_entry
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 
 ViewSet = Literal["eval", "train", "orbit"]
@@ -134,7 +134,7 @@ def view_spec(scene_views: dict[str, Views], which: ViewSet, config: RenderUncer
     if len(views) == 0:
         raise SplatuError(f"the scene's {which} split is empty", "in the run's scene", "pick another --views")
     keep = _evenly(len(views), config.max_views)
-    return ViewSpec([views.cameras[i] for i in keep], [safe_name(views.names[i]) for i in keep], views, keep)
+    return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep)
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -272,16 +272,31 @@ def _setup(run, method: UncertaintyMethod, data: str | None, density_aware: bool
     return scene, build_method(method, run, scene, density_aware, fisher_probes, seed)
 
 
-def output_label(method: UncertaintyMethod, head: str | None) -> str:
-    """The method's name in folder and file names: `ours-<head spec>` for an extra uncertainty head."""
-    return method if head is None else f"{method}-{head}"
+SEEDED_METHODS = ("random", "fisher")
+"""The methods whose maps depend on --seed."""
+
+
+def output_label(method: UncertaintyMethod, head: str | None, density_aware: bool = False,
+                 fisher_probes: int = 2, seed: int = 0) -> str:
+    """The method's name in folder and file names, with every option that changes its maps and is not at its
+    default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`), so that one variant's
+    maps and scores never overwrite another's."""
+    parts = [method if head is None else f"{method}-{head}"]
+    if density_aware:
+        parts.append("density-aware")
+    if fisher_probes != RenderUncertaintyConfig.fisher_probes:
+        parts.append(f"{fisher_probes}-probes")
+    if seed != RenderUncertaintyConfig.seed:
+        parts.append(f"seed-{seed}")
+    return "-".join(parts)
 
 
 def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
                      fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None) -> Path:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
     run = _load(load, method, head)
-    folder = writable_dir(run_folder(load) / "uncertainty" / f"{output_label(method, head)}-eval",
+    label = output_label(method, head, density_aware, fisher_probes, seed)
+    folder = writable_dir(run_folder(load) / "uncertainty" / f"{label}-eval",
                           "run directory (--load writes maps there)")
     root = folder / "maps"
     scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
@@ -301,14 +316,17 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")
 
 
-def check_method_options(method: UncertaintyMethod, density_aware: bool, fisher_probes: int) -> None:
-    """Refuse, in one line, an option `method` never reads (density-aware is the ensemble's, probes are Fisher's),
-    rather than ignore it silently. Shared with eval-ause."""
-    for flag, is_set, reader in (("--density-aware", density_aware, "ensemble"),
-                                 ("--fisher-probes", fisher_probes != RenderUncertaintyConfig.fisher_probes, "fisher")):
-        if is_set and method != reader:
-            raise SplatuError(f"{flag} only applies with --method {reader}", "in the command's options",
-                              f"drop {flag}, or pass --method {reader}")
+def check_method_options(method: UncertaintyMethod, density_aware: bool, fisher_probes: int, seed: int) -> None:
+    """Refuse, in one line, an option `method` never reads (density-aware is the ensemble's, probes are Fisher's,
+    the seed is random's and Fisher's), rather than ignore it silently. Shared with eval-ause."""
+    for flag, is_set, readers in (("--density-aware", density_aware, ("ensemble",)),
+                                  ("--fisher-probes", fisher_probes != RenderUncertaintyConfig.fisher_probes,
+                                   ("fisher",)),
+                                  ("--seed", seed != RenderUncertaintyConfig.seed, SEEDED_METHODS)):
+        if is_set and method not in readers:
+            methods = " or ".join(f"--method {reader}" for reader in readers)
+            raise SplatuError(f"{flag} only applies with {methods}", "in the command's options",
+                              f"drop {flag}, or pass {methods}")
 
 
 def run(config: RenderUncertaintyConfig) -> None:
@@ -318,10 +336,10 @@ def run(config: RenderUncertaintyConfig) -> None:
         flags = " ".join(orbit_only)
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",
                           "in the command's options", f"drop {flags}, or pass --views orbit")
-    check_method_options(config.method, config.density_aware, config.fisher_probes)
+    check_method_options(config.method, config.density_aware, config.fisher_probes, config.seed)
     run_info = _load(config.load, config.method, config.head)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    label = output_label(config.method, config.head)
+    label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed)
     out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                        "--output folder")
     clear_previous_render(out, config.output is None)
@@ -332,6 +350,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         "method": config.method, "head": config.head, "views": config.views, "density_aware": config.density_aware,
+        "fisher_probes": config.fisher_probes, "seed": config.seed, "data": config.data,
         "train_seconds": run_info.train_seconds, "setup_seconds": built.setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],

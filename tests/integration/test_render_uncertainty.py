@@ -315,16 +315,20 @@ def test_every_baseline_renders_and_scores(tiny_run, method):
         assert np.isfinite(u).all() and u.min() >= 0.0 and u.max() <= 1.0 + 1e-6
 
 
-def test_eval_ause_passes_its_seed_to_the_random_method(tiny_run):
-    def scored(seed: str) -> dict[str, float]:
-        output = tiny_run / f"random-seed-{seed}.json"
-        entrypoint(["eval-ause", "--load", str(tiny_run), "--method", "random", "--seed", seed,
-                    "--output", str(output)])
-        return json.loads(output.read_text())["per_image"]
+def test_eval_ause_passes_its_seed_to_the_random_method_and_files_each_seed_apart(tiny_run, capsys):
+    def scored(seed: str) -> dict:
+        entrypoint(["eval-ause", "--load", str(tiny_run), "--method", "random", "--seed", seed])
+        return json.loads((tiny_run / ("ause_random.json" if seed == "0" else f"ause_random-seed-{seed}.json"))
+                          .read_text())
 
-    first, again, other = scored("0"), scored("0"), scored("1")
-    assert first == again
-    assert any(first[name]["ause_mae"] != other[name]["ause_mae"] for name in first)
+    first, other, again = scored("0"), scored("1"), scored("0")
+    assert first["per_image"] == again["per_image"]  # seed 1's report and maps went beside seed 0's, not over them
+    assert any(first["per_image"][name]["ause_mae"] != other["per_image"][name]["ause_mae"]
+               for name in first["per_image"])
+    assert (other["method"], other["options"]["seed"], first["options"]["seed"]) == ("random-seed-1", 1, 0)
+    assert (tiny_run / "uncertainty" / "random-seed-1-eval" / "maps").is_dir()
+    assert "--seed only applies with --method random or --method fisher" in _one_line(
+        capsys, ["eval-ause", "--load", str(tiny_run), "--method", "visibility", "--seed", "2"])
 
 
 def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty_space(tiny_run, tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from splatu import ause as A
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
-from splatu.maps import MapEntry, read_entry, write_entry
+from splatu.maps import MapEntry, file_stems, read_entry, safe_name, write_entry
 
 
 def _tiny_maps(root: Path, n: int = 3, size: tuple[int, int] = (24, 32)) -> dict[str, np.ndarray]:
@@ -172,3 +172,54 @@ def test_eval_ause_says_so_when_every_eval_view_is_masked_out(tmp_path, monkeypa
     with pytest.raises(SplatuError, match="no eval view has a pixel to score"):
         R.render_eval_maps(tmp_path, "ours")
     assert not (tmp_path / "uncertainty" / "ours-eval" / "maps").exists()
+
+
+def test_an_output_that_is_not_json_is_refused_before_the_plot_could_overwrite_it(tmp_path, capsys):
+    _tiny_maps(tmp_path / "maps", n=1)
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "maps"), "--output", str(tmp_path / "scores.png"))
+    assert "--output must name a .json file" in line and "scores.json" in line
+    assert not (tmp_path / "scores.png").exists()
+
+
+def test_an_rgba_mask_is_read_by_its_colour_or_by_its_alpha_when_the_colour_is_uniform(tmp_path):
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=1)
+    (root / "mask").mkdir()
+    top_half = np.zeros((24, 32), bool)
+    top_half[:12] = True
+    bgra = np.zeros((24, 32, 4), np.uint8)
+    bgra[..., 3] = 255  # opaque everywhere: the colour is the mask (alpha used to make every pixel count)
+    bgra[top_half, :3] = 255
+    cv2.imwrite(str(root / "mask" / "view_0.png"), bgra)
+    assert np.array_equal(read_entry(root, "view_0").mask, top_half)
+    bgra[..., :3] = 255  # white everywhere: the alpha is the mask
+    bgra[..., 3] = np.where(top_half, 255, 0)
+    cv2.imwrite(str(root / "mask" / "view_0.png"), bgra)
+    assert np.array_equal(read_entry(root, "view_0").mask, top_half)
+
+
+def test_a_ground_truth_with_transparent_pixels_is_refused(tmp_path, capsys):
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=1)
+    bgra = np.full((24, 32, 4), 255, np.uint8)
+    bgra[0, 0, 3] = 0
+    cv2.imwrite(str(root / "gt" / "view_0.png"), bgra)
+    assert "transparent pixels" in _one_line_error(capsys, "--maps", str(root))
+
+
+def test_view_names_become_file_stems_and_two_that_would_share_files_are_refused():
+    assert safe_name("images/frame_001.png") == "images_frame_001"
+    assert safe_name("test.v2/r_0") == "test.v2_r_0"  # the folder's dot is not an extension
+    assert file_stems(["test.v2/r_0", "test.v2/r_1"]) == ["test.v2_r_0", "test.v2_r_1"]
+    for clash in (["a/b.png", "a_b.png"], ["r_0.png", "r_0.jpg"]):
+        with pytest.raises(SplatuError, match="would both be written as"):
+            file_stems(clash)
+
+
+def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
+    from splatu.render_uncertainty import output_label
+
+    assert output_label("ours", None) == "ours"
+    assert output_label("ours", "degree=1") == "ours-degree=1"
+    assert output_label("ensemble", None, density_aware=True) == "ensemble-density-aware"
+    assert output_label("fisher", None, fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
