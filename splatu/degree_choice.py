@@ -262,8 +262,9 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
             renders[degree].append(render.rgb.clamp(0, 1))
             if render.extra is not None:
                 maps.append(render.extra.numpy())
-    colour = {d: float(np.mean([psnr(rgb, gt) for rgb, gt in zip(renders[d], targets, strict=True)]))
-              for d in renders}
+    kept = [None if held_out.valid is None else held_out.valid[i] > 0 for i in range(len(held_out))]
+    scored = [i for i, k in enumerate(kept) if k is None or bool(k.any())]  # as evaluation: mask files leave out
+    colour = {d: float(np.mean([psnr(renders[d][i], targets[i], mask=kept[i]) for i in scored])) for d in renders}
     chosen = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
     record: dict[str, Any] = {"held_out_views": held_out.names, "colour_psnr": colour, "sh_degree": chosen}
     if heads:

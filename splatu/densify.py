@@ -59,8 +59,9 @@ class DensifyConfig:
     prune_never_contributing: bool = True
     """Prune Gaussians whose blend weight stayed below 1/255 in every view of the last contribution_window steps."""
     contribution_window: int = 300
-    """Steps a Gaussian may go without contributing before it is pruned (0 = refine_every). Keep it at least the
-    number of training views, so a Gaussian seen by few views is not pruned just because they were not drawn."""
+    """Steps a Gaussian may go without contributing before it is pruned; never fewer than 2N − 1 for N training
+    views, the longest the per-epoch shuffle can leave a view undrawn, so that a Gaussian seen by few views is
+    not pruned just because they were not drawn (0: that floor alone)."""
     pause_after_reset: int = 0
     """Steps without densification after each opacity reset, for opacities to recover (splatfacto uses the
     number of training images)."""
@@ -118,10 +119,12 @@ class DensityController:
         self.visible_count = torch.zeros(n)
         self.max_screen_size = torch.zeros(n)
 
-    def refine(self, step: int, model: GaussianModel, optimizers: Optimizers) -> dict[str, int]:
+    def refine(self, step: int, model: GaussianModel, optimizers: Optimizers, *, views_per_epoch: int
+               ) -> dict[str, int]:
         """Refine after the optimizer step of `step` when the schedule says so; returns what changed.
 
         Acts when step > warmup_length and step % refine_every == 0, then starts a new window.
+        `views_per_epoch` is the number of training views the steps cycle through.
         """
         cfg = self.cfg
         counts = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
@@ -133,7 +136,7 @@ class DensityController:
             return counts
         reset_interval = cfg.refine_every * cfg.reset_alpha_every
         with torch.no_grad():
-            cull = self._cull_mask(step, model)
+            cull = self._cull_mask(step, model, views_per_epoch)
             densifying = step < cfg.stop_split_at and step % reset_interval >= cfg.refine_every + cfg.pause_after_reset
             if densifying:
                 clone, split = self._densify_masks(step, model, cull)
@@ -156,7 +159,7 @@ class DensityController:
         assert self.steps_without_contribution is not None
         self.steps_without_contribution = torch.cat([self.steps_without_contribution[keep], torch.zeros(appended)])
 
-    def _cull_mask(self, step: int, model: GaussianModel) -> Tensor:
+    def _cull_mask(self, step: int, model: GaussianModel, views_per_epoch: int) -> Tensor:
         cfg = self.cfg
         assert self.max_screen_size is not None and self.steps_without_contribution is not None
         cull = torch.sigmoid(model.opacity_logits) < cfg.cull_alpha_thresh
@@ -165,7 +168,7 @@ class DensityController:
             if step < cfg.stop_screen_size_at:
                 cull |= self.max_screen_size > cfg.cull_screen_size
         if cfg.prune_never_contributing:
-            window = cfg.contribution_window or cfg.refine_every
+            window = max(cfg.contribution_window, 2 * views_per_epoch - 1)
             cull |= self.steps_without_contribution >= window
         return cull
 

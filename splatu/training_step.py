@@ -197,5 +197,6 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
         state.optimizers.step(step)
     state.optimizers.zero_grad()
     if bad is None:
-        refined = {k: v for k, v in state.density.refine(step, state.model, state.optimizers).items() if v}
+        changes = state.density.refine(step, state.model, state.optimizers, views_per_epoch=len(images))
+        refined = {k: v for k, v in changes.items() if v}
     return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)

@@ -26,7 +26,7 @@ from splatu.degree_choice import (
     with_choice_heads,
 )
 from splatu.errors import SplatuError
-from splatu.losses import uncertainty_heads
+from splatu.losses import UncertaintyLossConfig, uncertainty_heads
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.sh import C0, safe_normalize, sh_basis
@@ -339,3 +339,24 @@ def test_held_out_scoring_skips_a_view_its_mask_excludes_and_refuses_when_all_ar
     assert both == head_ause(renders[:1], targets[:1], maps[:1], heads, masks[:1])
     with pytest.raises(SplatuError, match="every held-out view's mask"):
         head_ause(renders[1:], targets[1:], maps[1:], heads, masks[1:])
+
+
+def test_the_colour_scores_leave_out_what_the_mask_files_exclude(tmp_path):
+    """Pixels a mask file excludes are never trained; the held-out PSNR that picks the colour degree used to
+    count them (the uncertainty scores already left them out)."""
+    config = dataclasses.replace(choice_config(tmp_path), uncertainty=UncertaintyLossConfig(off=True))
+    model = _model_with_heads(config)
+    train = tiny_scene(n_train=8).train
+    with torch.no_grad():
+        targets = _views_rendered_by(model, train.subset([0, 3, 6]), 2)
+    valid = torch.ones(targets.images.shape[:3])
+    valid[:, :, : valid.shape[2] // 2] = 0.0
+    g = torch.Generator().manual_seed(0)
+
+    def scores_with_junk_where_masked() -> dict[int, float]:
+        junk = torch.where(valid[..., None] > 0, targets.images, torch.rand(targets.images.shape, generator=g))
+        held_out = dataclasses.replace(targets, images=junk, valid=valid)
+        return score_degrees(model, held_out, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3)).record[
+            "colour_psnr"]
+
+    assert scores_with_junk_where_masked() == scores_with_junk_where_masked()

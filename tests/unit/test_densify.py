@@ -11,6 +11,7 @@ from splatu.densify import SPLIT_SCALE_DIVISOR, DensifyConfig, DensityController
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.rasterizer import RasterOutput
+from splatu.training_step import camera_index
 
 N = 8
 SIZE = 100  # image width = height; pixel gradients become NDC gradients × SIZE / 2
@@ -83,7 +84,7 @@ def test_clone_split_and_prune_keep_rows_and_adam_state_aligned():
     controller.observe(_raster(grads, radii, contrib), SIZE, SIZE)
     u_before = model.u_sh.detach().clone()
 
-    counts = controller.refine(10, model, optimizers)
+    counts = controller.refine(10, model, optimizers, views_per_epoch=1)
 
     assert counts == {"cloned": 1, "split": 2, "pruned": 2, "reset": 0}
     assert len(model) == N - 2 - 2 + 1 + 2 * 2
@@ -128,7 +129,7 @@ def test_opacity_reset_caps_opacity_resets_its_adam_rows_and_leaves_u_sh_alone()
     controller = DensityController(cfg, 1.0)
     controller.observe(_raster(torch.full((N,), LOW), torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
 
-    counts = controller.refine(20, model, optimizers)  # 20 = 2 refinements × 10 steps → reset
+    counts = controller.refine(20, model, optimizers, views_per_epoch=1)  # 20 = 2 refinements × 10 steps → reset
 
     assert counts == {"cloned": 0, "split": 0, "pruned": 0, "reset": N - 1}
     opacity = torch.sigmoid(model.opacity_logits.detach())
@@ -147,7 +148,7 @@ def test_budget_densifies_only_the_largest_gradients_that_fit():
     controller = DensityController(cfg, 1.0)
     controller.observe(_raster(grads, torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
 
-    counts = controller.refine(10, model, optimizers)
+    counts = controller.refine(10, model, optimizers, views_per_epoch=1)
 
     assert counts["cloned"] == 2 and len(model) == N + 2
     assert len(_row_of(model, 1)) == 2 and len(_row_of(model, 3)) == 2  # the two largest gradients
@@ -165,7 +166,7 @@ def test_gradient_is_averaged_over_the_views_where_a_gaussian_is_visible():
                        SIZE, SIZE)
     for _ in range(3):
         controller.observe(_raster(torch.zeros(N), torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
-    counts = controller.refine(10, model, optimizers)
+    counts = controller.refine(10, model, optimizers, views_per_epoch=1)
     assert counts["cloned"] == 1 and len(_row_of(model, 0)) == 2 and len(_row_of(model, 1)) == 1
 
 
@@ -184,7 +185,7 @@ def test_never_contributing_gaussians_are_pruned_after_a_full_contribution_windo
     for step, contrib in enumerate(schedule, start=1):
         n = len(model)  # only the silent steps come after the prune, so the first n entries are right
         controller.observe(_raster(quiet[:n], torch.full((n,), 2), contrib[:n]), SIZE, SIZE)
-        pruned.append(controller.refine(step, model, optimizers)["pruned"])
+        pruned.append(controller.refine(step, model, optimizers, views_per_epoch=1)["pruned"])
     assert pruned == [0, 0, 0, N - 1, 0, 0]  # row 1 spoke at step 4, so 2 silent steps by step 6 are not enough
     assert len(model) == 1 and _row_of(model, 1) == [0]
     _assert_aligned(model, optimizers)
@@ -197,7 +198,8 @@ def test_nothing_happens_during_warmup_or_between_refinements():
     raster = _raster(torch.full((N,), HIGH), torch.full((N,), 2), torch.zeros(N))
     for step in (100, 500, 650):
         controller.observe(raster, SIZE, SIZE)
-        assert controller.refine(step, model, optimizers) == {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+        counts = controller.refine(step, model, optimizers, views_per_epoch=1)
+        assert counts == {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
     assert len(model) == N
 
 
@@ -237,3 +239,28 @@ def test_fused_adam_takes_the_same_steps_as_the_reference_adam():
         reference_adam.step()
     assert torch.allclose(model.sh_dc, reference, atol=1e-6)
     assert not torch.equal(model.sh_dc, _tagged_model()[0].sh_dc)
+
+
+def test_a_gaussian_is_not_pruned_while_its_only_view_may_still_be_undrawn():
+    """Views are drawn in a new order each epoch, so one view can go 2N − 1 steps undrawn (drawn first in one epoch,
+    last in the next): that is the least window whatever contribution_window says."""
+    views = 5
+    gaps = []
+    for seed in range(3):
+        last_seen: dict[int, int] = {}
+        for step in range(views * 40):
+            view = camera_index(step, views, seed)
+            if view in last_seen:
+                gaps.append(step - last_seen[view])
+            last_seen[view] = step
+    assert max(gaps) == 2 * views - 1  # longer than N: a window of N steps would prune on the draw order alone
+    model, optimizers = _tagged_model()
+    controller = DensityController(DensifyConfig(warmup_length=0, refine_every=1, contribution_window=1), 1.0)
+    only_row_0 = torch.zeros(N)
+    only_row_0[0] = 0.5
+    pruned = []
+    for step in range(1, 2 * views + 1):
+        n = len(model)
+        controller.observe(_raster(torch.full((n,), LOW), torch.full((n,), 2), only_row_0[:n]), SIZE, SIZE)
+        pruned.append(controller.refine(step, model, optimizers, views_per_epoch=views)["pruned"])
+    assert pruned == [0] * (2 * views - 2) + [N - 1, 0]  # the silent rows go after 2N − 1 = 9 steps, not 1
