@@ -12,6 +12,8 @@ the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just 
 
 from __future__ import annotations
 
+import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
@@ -158,3 +160,19 @@ def write_entry(root: Path, entry: MapEntry) -> None:
         binary = getattr(entry, folder)
         if binary is not None:
             _write_png(root / folder / f"{entry.name}.png", binary.astype(np.float64))
+
+
+def write_maps_dir(root: Path, entries: list[MapEntry]) -> None:
+    """Write a whole maps directory beside `root`, then put it in place of any earlier one: a crash mid-write
+    leaves the earlier directory or none, never one with views missing or lacking their masks, which
+    `eval-ause --maps` would score without complaint."""
+    staging = root.with_name(f".{root.name}.tmp-{os.getpid()}")
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        staging.mkdir(parents=True)
+        for entry in entries:
+            write_entry(staging, entry)
+        shutil.rmtree(root, ignore_errors=True)
+        os.replace(staging, root)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

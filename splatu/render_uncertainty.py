@@ -43,7 +43,7 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
-from splatu.maps import MapEntry, file_stems, write_entry
+from splatu.maps import MapEntry, file_stems, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 
 ViewSet = Literal["eval", "train", "orbit"]
@@ -178,12 +178,6 @@ def map_entries(views: list[RenderedView]) -> list[MapEntry]:
             for v in views if v.gt is not None and (v.mask is None or v.mask.any())]
 
 
-def write_maps_layout(root: Path, views: list[RenderedView]) -> None:
-    """The `eval-ause --maps` layout for every view that has ground truth."""
-    for entry in map_entries(views):
-        write_entry(root, entry)
-
-
 def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
     """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]."""
     u_max = max(float(v.maps["uncertainty"].max()) for v in views)
@@ -243,7 +237,7 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
         error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
         save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
                    scales["uncertainty"], error, scales["error"])
-    write_maps_layout(out / "maps", views)
+    write_maps_dir(out / "maps", map_entries(views))
     if orbit:
         titles = [f"{v.name}  elevation {v.elevation_degrees:+.0f}°" for v in views]
         save_orbit_gif(out / "orbit.gif", [v.maps["rgb"] for v in views], [v.maps["uncertainty"] for v in views],
@@ -302,11 +296,11 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
-    if not map_entries(views):
+    entries = map_entries(views)
+    if not entries:
         raise SplatuError("no eval view has a pixel to score (each is excluded by its mask file)",
                           "in the scene's mask files", "fix the masks, or hold out other views (--eval-split)")
-    shutil.rmtree(root, ignore_errors=True)  # our own folder: stale views of an earlier render must not be scored
-    write_maps_layout(root, views)
+    write_maps_dir(root, entries)  # in place of an earlier render's, whose stale views must not be scored
     atomic_write_text(root / "timing.json", json.dumps({"train_seconds": run.train_seconds,
                                                         "setup_seconds": built.setup_seconds,
                                                         "render_seconds_per_view": float(np.median(seconds))}))

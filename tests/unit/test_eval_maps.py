@@ -1,5 +1,6 @@
 """`splatu eval-ause --maps` round trip on tiny directories, and its one-line errors."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import pytest
 from splatu import ause as A
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
-from splatu.maps import MapEntry, file_stems, read_entry, safe_name, write_entry
+from splatu.maps import MapEntry, entry_names, file_stems, read_entry, safe_name, write_entry
 
 
 def _tiny_maps(root: Path, n: int = 3, size: tuple[int, int] = (24, 32)) -> dict[str, np.ndarray]:
@@ -223,3 +224,30 @@ def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     assert output_label("ours", "degree=1") == "ours-degree=1"
     assert output_label("ensemble", None, density_aware=True) == "ensemble-density-aware"
     assert output_label("fisher", None, fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
+
+
+def test_a_maps_directory_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A render that fails part-way used to leave some views written and others missing, or a view without its
+    mask, which eval-ause --maps would score as if nothing were wrong."""
+    import splatu.maps as maps
+
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=2)
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    fresh = [dataclasses.replace(read_entry(root, name), name=f"new_{name}") for name in ("view_0", "view_1")]
+    written = []
+
+    def fail_on_the_second(where: Path, entry: MapEntry) -> None:
+        if written:
+            raise OSError("disk full")
+        written.append(entry.name)
+        write_entry(where, entry)
+
+    monkeypatch.setattr(maps, "write_entry", fail_on_the_second)
+    with pytest.raises(OSError, match="disk full"):
+        maps.write_maps_dir(root, fresh)
+    assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["maps"]  # no staging folder left behind
+    monkeypatch.undo()
+    maps.write_maps_dir(root, fresh)
+    assert entry_names(root) == ["new_view_0", "new_view_1"]  # the earlier views are gone, not mixed in
