@@ -237,7 +237,9 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
         error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
         save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
                    scales["uncertainty"], error, scales["error"])
-    write_maps_dir(out / "maps", map_entries(views))
+    entries = map_entries(views)
+    if entries:  # orbit views have no ground truth to score
+        write_maps_dir(out / "maps", entries)
     if orbit:
         titles = [f"{v.name}  elevation {v.elevation_degrees:+.0f}°" for v in views]
         save_orbit_gif(out / "orbit.gif", [v.maps["rgb"] for v in views], [v.maps["uncertainty"] for v in views],
