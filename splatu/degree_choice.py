@@ -167,8 +167,9 @@ def seen_normal_equations(model: GaussianModel, views: Views, background: torch.
     normal = coeffs.new_zeros(len(model), coeffs.shape[1], coeffs.shape[1])
     rhs = torch.zeros_like(coeffs)
     total = coeffs.new_zeros(len(model))
-    for camera in views.cameras:
-        weight = model.render(camera, 0, background).raster.contrib_sum.double()
+    for v, camera in enumerate(views.cameras):
+        counted = None if views.valid is None else views.valid[v] > 0  # what training saw of it
+        weight = model.render(camera, 0, background, contribution_mask=counted).raster.contrib_sum.double()
         dirs = safe_normalize(model.view_dirs(camera).double())
         m, r = normal_equations(dirs.unsqueeze(1), weight.unsqueeze(1), coeffs)
         normal += m

@@ -157,11 +157,12 @@ class GaussianModel(torch.nn.Module):
         return torch.clamp_min(eval_sh(coeffs, dirs, min(sh_degree, self.cfg.sh_degree)) + 0.5, 0.0)
 
     def render(self, camera: Camera, sh_degree: int, background: Tensor, *, with_uncertainty: bool = False,
-               extra_features: Tensor | None = None) -> ModelRender:
+               extra_features: Tensor | None = None, contribution_mask: Tensor | None = None) -> ModelRender:
         """Render a view in ONE rasterizer call; uncertainty and extras ride along as feature channels.
 
         Pixels that see nothing get uncertainty 1 and extra value 1 (their background), so empty space reads
-        as uncertain / unseen.
+        as uncertain / unseen. `contribution_mask` (H, W) bool: the pixels the contributions count (the view's
+        mask file), as in `rasterize`.
         """
         dirs = self.view_dirs(camera)
         channels = [self.colors(dirs, sh_degree)]
@@ -178,6 +179,7 @@ class GaussianModel(torch.nn.Module):
             self.means, self.quats, self.log_scales, torch.sigmoid(self.opacity_logits), torch.cat(channels, dim=-1),
             camera.world_to_camera.to(self.means), camera.K.to(self.means), camera.width, camera.height,
             near=camera.near, far=camera.far, background=torch.cat(backgrounds), log_scales=True,
+            contribution_mask=contribution_mask,
         )
         image = raster.image
         uncertainty = image[..., 3] if with_uncertainty else None

@@ -177,7 +177,8 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     weight = images.weight(index, level)
     degree = active_sh_degree(step, config.model.sh_degree, config.model.sh_degree_interval)
 
-    render = state.model.render(camera, degree, background)
+    # what a Gaussian shows only on masked pixels is neither trained nor "seen" (uncertainty loss, pruning)
+    render = state.model.render(camera, degree, background, contribution_mask=None if weight is None else weight > 0)
     rgb = render.rgb
     if weight is not None:  # masked pixels: both images are 0 there, as nerfstudio's splatfacto does
         rgb, target = rgb * weight[..., None], target * weight[..., None]

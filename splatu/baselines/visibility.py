@@ -15,16 +15,21 @@ from splatu.model import GaussianModel
 
 
 @torch.no_grad()
-def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0) -> Tensor:
-    """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`."""
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0,
+                  masks: Tensor | None = None) -> Tensor:
+    """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`, over the
+    pixels of its mask (V, H, W; > 0 counts) when the views have mask files, as the training loss counts them."""
     background = torch.zeros(3)
-    columns = [model.render(camera, sh_degree, background).raster.contrib_max >= threshold for camera in cameras]
+    columns = [model.render(camera, sh_degree, background,
+                            contribution_mask=None if masks is None else masks[v] > 0).raster.contrib_max >= threshold
+               for v, camera in enumerate(cameras)]
     return torch.stack(columns, dim=1) if columns else torch.zeros(len(model), 0, dtype=torch.bool)
 
 
-def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0) -> Tensor:
-    """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold`."""
-    return seen_in_views(model, cameras, threshold, sh_degree).sum(dim=1).float()
+def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0,
+                      masks: Tensor | None = None) -> Tensor:
+    """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold` (see seen_in_views)."""
+    return seen_in_views(model, cameras, threshold, sh_degree, masks).sum(dim=1).float()
 
 
 def visibility_feature(counts: Tensor) -> Tensor:

@@ -169,7 +169,7 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
 
 def forward_chunk(
     entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int, acc: PixelAccumulators,
-    log_t: Tensor,
+    log_t: Tensor, counted: Tensor | None = None,
 ) -> ChunkState:
     """Composite some entries into the accumulators and advance each pixel's carried log T (B, num_blocks).
 
@@ -177,6 +177,7 @@ def forward_chunk(
     within the rounds they are a large part of a chunk. They have w = 0 and zero gradient at every
     pixel, so once the transmittance pass has found them, everything else (image sums,
     contributions, the saved state and the whole backward) runs on the live entries only.
+    `counted` (B, num_blocks, 0 or 1) limits the contributions to some pixels; the image is unaffected.
     """
     v = view_entries(entries, positions, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
@@ -191,6 +192,9 @@ def forward_chunk(
     block_total = columns(cumulative, seg.block_last) - exclusive_at_first
     log_t.index_add_(1, seg.blocks, block_total)
     live = torch.nonzero(weight_max > 0).squeeze(1)
+    if counted is not None:
+        counted_weight = weight * counted.index_select(1, v.block)
+        weight_sum, weight_max = counted_weight.sum(0), counted_weight.amax(0)
     transmittance, weight, alpha_raw = (columns(x, live) for x in (transmittance, weight, alpha_raw))
     gaussian, block = v.gaussian.index_select(0, live), v.block.index_select(0, live)
     if live.numel():

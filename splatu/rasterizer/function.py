@@ -24,7 +24,8 @@ from splatu.rasterizer.footprint import BlockEntries
 
 
 def _run_forward(
-    g: GaussianParams, entries: BlockEntries, width: int, max_elements: int, keep_state: bool
+    g: GaussianParams, entries: BlockEntries, width: int, max_elements: int, keep_state: bool,
+    counted: Tensor | None,
 ) -> tuple[PixelAccumulators, list[ChunkState]]:
     n, channels_ext = g.features_ext.shape
     dtype, device = g.means2d.dtype, g.means2d.device
@@ -38,7 +39,7 @@ def _run_forward(
     in_image = to_blocks(torch.ones(height, width, dtype=torch.bool, device=device), entries)
     states = []
     for positions in chunks(entries, log_t, in_image, max_elements):
-        state = forward_chunk(entries, positions, g, width, acc, log_t)
+        state = forward_chunk(entries, positions, g, width, acc, log_t, counted)
         if keep_state:
             states.append(state)
     return acc, states
@@ -76,9 +77,10 @@ class CompositeFunction(torch.autograd.Function):
     def forward(
         ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, features_ext: Tensor,
         background: Tensor, entries: BlockEntries, width: int, height: int, absgrad: Tensor, max_elements: int,
+        counted: Tensor | None,
     ) -> tuple[Tensor, ...]:
         g = GaussianParams(means2d, conics, opacities, features_ext)
-        acc, states = _run_forward(g, entries, width, max_elements, keep_state=True)
+        acc, states = _run_forward(g, entries, width, max_elements, keep_state=True, counted=counted)
         image, alpha, depth_num, t_final = _finish(acc.image_ext, background, width, height)
         ctx.save_for_backward(means2d, conics, opacities, features_ext, background)
         ctx.states, ctx.entries, ctx.t_final, ctx.width, ctx.absgrad = states, entries, t_final, width, absgrad
@@ -103,20 +105,22 @@ class CompositeFunction(torch.autograd.Function):
         ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))
         return (grad_means2d, grad_conics, grad_opacities, grad_features_ext, grad_background,
-                None, None, None, None, None)
+                None, None, None, None, None, None)
 
 
 def composite(
     g: GaussianParams, background: Tensor, entries: BlockEntries, width: int, height: int,
-    absgrad: Tensor, max_elements: int,
+    absgrad: Tensor, max_elements: int, contribution_mask: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, int]:
-    """image (H,W,C), alpha (H,W), Σ w·z (H,W), contrib_sum, contrib_max, pair count; no-grad path saves nothing."""
+    """image (H,W,C), alpha (H,W), Σ w·z (H,W), contrib_sum, contrib_max, pair count; no-grad path saves nothing.
+    `contribution_mask` (H, W, bool) limits contrib_sum and contrib_max to its pixels."""
+    counted = None if contribution_mask is None else to_blocks(contribution_mask.to(g.means2d.dtype), entries)
     inputs = (g.means2d, g.conics, g.opacities, g.features_ext, background)
     if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
         image, alpha, depth_num, csum, cmax, pairs = CompositeFunction.apply(
-            *inputs, entries, width, height, absgrad, max_elements
+            *inputs, entries, width, height, absgrad, max_elements, counted
         )
         return image, alpha, depth_num, csum, cmax, int(pairs)
-    acc, _ = _run_forward(g, entries, width, max_elements, keep_state=False)
+    acc, _ = _run_forward(g, entries, width, max_elements, keep_state=False, counted=counted)
     image, alpha, depth_num, _ = _finish(acc.image_ext, background, width, height)
     return image, alpha, depth_num, acc.contrib_sum, acc.contrib_max, acc.pairs

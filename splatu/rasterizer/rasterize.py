@@ -39,8 +39,13 @@ def rasterize(
     means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, features: Tensor,
     world_to_camera: Tensor, K: Tensor, width: int, height: int, *,
     near: float = 0.01, far: float = 1e10, background: Tensor | None = None, log_scales: bool = False,
+    contribution_mask: Tensor | None = None,
 ) -> RasterOutput:
-    """Render N Gaussians with exact 3DGS semantics (EWA splatting, α-blending front to back, early stop)."""
+    """Render N Gaussians with exact 3DGS semantics (EWA splatting, α-blending front to back, early stop).
+
+    `contribution_mask` (H, W) bool limits `contrib_sum` and `contrib_max` to its pixels (a scene's mask files:
+    what a Gaussian shows only where nothing is trained or scored does not count as seen); the image is the same.
+    """
     n = means.shape[0] if means.dim() == 2 else -1
     channels = features.shape[1] if features.dim() == 2 else -1
     require_shape("means", means, (None, 3))
@@ -64,6 +69,8 @@ def rasterize(
              "world_to_camera": world_to_camera, "K": K, "background": background}
     for name, tensor in named.items():
         require_finite(name, tensor)
+    if contribution_mask is not None:
+        require_shape("contribution_mask", contribution_mask, (height, width))
 
     proj = project_gaussians(means, quats, scales, world_to_camera, K, width, height, near, far, log_scales)
     entries = block_entries(
@@ -75,7 +82,7 @@ def rasterize(
     features_ext = torch.cat([features.to(dtype), proj.depths[:, None], ones], dim=1)
     params = GaussianParams(proj.means2d, proj.conics, opacities.to(dtype), features_ext)
     image, alpha, depth_num, contrib_sum, contrib_max, pairs = composite(
-        params, background.to(dtype), entries, width, height, absgrad, MAX_CHUNK_ELEMENTS
+        params, background.to(dtype), entries, width, height, absgrad, MAX_CHUNK_ELEMENTS, contribution_mask
     )
     return RasterOutput(
         image=image,

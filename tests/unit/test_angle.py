@@ -63,6 +63,24 @@ def test_coverage_uses_the_loss_supervision_rule_and_counts_like_visibility():
     torch.testing.assert_close(coverage.centres, torch.stack([c.center() for c in cameras]))
 
 
+def test_coverage_counts_only_the_pixels_the_mask_files_keep():
+    """A Gaussian that shows only where a view's mask file excludes the pixels was never trained from that view."""
+    model, cameras = overlapping_gaussians(), two_cameras()
+    height, width = cameras[0].height, cameras[0].width
+    everything = torch.ones(len(cameras), height, width)
+    assert torch.equal(view_coverage(model, cameras, 0.05, masks=everything).seen, view_coverage(model, cameras,
+                                                                                                 0.05).seen)
+    left = everything.clone()
+    left[:, :, width // 2:] = 0.0
+    seen_left = view_coverage(model, cameras, 0.05, masks=left).seen
+    for v, camera in enumerate(cameras):
+        weights = model.render(camera, 0, torch.zeros(3), contribution_mask=left[v] > 0).raster.contrib_max
+        assert torch.equal(seen_left[:, v], weights >= 0.05)
+    assert seen_left.sum() < view_coverage(model, cameras, 0.05).seen.sum()
+    assert not view_coverage(model, cameras, 0.05, masks=torch.zeros_like(everything)).seen.any()
+    torch.testing.assert_close(visibility_counts(model, cameras, 0.05, masks=left), seen_left.sum(1).float())
+
+
 def test_from_a_training_view_every_seen_gaussian_has_zero_gap_so_only_empty_space_is_uncertain():
     model, cameras = overlapping_gaussians(), two_cameras()
     source = AngleSource(model, 0, torch.zeros(3), view_coverage(model, cameras, 0.0))  # threshold 0: all seen

@@ -216,6 +216,13 @@ def test_normal_equations_summed_view_by_view_weigh_views_by_what_they_see(tmp_p
     torch.testing.assert_close(rhs, expected[1], rtol=1e-5, atol=1e-6)
     assert int(seen.sum()) == len(model) - 10
     assert torch.equal(normal[~seen], torch.zeros_like(normal[~seen]))
+    # a view whose mask file keeps no pixel was never trained on: it weighs nothing
+    height, width = views.images.shape[1:3]
+    valid = torch.ones(len(views), height, width)
+    valid[1] = 0.0
+    masked, _ = seen_normal_equations(model, dataclasses.replace(views, valid=valid), torch.zeros(3))
+    without, _ = seen_normal_equations(model, views.subset([0, 2]), torch.zeros(3))
+    torch.testing.assert_close(masked, without, rtol=1e-6, atol=1e-9)
 
 
 def test_scores_pick_the_degree_that_explains_held_out_views(tmp_path):

@@ -101,7 +101,7 @@ def test_gradcheck_composite_function_directly():
     def composite(means2d, conics, opacities, features, depths, background):
         features_ext = torch.cat([features, depths[:, None], torch.ones(n, 1, dtype=F64)], dim=1)
         image, alpha, depth_num, *_ = CompositeFunction.apply(
-            means2d, conics, opacities, features_ext, background, entries, WIDTH, HEIGHT, absgrad, 1 << 20
+            means2d, conics, opacities, features_ext, background, entries, WIDTH, HEIGHT, absgrad, 1 << 20, None
         )
         return image, alpha, depth_num
 

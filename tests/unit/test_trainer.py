@@ -729,6 +729,26 @@ def test_pixels_a_mask_file_excludes_never_reach_the_loss(tmp_path, monkeypatch)
     assert not same(models[1, False], models[2, False])  # and it would have, unmasked
 
 
+def test_what_a_gaussian_shows_only_on_masked_pixels_does_not_count_as_seen(tmp_path, monkeypatch):
+    """The uncertainty loss and the never-contributing pruning read the render's contributions: with mask files,
+    they count the kept pixels only, as the photometric loss does."""
+    scene = _with_masked_right_side(tiny_scene(), 1, masked=True)
+    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    counted: list[torch.Tensor | None] = []
+    render = GaussianModel.render
+
+    def recording_render(self, camera, *args, contribution_mask=None, **kwargs):
+        counted.append(contribution_mask)
+        return render(self, camera, *args, contribution_mask=contribution_mask, **kwargs)
+
+    monkeypatch.setattr(GaussianModel, "render", recording_render)
+    trainer.train(tiny_config(tmp_path, steps=8, checkpoint_every=0, eval_every_steps=0))
+    training = counted[:8]
+    assert all(mask is not None and mask.any() and not mask.all() for mask in training)
+    for mask in training[6:]:  # full resolution from step 6: exactly the mask file's kept pixels
+        assert mask.shape == (H, W) and mask[:, : W // 2 + 1].all() and not mask[:, W // 2 + 1 :].any()
+
+
 def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
     scene = tiny_scene()
     model = trainer.fresh_state(tiny_config(tmp_path), scene).model
