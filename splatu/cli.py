@@ -39,7 +39,7 @@ def _commands() -> dict[str, Command]:
     return COMMANDS
 
 
-def main(argv: Sequence[str]) -> None:
+def main(argv: Sequence[str], debug: bool = False) -> None:
     commands = _commands()
     chosen = argv[0] if argv and argv[0] in commands else None
     # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
@@ -48,10 +48,19 @@ def main(argv: Sequence[str]) -> None:
     for config in defaults.values():
         hand_option_help_to_tyro(type(config))
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
-    tyro_errors = io.StringIO()
+    config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", debug)
+    name = next(n for n, d in defaults.items() if type(d) is type(config))
+    commands[name].run(config)
+
+
+def _parse(config_type: Any, argv: Sequence[str], help_command: str, debug: bool) -> Any:
+    """tyro.cli with what it prints to stderr held back: a parse-error box is retold as one `SplatuError` line
+    (unless --debug); anything else (tyro's warnings, a box we cannot read) is passed on as it was."""
+    captured = io.StringIO()
+    error = None
     try:
-        with contextlib.redirect_stderr(tyro_errors):
-            config = tyro.cli(
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(
                 config_type,
                 args=list(argv),
                 prog="splatu",
@@ -59,14 +68,14 @@ def main(argv: Sequence[str]) -> None:
                             "one line and exits 2; add --debug (or set SPLATU_DEBUG=1) for its traceback.",
             )
     except SystemExit as stop:
-        error = usage_error(tyro_errors.getvalue(), f"splatu {chosen}" if chosen else "splatu")
-        if stop.code in (0, None) or error is None:
-            sys.stderr.write(tyro_errors.getvalue())
+        if stop.code not in (0, None) and not debug:
+            error = usage_error(captured.getvalue(), help_command)
+        if error is None:
             raise
         raise error from None
-    sys.stderr.write(tyro_errors.getvalue())  # tyro's warnings, if any
-    name = next(n for n, d in defaults.items() if type(d) is type(config))
-    commands[name].run(config)
+    finally:
+        if error is None:
+            sys.stderr.write(captured.getvalue())
 
 
 def entrypoint(argv: Sequence[str] | None = None) -> None:
@@ -80,7 +89,7 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
         return
     keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
     try:
-        main(args)
+        main(args, debug)
     except SplatuError as err:
         if debug:
             raise

@@ -23,7 +23,7 @@ from splatu.errors import SplatuError
 def read_yaml(path: Path) -> dict[str, Any]:
     """A YAML mapping, or a one-line error naming the file."""
     try:
-        values = yaml.safe_load(path.read_text())
+        values = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as err:
         raise SplatuError(f"cannot read YAML ({type(err).__name__})", f"in {path}",
                           "check the file exists and is valid YAML") from None

@@ -215,6 +215,11 @@ def head_maps(model: GaussianModel, heads: list[UncertaintyHead], camera: Any) -
                         .squeeze(-1) for c, h in enumerate(heads)], dim=-1)
 
 
+def _nothing_to_score() -> SplatuError:
+    return SplatuError("every held-out view's mask excludes all of its pixels", "in the scene's mask files",
+                       "train with fixed degrees (drop --degree-choice.on), or fix the masks")
+
+
 def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: list[np.ndarray],
               heads: list[UncertaintyHead], masks: torch.Tensor | None) -> tuple[dict[int, float], float]:
     """Mean AUSE-MAE per head's degree over the views, and the random baseline's, on the same errors."""
@@ -229,8 +234,7 @@ def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: li
             per_head[head.degree].append(float(scores["ause_mae"]))
         randoms.append(float(scores["random_ause_mae"]))
     if not randoms:
-        raise SplatuError("every held-out view's mask excludes all of its pixels", "in the scene's mask files",
-                          "train with fixed degrees (drop --degree-choice.on), or fix the masks")
+        raise _nothing_to_score()
     return {d: float(np.mean(per_head[d])) for d in sorted(per_head)}, float(np.mean(randoms))
 
 
@@ -265,6 +269,8 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
                 maps.append(render.extra.numpy())
     kept = [None if held_out.valid is None else held_out.valid[i] > 0 for i in range(len(held_out))]
     scored = [i for i, k in enumerate(kept) if k is None or bool(k.any())]  # as evaluation: mask files leave out
+    if not scored:
+        raise _nothing_to_score()
     colour = {d: float(np.mean([psnr(renders[d][i], targets[i], mask=kept[i]) for i in scored])) for d in renders}
     chosen = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
     record: dict[str, Any] = {"held_out_views": held_out.names, "colour_psnr": colour, "sh_degree": chosen}

@@ -52,7 +52,8 @@ class EvalAuseConfig:
     metric: A.Metric = "mae"
     """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
     output: Path | None = None
-    """Where to write the JSON (default: ause_<method>.json in the run, or ause.json in the maps dir)."""
+    """Where to write the JSON (default: ause_<label>.json in the run, the label being the method and the options
+    that change its maps; or ause.json in the maps dir)."""
 
     def __post_init__(self) -> None:
         require_at_least(self.fisher_probes, 1, "--fisher-probes")

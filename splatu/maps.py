@@ -172,7 +172,8 @@ def write_maps_dir(root: Path, entries: list[MapEntry]) -> None:
         staging.mkdir(parents=True)
         for entry in entries:
             write_entry(staging, entry)
-        shutil.rmtree(root, ignore_errors=True)
+        if root.exists():
+            shutil.rmtree(root)
         os.replace(staging, root)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

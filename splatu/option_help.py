@@ -35,7 +35,10 @@ def hand_option_help_to_tyro(config_class: type) -> None:
     docstrings as `:param` entries, one line each. Once per class; the attribute docstrings stay the source."""
     if getattr(config_class, _HANDED_OVER, False):
         return
-    docs = attribute_docstrings(config_class)
+    try:
+        docs = attribute_docstrings(config_class)
+    except OSError:  # no source installed: tyro cannot read the docstrings either, and the options still parse
+        return
     own = config_class.__doc__ if config_class.__doc__ and not config_class.__doc__.startswith(
         f"{config_class.__name__}(") else ""  # dataclass's generated signature is not a description
     params = "\n".join(f":param {name}: {one_line(doc)}" for name, doc in docs.items())

@@ -1,8 +1,9 @@
 """`splatu render-uncertainty`: RGB, depth, alpha and uncertainty maps of a trained run.
 
 For the chosen views (eval, train, or an orbit that also looks from below) and method, it
-writes, under <run>/uncertainty/<method>-<views>/ unless --output says otherwise (what an earlier
-render wrote there is removed first, see `clear_previous_render`):
+writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any option that changes its
+maps) unless --output says otherwise (what an earlier render wrote there is removed first, see
+`clear_previous_render`):
 
     npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
@@ -67,7 +68,8 @@ class RenderUncertaintyConfig:
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
     output: Path | None = None
-    """Output folder; default <run>/uncertainty/<method>-<views>."""
+    """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
+    its maps (e.g. ensemble-density-aware)."""
     density_aware: bool = False
     """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
     max_views: int = 0
@@ -207,7 +209,7 @@ OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
 def clear_previous_render(out: Path, default_folder: bool) -> None:
     """Remove the `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
 
-    A folder is ours when it is the default <run>/uncertainty/<method>-<views> or holds our render.json.
+    A folder is ours when it is the default <run>/uncertainty/<label>-<views> or holds our render.json.
     """
     present = [out / name for name in OWNED if (out / name).exists()]
     if present and not default_folder and not (out / "render.json").is_file():

@@ -32,7 +32,7 @@ class MetricsLog:
         if not self.path.is_file():
             return []
         kept, dropped = [], []
-        for line in self.path.read_text().splitlines():
+        for line in self.path.read_text(encoding="utf-8").splitlines():
             try:
                 record = json.loads(line)
             except json.JSONDecodeError:

@@ -287,7 +287,7 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
                "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():
-        summary["degree_choice"] = json.loads((run_dir / DEGREE_CHOICE_FILE).read_text())
+        summary["degree_choice"] = json.loads((run_dir / DEGREE_CHOICE_FILE).read_text(encoding="utf-8"))
     atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
@@ -334,7 +334,7 @@ def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Seq
 def record_session(run_dir: Path, seconds: float) -> list[float]:
     """Append one session's wall time to the run's ensemble_sessions.json; returns every session's."""
     path = run_dir / ENSEMBLE_SESSIONS
-    sessions = json.loads(path.read_text())["session_seconds"] if path.is_file() else []
+    sessions = json.loads(path.read_text(encoding="utf-8"))["session_seconds"] if path.is_file() else []
     sessions.append(seconds)
     atomic_write_text(path, json.dumps({"session_seconds": sessions}, indent=2))
     return sessions

@@ -39,14 +39,29 @@ def _box_sections(text: str) -> list[list[str]]:
     return [s for s in sections if s]
 
 
-def _flag_names(lines: list[str]) -> list[str]:
-    """The flags under "Perhaps you meant:": the lines indented by exactly four spaces name them."""
-    names = []
+def _flag_names(lines: list[str], help_command: str) -> list[str]:
+    """The flags under "Perhaps you meant:" that belong to `help_command`: a line indented by exactly four spaces
+    names a flag, and tyro may end its entry with "in splatu SUBCOMMAND --help", which can be another
+    subcommand's (whose flags would be refused here too)."""
+    names: list[str] = []
+
+    def keep(name: str) -> None:
+        if name.startswith("-") and name not in names:
+            names.append(name)
+
+    current: str | None = None  # the flag whose entry is being read, until its "in ... --help" line
     for line in lines:
+        text = line.strip()
         if line.startswith("    ") and not line.startswith("     "):
-            name = line.split()[0].rstrip(",")
-            if name.startswith("-") and name not in names:
-                names.append(name)
+            if current is not None:
+                keep(current)
+            current = line.split()[0].rstrip(",")
+        elif current is not None and text.startswith("in ") and text.endswith(" --help"):
+            if text == f"in {help_command} --help":
+                keep(current)
+            current = None
+    if current is not None:
+        keep(current)
     return names
 
 
@@ -62,7 +77,7 @@ def usage_error(tyro_output: str, help_command: str) -> SplatuError | None:
     for section in sections[1:]:
         heading = section[0].strip()
         if heading.startswith("Perhaps you meant"):
-            names = _flag_names(section[1:])
+            names = _flag_names(section[1:], help_command)
             if names:
                 hints.append(f"did you mean {' or '.join(names)}?")
         elif heading.startswith("Argument helptext") and len(section) > 1:

@@ -37,7 +37,7 @@ def read_ensemble(run_dir: Path) -> EnsembleRecord:
         raise SplatuError("not an ensemble run (no ensemble.json)", f"in {run_dir}",
                           "train one with `splatu train --method ensemble` or pick another --method")
     try:
-        record = json.loads(path.read_text())
+        record = json.loads(path.read_text(encoding="utf-8"))
         members = [run_dir / m for m in record["members"]]
     except (json.JSONDecodeError, KeyError, TypeError) as err:
         raise SplatuError(f"ensemble.json is malformed ({type(err).__name__})", f"in {path}",

@@ -50,7 +50,7 @@ def _summary_seconds(run_dir: Path) -> float | None:
     path = run_dir / "summary.json"
     if not path.is_file():
         return None
-    return json.loads(path.read_text()).get("train_seconds")
+    return json.loads(path.read_text(encoding="utf-8")).get("train_seconds")
 
 
 def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:

@@ -31,7 +31,7 @@ def _read_eval_list(path: Path | None) -> list[str]:
                           "pass --eval-list FILE with one image name per line")
     if not path.is_file():
         raise SplatuError("eval list file not found", f"in {path}", "pass an existing --eval-list file")
-    return [line.strip().removeprefix("./") for line in path.read_text().splitlines() if line.strip()]
+    return [line.strip().removeprefix("./") for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
 
 
 def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], dict[str, list[int]], bool]:

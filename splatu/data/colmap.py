@@ -131,7 +131,7 @@ def _is_pose(tokens: list[str]) -> bool:
 
 def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
     """(line number, line) of the first data line of a COLMAP text file that cannot be parsed, if any."""
-    with path.open(errors="replace") as lines:
+    with path.open(encoding="utf-8", errors="replace") as lines:
         for number, line in enumerate(lines, start=1):
             if line.strip() and not line.startswith("#") and not _valid_text_line(name, line.split()):
                 return number, line.strip()
@@ -143,7 +143,7 @@ def pose_line_in_place_of_points(path: Path) -> int | None:
     next image's pose. The reader takes the line after each pose line as its points, blank or not, so a file
     whose empty points lines were removed reads as every other image, silently."""
     expect_points = False
-    with path.open(errors="replace") as lines:
+    with path.open(encoding="utf-8", errors="replace") as lines:
         for number, line in enumerate(lines, start=1):
             if expect_points:
                 if _is_pose(line.split()):

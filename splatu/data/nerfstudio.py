@@ -44,7 +44,7 @@ SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 def read_json(path: Path) -> dict[str, Any]:
     """A JSON object from a file, or a one-line error."""
     try:
-        content = json.loads(path.read_text())
+        content = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise SplatuError(f"cannot parse JSON ({err})", f"in {path}", "fix or regenerate the file") from None
     if not isinstance(content, dict):

@@ -24,7 +24,7 @@ def test_help_lists_subcommands():
 def test_user_error_is_one_line_without_traceback(capsys, monkeypatch):
     from splatu import cli
 
-    def boom(argv):
+    def boom(argv, debug=False):
         raise SplatuError("thing broke", "in /some/file", "do the fix")
 
     monkeypatch.setattr(cli, "main", boom)
@@ -39,7 +39,7 @@ def test_user_error_is_one_line_without_traceback(capsys, monkeypatch):
 def test_debug_flag_shows_the_exception(monkeypatch):
     from splatu import cli
 
-    def boom(argv):
+    def boom(argv, debug=False):
         raise SplatuError("thing broke", "here", "fix")
 
     monkeypatch.setattr(cli, "main", boom)
@@ -150,6 +150,22 @@ def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
     captured = capsys.readouterr()
     assert captured.err.count("\n") == 1 and captured.err.startswith("error: "), captured.err
     assert said in captured.err and hint in captured.err and "│" not in captured.err, captured.err
+
+
+def test_only_the_chosen_subcommands_flags_are_suggested(capsys):
+    """tyro suggests flags of every subcommand; `eval-ause --step` used to be told to try train's --steps."""
+    with pytest.raises(SystemExit):
+        entrypoint(["eval-ause", "--step", "3"])
+    err = capsys.readouterr().err
+    assert "unrecognized options: --step, 3" in err and "--steps" not in err and "did you mean" not in err
+
+
+def test_debug_shows_tyros_own_parse_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--stepz", "3", "--debug"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Unrecognized options" in err and err.count("\n") > 3 and not err.startswith("error: ")
 
 
 def test_help_still_prints_in_full(capsys):

@@ -367,3 +367,6 @@ def test_the_colour_scores_leave_out_what_the_mask_files_exclude(tmp_path):
             "colour_psnr"]
 
     assert scores_with_junk_where_masked() == scores_with_junk_where_masked()
+    nothing_kept = dataclasses.replace(targets, valid=torch.zeros_like(valid))
+    with pytest.raises(SplatuError, match="every held-out view's mask excludes all of its pixels"):
+        score_degrees(model, nothing_kept, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3))

@@ -137,7 +137,7 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
             "test": "every interp_every-th remaining frame (interpolation)",
         },
     }
-    (out / "transforms.json").write_text(json.dumps(transforms, indent=2) + "\n")
+    (out / "transforms.json").write_text(json.dumps(transforms, indent=2) + "\n", encoding="utf-8")
 
 
 @contextmanager
