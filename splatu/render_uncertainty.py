@@ -275,7 +275,8 @@ SEEDED_METHODS = ("random", "fisher")
 
 
 def output_label(method: UncertaintyMethod, head: str | None, density_aware: bool = False,
-                 fisher_probes: int = 2, seed: int = 0) -> str:
+                 fisher_probes: int = RenderUncertaintyConfig.fisher_probes, seed: int = RenderUncertaintyConfig.seed
+                 ) -> str:
     """The method's name in folder and file names, with every option that changes its maps and is not at its
     default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`), so that one variant's
     maps and scores never overwrite another's."""

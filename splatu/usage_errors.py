@@ -23,9 +23,7 @@ def _box_lines(text: str) -> list[str]:
     if any(line.startswith("╭") for line in lines):
         return [line[2:-1].rstrip() for line in lines if line.startswith("│") and line.endswith("│")]
     first_rule = next((i for i, line in enumerate(lines) if _RULE.match(line.strip())), None)
-    if first_rule is None or first_rule != 1:
-        return []
-    return [line[2:] for line in lines[first_rule + 1:]]
+    return [line[2:] for line in lines[2:]] if first_rule == 1 else []
 
 
 def _box_sections(text: str) -> list[list[str]]:
