@@ -215,10 +215,10 @@ def _global(positions: slice | Tensor, local: Tensor) -> Tensor:
 def running_sum(values: Tensor) -> Tensor:
     """Inclusive running sum along q of a (B, Q) float64 tensor, carried on from one row to the next.
 
-    Callers only take differences within one block, so the carry between rows cancels. A scratch timing on
-    2026-11-25 (torch 2.13 CPU, 2 threads, (8, Q) float64, Q = 40k to 800k, alternated medians of 31) read
-    torch.cumsum along dim 1 at 0.5–0.7× the time of this flat sum: a change to try, measured with
-    benchmarks/rasterizer_ab.py, and with the main job re-run, as it changes every render's rounding.
+    Callers only take differences within one block, so the carry between rows cancels. torch.cumsum along
+    dim 1 is faster in isolation (0.5–0.7× at (8, 40k–800k) float64 in a scratch timing, 2026-11-25), but
+    not inside a render: `benchmarks/rasterizer_ab.py` read 1.018× (20k case) and 1.013× (training-sized),
+    within noise, with bit-identical images and gradients, so the flat sum stays.
     """
     return torch.cumsum(values.reshape(-1), 0).view_as(values)
 
