@@ -79,6 +79,9 @@ def _parse(config_type: Any, argv: Sequence[str], help_command: str, debug: bool
 
 
 def entrypoint(argv: Sequence[str] | None = None) -> None:
+    for stream in (sys.stdout, sys.stderr):  # help texts hold λ, σ, ≈…: an ASCII-only console shows "?", not a crash
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args or os.environ.get("SPLATU_DEBUG", "") not in ("", "0")
     args = [a for a in args if a != "--debug"]

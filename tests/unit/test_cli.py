@@ -194,3 +194,17 @@ def test_option_help_wraps_only_where_the_terminal_is_full(command):
     short = [(a.strip(), b.strip()) for (a, a_help), (b, b_help) in itertools.pairwise(help_rows)
              if a_help and b_help and len(a.rstrip()) + 1 + len(b.split()[0]) <= len(a)]
     assert not short, short
+
+
+def test_an_ascii_only_console_gets_help_and_one_line_errors_not_a_crash():
+    """Help texts hold λ, σ and ≈; printing them to an ASCII-only stream raised UnicodeEncodeError."""
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    shown = subprocess.run([sys.executable, "-m", "splatu", "train", "--help"], capture_output=True, timeout=120,
+                           env=env)
+    assert shown.returncode == 0 and b"--uncertainty.lam" in shown.stdout and b"Traceback" not in shown.stderr
+    refused = subprocess.run([sys.executable, "-m", "splatu", "train", "--stepz", "3"], capture_output=True,
+                             timeout=120, env=env)  # tyro draws an ASCII box here: it is read back too
+    assert refused.returncode == 2
+    assert refused.stderr.decode("ascii").splitlines() == [
+        "error: unrecognized options: --stepz, 3, on the command line, did you mean --steps? "
+        "(see `splatu train --help`)"]
