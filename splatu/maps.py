@@ -12,6 +12,7 @@ the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just 
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 from dataclasses import dataclass
@@ -162,18 +163,38 @@ def write_entry(root: Path, entry: MapEntry) -> None:
             _write_png(root / folder / f"{entry.name}.png", binary.astype(np.float64))
 
 
-def write_maps_dir(root: Path, entries: list[MapEntry]) -> None:
+def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, str] | None = None) -> None:
     """Write a whole maps directory beside `root`, then put it in place of any earlier one: a crash mid-write
     leaves the earlier directory or none, never one with views missing or lacking their masks, which
-    `eval-ause --maps` would score without complaint."""
+    `eval-ause --maps` would score without complaint. `extra_files` (name → text) go in with the views."""
     staging = root.with_name(f".{root.name}.tmp-{os.getpid()}")
     shutil.rmtree(staging, ignore_errors=True)
     try:
         staging.mkdir(parents=True)
         for entry in entries:
             write_entry(staging, entry)
-        if root.exists():
-            shutil.rmtree(root)
-        os.replace(staging, root)
+        for name, text in (extra_files or {}).items():
+            (staging / name).write_text(text, encoding="utf-8")
+        _swap_in(staging, root)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _swap_in(staging: Path, root: Path) -> None:
+    """Rename `staging` to `root`, moving any earlier `root` aside first. Another process may be swapping in its
+    own directory at the same moment (two `eval-ause --load` runs of one method on one run): the last rename
+    wins, and neither fails or deletes the other's views mid-read of its own."""
+    aside = root.with_name(f".{root.name}.old-{os.getpid()}")
+    shutil.rmtree(aside, ignore_errors=True)
+    while True:
+        try:
+            os.rename(staging, root)  # POSIX: replaces a missing or empty `root`, refuses a full one
+            return
+        except OSError as err:
+            if err.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        try:
+            os.rename(root, aside)
+        except FileNotFoundError:  # the other process moved it aside first
+            continue
+        shutil.rmtree(aside, ignore_errors=True)

@@ -305,10 +305,10 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     if not entries:
         raise SplatuError("no eval view has a pixel to score (each is excluded by its mask file)",
                           "in the scene's mask files", "fix the masks, or hold out other views (--eval-split)")
-    write_maps_dir(root, entries)  # in place of an earlier render's, whose stale views must not be scored
-    atomic_write_text(root / "timing.json", json.dumps({"train_seconds": run.train_seconds,
-                                                        "setup_seconds": built.setup_seconds,
-                                                        "render_seconds_per_view": float(np.median(seconds))}))
+    timing = {"train_seconds": run.train_seconds, "setup_seconds": built.setup_seconds,
+              "render_seconds_per_view": float(np.median(seconds))}
+    # in place of an earlier render's, whose stale views must not be scored
+    write_maps_dir(root, entries, {"timing.json": json.dumps(timing)})
     return root
 
 

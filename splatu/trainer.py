@@ -237,7 +237,8 @@ def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: 
     """Log the step; count non-finite steps in a row and stop after too many."""
     if outcome.skipped is not None:
         state.nonfinite_streak += 1
-        log.write({"step": state.step, "event": "nonfinite_skipped", "what": outcome.skipped})
+        log.write({"step": state.step, "event": "nonfinite_skipped", "what": outcome.skipped,
+                   "num_gaussians": len(state.model), **({"refined": outcome.refined} if outcome.refined else {})})
         print(f"step {state.step}: non-finite {outcome.skipped}, step skipped", file=sys.stderr)
         if state.nonfinite_streak >= config.max_nonfinite_steps:
             found = list_checkpoints(run_dir)

@@ -4,7 +4,7 @@ optimise and refine, unless a value is non-finite.
 The camera order, resolution level, colour-SH degree and background are pure functions of the step (and
 the seeded generator), so a resumed run takes exactly the steps an uninterrupted one would. A step whose
 loss or gradients are non-finite is skipped (no optimizer step, no density statistics), so a bad value
-never reaches the model.
+never reaches the model; a refinement due at that step still happens, on the model as it was.
 """
 
 from __future__ import annotations
@@ -192,12 +192,11 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
 
     bad = _nonfinite(loss.detach(), state.model, render.raster)
     train_psnr = psnr(rgb.detach(), target) if bad is None else float("nan")
-    refined: dict[str, int] = {}
     if bad is None:
         state.density.observe(render.raster, camera.width, camera.height)
         state.optimizers.step(step)
     state.optimizers.zero_grad()
-    if bad is None:
-        changes = state.density.refine(step, state.model, state.optimizers, views_per_epoch=len(images))
-        refined = {k: v for k, v in changes.items() if v}
+    # a skipped step left the model as it was, so its refinement (or opacity reset) still falls on schedule
+    changes = state.density.refine(step, state.model, state.optimizers, views_per_epoch=len(images))
+    refined = {k: v for k, v in changes.items() if v}
     return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import multiprocessing
 from pathlib import Path
 
 import cv2
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from splatu import ause as A
+from splatu import maps
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
 from splatu.maps import MapEntry, entry_names, file_stems, read_entry, safe_name, write_entry
@@ -226,11 +228,32 @@ def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     assert output_label("fisher", None, fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
 
 
+def _rewrite_maps(root: Path, entries: list[MapEntry], tag: str, times: int) -> None:
+    for _ in range(times):
+        maps.write_maps_dir(root, entries, {"writer.txt": tag})
+
+
+def test_two_processes_replacing_one_maps_directory_both_finish_and_leave_one_whole(tmp_path):
+    """Two `eval-ause --load` runs of one method write the same maps folder. The swap used to delete the folder
+    and then rename over it, so one process could find it half-deleted or refilled and fail with a traceback."""
+    source = tmp_path / "source"
+    _tiny_maps(source, n=2)
+    entries = [read_entry(source, name) for name in entry_names(source)]
+    root = tmp_path / "run" / "maps"
+    context = multiprocessing.get_context("fork")
+    writers = [context.Process(target=_rewrite_maps, args=(root, entries, tag, 40)) for tag in ("a", "b")]
+    for writer in writers:
+        writer.start()
+    for writer in writers:
+        writer.join(timeout=120)
+    assert [writer.exitcode for writer in writers] == [0, 0]
+    assert entry_names(root) == ["view_0", "view_1"] and (root / "writer.txt").read_text() in ("a", "b")
+    assert sorted(p.name for p in root.parent.iterdir()) == ["maps"]  # no staging or set-aside folder left
+
+
 def test_a_maps_directory_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     """A render that fails part-way used to leave some views written and others missing, or a view without its
     mask, which eval-ause --maps would score as if nothing were wrong."""
-    import splatu.maps as maps
-
     root = tmp_path / "maps"
     _tiny_maps(root, n=2)
     before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}

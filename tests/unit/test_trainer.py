@@ -179,6 +179,32 @@ def test_nonfinite_gradients_skip_the_step_and_leave_the_model_untouched(tmp_pat
     assert not torch.equal(snapshots[5]["means"], snapshots[6]["means"])  # training went on after the skips
 
 
+def test_a_skipped_step_still_refines_on_schedule(tmp_path, monkeypatch):
+    """A non-finite step on a refine step used to skip the refinement too, so an opacity reset due there never
+    came; the model is unchanged by the skipped step, so refining it is safe."""
+    scene = tiny_scene(n_train=2)
+    config = tiny_config(tmp_path, resolution_levels=0)  # reset every refine_every × reset_alpha_every = 6 steps
+    state = trainer.fresh_state(config, scene)
+    images = training_step.TrainImages(scene.train)
+    for _ in range(6):
+        assert training_step.train_step(state, config, images).skipped is None
+        state.step += 1
+    with torch.no_grad():
+        state.model.opacity_logits.fill_(3.0)  # opacity 0.95: a reset must cap every row at 0.2
+    render = GaussianModel.render
+
+    def render_with_nan_grad(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        out.rgb.register_hook(lambda grad: grad * float("nan"))
+        return out
+
+    monkeypatch.setattr(GaussianModel, "render", render_with_nan_grad)
+    outcome = training_step.train_step(state, config, images)
+    assert state.step == 6 and outcome.skipped is not None
+    assert outcome.refined.get("reset") == len(state.model)
+    assert torch.sigmoid(state.model.opacity_logits.detach()).max() == pytest.approx(0.2)
+
+
 def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(tmp_path, scene, monkeypatch):
     render = GaussianModel.render
 
