@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import random
+import re
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -26,6 +27,8 @@ from splatu.train_config import TrainConfig, from_dict
 from splatu.world_frame import WorldTransform
 
 CHECKPOINT_DIR = "checkpoints"
+CHECKPOINT_NAME = re.compile(r"step-(\d+)\.pt")
+"""What the trainer names its checkpoints (checkpoint_path); nothing else in the folder is one."""
 FORMAT = "splatu-checkpoint-v1"
 MODEL_KEYS = ("step", "config", "model", "num_gaussians")
 """What rendering and evaluation read from a checkpoint."""
@@ -54,8 +57,10 @@ def checkpoint_step(path: Path) -> int:
 
 
 def list_checkpoints(run_dir: Path) -> list[Path]:
-    """Checkpoints of a run, oldest first."""
-    return sorted((run_dir / CHECKPOINT_DIR).glob("step-*.pt"))
+    """Checkpoints of a run, oldest first. Only names the trainer writes count: a user's copy such as
+    "step-0000200 (copy).pt" is neither resumed from nor pruned."""
+    found = [path for path in (run_dir / CHECKPOINT_DIR).glob("step-*.pt") if CHECKPOINT_NAME.fullmatch(path.name)]
+    return sorted(found, key=checkpoint_step)
 
 
 def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:

@@ -19,11 +19,11 @@ import torch
 from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel, ModelConfig, initial_u_sh
+from splatu.ply_header import read_vertex_layout
 from splatu.sh import MAX_SH_DEGREE, sh_degree_of
 from splatu.world_frame import WorldTransform, model_to_world
 
 FORMAT_LINE = "format binary_little_endian 1.0"
-PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
 
 
 def property_names(sh_rest_count: int, u_count: int) -> list[str]:
@@ -63,43 +63,23 @@ def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None
     atomic_write(path, lambda f: f.write(head + np.ascontiguousarray(data).tobytes()))
 
 
-def _read_header(f, path: Path) -> tuple[int, list[tuple[str, str]]]:
-    """Vertex count and (name, dtype) of each vertex property; anything unsupported is a SplatuError."""
-    first = f.readline()
-    if first.strip() != b"ply":
-        raise SplatuError("not a PLY file (no 'ply' magic)", f"in {path}", "pass a 3DGS .ply file")
-    count, properties, in_vertex, fmt = -1, [], False, None
-    for _ in range(10_000):
-        line = f.readline()
-        if not line:
-            raise SplatuError("PLY header has no end_header", f"in {path}", "the file is truncated; re-export it")
-        words = line.decode("ascii", errors="replace").split()
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
-        if words[0] == "end_header":
-            break
-        if words[0] == "format":
-            fmt = " ".join(words)
-        elif words[0] == "element":
-            in_vertex = words[1] == "vertex"
-            if in_vertex:
-                count = int(words[2])
-            elif count >= 0:
-                raise SplatuError(f"PLY has an element {words[1]!r} besides vertices", f"in {path}",
-                                  "export the Gaussians alone as a 3DGS PLY")
-        elif words[0] == "property" and in_vertex:
-            if words[1] not in PLY_TYPES:
-                raise SplatuError(f"PLY property {words[-1]} has unsupported type {words[1]}", f"in {path}",
-                                  "store every vertex property as float")
-            properties.append((words[-1], PLY_TYPES[words[1]]))
-    else:
-        raise SplatuError("PLY header is too long", f"in {path}", "pass a 3DGS .ply file")
-    if fmt != FORMAT_LINE:
-        raise SplatuError(f"PLY format is {fmt!r}, not binary little endian", f"in {path}",
+def _read_vertices(path: Path) -> np.ndarray:
+    """The vertex records of a binary little-endian PLY whose vertex properties are all floats."""
+    data = path.read_bytes()
+    layout = read_vertex_layout(data, path, "pass a 3DGS .ply file")
+    if layout.format != "binary_little_endian":
+        raise SplatuError(f"PLY format is {layout.format}, not binary little endian", f"in {path}",
                           "export the PLY as binary_little_endian 1.0 (the 3DGS format)")
-    if count < 0:
-        raise SplatuError("PLY has no vertex element", f"in {path}", "pass a 3DGS .ply file")
-    return count, properties
+    for name, kind in layout.properties:
+        if kind not in ("f4", "f8"):
+            raise SplatuError(f"PLY property {name} has unsupported type {kind}", f"in {path}",
+                              "store every vertex property as float")
+    dtype = layout.dtype()
+    start = layout.body_start + layout.offset
+    if len(data) - start < layout.count * dtype.itemsize:
+        raise SplatuError(f"PLY data holds {len(data) - start} bytes for {layout.count} vertices of "
+                          f"{dtype.itemsize} bytes", f"in {path}", "the file is truncated; re-export it")
+    return np.frombuffer(data, dtype=dtype, count=layout.count, offset=start)
 
 
 def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
@@ -111,15 +91,9 @@ def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
     path = Path(path)
     if not path.is_file():
         raise SplatuError("PLY file not found", f"at {path}", "check the path")
-    with open(path, "rb") as f:
-        count, properties = _read_header(f, path)
-        dtype = np.dtype([(name, kind) for name, kind in properties])
-        payload = f.read()
-    if len(payload) < count * dtype.itemsize:
-        raise SplatuError(f"PLY data holds {len(payload)} bytes for {count} vertices of {dtype.itemsize} bytes",
-                          f"in {path}", "the file is truncated; re-export it")
-    vertices = np.frombuffer(payload, dtype=dtype, count=count)
-    names = set(dtype.names or ())
+    vertices = _read_vertices(path)
+    count = len(vertices)
+    names = set(vertices.dtype.names or ())
     rest_count = sum(1 for name in names if name.startswith("f_rest_"))
     u_count = sum(1 for name in names if name.startswith("u_") and name[2:].isdigit())
     if rest_count % 3:

@@ -40,6 +40,21 @@ def find_sparse_dir(root: Path) -> Path | None:
     return None
 
 
+def scene_root_of(sparse_dir: Path) -> Path | None:
+    """The scene folder whose model `sparse_dir` is (for `--data` pointed at the model itself), or None.
+
+    X/colmap/sparse/0 is both X/colmap's "sparse/0" and X's "colmap/sparse/0"; the root that has images/ wins,
+    since that is where the images are read from.
+    """
+    roots = []
+    for candidate in SPARSE_CANDIDATES:
+        depth = len(Path(candidate).parts)
+        root = sparse_dir.parents[depth - 1] if len(sparse_dir.parents) >= depth else None
+        if root is not None and find_sparse_dir(root) == sparse_dir:
+            roots.append(root)
+    return next((root for root in roots if (root / "images").is_dir()), roots[0] if roots else None)
+
+
 def model_files(sparse_dir: Path) -> dict[str, Path]:
     """The model's cameras, images and points3D files in one format, or a one-line error naming the missing ones."""
     found = {ext: [name for name in MODEL_FILES if (sparse_dir / f"{name}.{ext}").is_file()] for ext in ("bin", "txt")}

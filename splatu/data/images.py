@@ -28,7 +28,7 @@ from splatu.atomic import atomic_write
 from splatu.errors import SplatuError, load_number_array
 
 PixelKind = Literal["color", "mask", "depth"]
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 """Bump when the pipeline changes, so stale cache entries are never read."""
 
 
@@ -260,8 +260,8 @@ def _resize(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:
     size = (recipe.target_width, recipe.target_height)
     if size == (width, height):
         return values
-    if recipe.kind != "color":
-        interpolation = cv2.INTER_NEAREST
+    if recipe.kind != "color":  # the source pixel nearest each target centre, as INTER_AREA centres colour
+        interpolation = cv2.INTER_NEAREST_EXACT
     elif recipe.target_width < width:
         interpolation = cv2.INTER_AREA
     else:

@@ -37,6 +37,8 @@ PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
 RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 """Radial-only models: their k1, k2 are OpenCV's with p1 = p2 = 0."""
 
+DEFAULT_DEPTH_UNIT = 1e-3
+"""nerfstudio's depth_unit_scale_factor when a transforms.json gives none: depth images in millimetres."""
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 """The file's explicit split lists (nerfstudio keys)."""
 
@@ -124,7 +126,7 @@ def _source_path(root: Path, file_path: str, downscale: int) -> tuple[Path, int]
 
 
 def _extra(color: PixelRecipe, root: Path, frame: Mapping[str, Any], key: str, kind: PixelKind, name: str,
-           depth_unit: object = None) -> PixelRecipe | None:
+           depth_unit: float = DEFAULT_DEPTH_UNIT) -> PixelRecipe | None:
     """The frame's mask or depth map named by `key`, warped exactly like its image (but never pre-downscaled).
 
     Depth in .npy files is taken as is; depth images are integers times depth_unit_scale_factor
@@ -137,7 +139,7 @@ def _extra(color: PixelRecipe, root: Path, frame: Mapping[str, Any], key: str, k
         noun = "depth map" if kind == "depth" else "mask"
         raise SplatuError(f"{noun} not found (the {key} of frame {name!r})", f"in {path}",
                           f"fix the frame's {key} or remove it")
-    depth_scale = 1.0 if kind != "depth" or path.suffix == ".npy" else float(depth_unit or 1e-3)  # type: ignore[arg-type]
+    depth_scale = 1.0 if kind != "depth" or path.suffix == ".npy" else depth_unit
     return replace(color, path=path, kind=kind, source_downscale=1, depth_scale=depth_scale)
 
 
@@ -145,6 +147,15 @@ def _by_file_path(frames_json: list[Any]) -> list[tuple[int, Any]]:
     """(index in the file, frame) sorted by file path, so errors can still count frames as the file does."""
     return sorted(enumerate(frames_json),
                   key=lambda item: str(item[1].get("file_path", "")) if isinstance(item[1], dict) else "")
+
+
+def _depth_unit(top: Mapping[str, Any], json_path: Path) -> float:
+    """Metres per depth-image unit; a zero, negative or non-numeric factor would scale every depth wrongly."""
+    value = top.get("depth_unit_scale_factor", DEFAULT_DEPTH_UNIT)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (np.isfinite(value) and value > 0):
+        raise SplatuError(f"depth_unit_scale_factor must be a positive number (got {value!r})", f"in {json_path}",
+                          f"fix it, or remove it for nerfstudio's default of {DEFAULT_DEPTH_UNIT} (millimetres)")
+    return float(value)
 
 
 def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
@@ -155,6 +166,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
+    depth_unit = _depth_unit(top, json_path)
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
     for index, frame in _by_file_path(frames_json):
@@ -184,7 +196,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
             camera=camera,
             image=color,
             mask=_extra(color, root, frame, "mask_path", "mask", name),
-            depth=_extra(color, root, frame, "depth_file_path", "depth", name, top.get("depth_unit_scale_factor")),
+            depth=_extra(color, root, frame, "depth_file_path", "depth", name, depth_unit),
             observed=_extra(color, root, frame, "observed_mask_path", "mask", name),
         ))
     points, colors = np.zeros((0, 3), np.float32), None

@@ -15,7 +15,7 @@ from pathlib import Path
 from splatu.config_values import changed_options
 from splatu.data.assemble import assemble
 from splatu.data.blender import is_blender, load_blender
-from splatu.data.colmap import find_sparse_dir, load_colmap
+from splatu.data.colmap import find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
 from splatu.data.frames import RawScene
 from splatu.data.images import ImageCache, default_cache_dir
@@ -52,8 +52,7 @@ def read_scene_files(path: Path, downscale: int, background: tuple[float, float,
         return load_blender(path, downscale, background)
     elif (sparse := find_sparse_dir(path)) is not None:
         return load_colmap(path, sparse, downscale)
-    elif find_sparse_dir(path.parent.parent) == path or find_sparse_dir(path.parent) == path:
-        root = path.parent.parent if path.parent.name == "sparse" else path.parent
+    elif (root := scene_root_of(path)) is not None:
         return load_colmap(root, path, downscale)
     raise SplatuError("unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0",
                       f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")

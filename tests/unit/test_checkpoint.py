@@ -55,6 +55,20 @@ def test_only_the_newest_checkpoints_are_kept_and_the_newest_is_resolved(tmp_pat
     assert ckpt.run_dir_of(ckpt.checkpoint_path(tmp_path, 30)) == tmp_path.resolve()
 
 
+def test_a_users_copy_in_the_checkpoint_folder_is_not_a_checkpoint(tmp_path):
+    """'step-0000200 (copy).pt' matched step-*.pt: it sorted as the newest (so it was resumed from), broke
+    checkpoint_step with a traceback, and was deleted by the pruning of old checkpoints."""
+    state = _state(TrainConfig(), 0)
+    ckpt.save_checkpoint(tmp_path, 100, state)
+    copy = tmp_path / ckpt.CHECKPOINT_DIR / "step-0000100 (copy).pt"
+    copy.write_bytes(ckpt.checkpoint_path(tmp_path, 100).read_bytes())
+    assert ckpt.list_checkpoints(tmp_path) == [ckpt.checkpoint_path(tmp_path, 100)]
+    for step in (200, 300, 400):
+        ckpt.save_checkpoint(tmp_path, step, state)
+    assert ckpt.resolve_checkpoint(tmp_path) == ckpt.checkpoint_path(tmp_path, 400)
+    assert copy.is_file()
+
+
 def test_corrupt_foreign_and_missing_checkpoints_are_one_line_errors(tmp_path):
     corrupt = tmp_path / "bad.pt"
     corrupt.write_bytes(b"\x00not a checkpoint")

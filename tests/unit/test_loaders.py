@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from splatu.data.config import DataConfig
-from splatu.data.images import Distortion, ImageCache, PixelRecipe, load_pixels, truncated_format
+from splatu.data.images import Distortion, ImageCache, PixelRecipe, compute_pixels, load_pixels, truncated_format
+from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
@@ -216,6 +217,19 @@ def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
             (rotation[1, 0] - rotation[0, 1]) / (4 * w))
 
 
+def test_data_pointed_at_the_model_folder_finds_the_images_of_its_scene(tmp_path):
+    """--data X/colmap/sparse/0 (nerfstudio's layout, images in X/images) used to look in X/colmap/images."""
+    cameras = ring_cameras(5, 40, 30)
+    _write_colmap_text(tmp_path / "plain", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    nested = tmp_path / "nested"
+    _write_colmap_text(nested, "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    (nested / "colmap").mkdir()
+    (nested / "sparse").rename(nested / "colmap" / "sparse")
+    for model in (tmp_path / "plain" / "sparse" / "0", nested / "colmap" / "sparse" / "0"):
+        scene = load_scene(config(model, tmp_path, eval_split="every-n", eval_every=3))
+        assert scene.train.names == ["img_1.png", "img_2.png", "img_4.png"], model
+
+
 def test_colmap_text_model_poses_points_and_undistorted_intrinsics(tmp_path):
     cameras = ring_cameras(5, 40, 30)
     _write_colmap_text(tmp_path / "scene", "RADIAL", [36.0, 20.0, 15.0, -0.1, 0.01], cameras)
@@ -333,6 +347,29 @@ def test_ply_reader_ascii_and_binary(tmp_path):
     assert np.allclose(xyz2, xyz * 2) and rgb2 is None
 
 
+def test_ply_point_reader_skips_elements_before_the_vertices_and_scales_16_bit_colours(tmp_path):
+    """An element declared before the vertices used to be read as vertex data, and ushort colours were divided
+    by 255, so every initial colour came out saturated."""
+    ascii_ply = tmp_path / "a.ply"
+    ascii_ply.write_text("ply\nformat ascii 1.0\nelement camera 2\nproperty float a\nelement vertex 1\n"
+                         "property float x\nproperty float y\nproperty float z\nproperty ushort red\n"
+                         "property ushort green\nproperty ushort blue\nend_header\n9\n8\n1 2 3 65535 0 32768\n")
+    xyz, rgb = read_ply_points(ascii_ply)
+    assert np.allclose(xyz, [[1, 2, 3]]) and np.allclose(rgb, [[1, 0, 32768 / 65535]])
+    binary = tmp_path / "b.ply"
+    records = np.array([(1.0, 2.0, 3.0, 65535, 0, 32768)],
+                       dtype=[("x", ">f4"), ("y", ">f4"), ("z", ">f4"), ("r", ">u2"), ("g", ">u2"), ("b", ">u2")])
+    binary.write_bytes(b"ply\nformat binary_big_endian 1.0\nelement camera 2\nproperty double a\n"
+                       b"element vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+                       b"property ushort red\nproperty ushort green\nproperty ushort blue\nend_header\n"
+                       + np.array([7.0, 6.0], ">f8").tobytes() + records.tobytes())
+    xyz2, rgb2 = read_ply_points(binary)
+    assert np.allclose(xyz2, xyz) and np.allclose(rgb2, rgb)
+    binary.write_bytes(binary.read_bytes().replace(b"element vertex 1", b"element vertex one"))
+    with pytest.raises(SplatuError, match="malformed PLY element line"):
+        read_ply_points(binary)
+
+
 TINY_POSTER = PosterConfig(width=24, height=40, frames=20, eval_block=4, points=300, supersample=1)
 
 
@@ -379,3 +416,28 @@ def test_poster_options_are_refused_where_they_would_shape_nothing(tmp_path, mon
     refuse_unused_poster_options(DataConfig())
     with pytest.raises(SplatuError, match=r"^--poster.frames shapes the built-in stand-in"):
         refuse_unused_poster_options(DataConfig(poster=PosterConfig(frames=40)))
+
+
+def test_downscaled_depth_and_masks_stay_centred_like_the_colour(tmp_path):
+    """Nearest-neighbour resizing took each block's top-left source pixel, half a target pixel away from the
+    block centre that INTER_AREA averages colour around; depth, masks and observed maps now take the centre's."""
+    columns = np.tile(np.arange(16, dtype=np.float32), (8, 1))
+    np.save(tmp_path / "depth.npy", columns)
+    recipe = PixelRecipe(path=tmp_path / "depth.npy", kind="depth", width=16, height=8, target_width=2,
+                         target_height=1)
+    depth = compute_pixels(recipe)
+    colour_centres = cv2.resize(columns, (2, 1), interpolation=cv2.INTER_AREA)[0]  # 3.5 and 11.5
+    assert np.allclose(colour_centres, [3.5, 11.5])
+    assert np.abs(depth[0] - colour_centres).max() <= 0.5  # the source pixel nearest each centre (4 and 12)
+
+
+def test_a_bad_depth_unit_scale_factor_is_a_user_error(tmp_path):
+    root = tmp_path / "scene"
+    root.mkdir()
+    write_rgb(root / "a.png", noise_image(0, 8, 6))
+    for bad in (0, -1, "mm"):
+        (root / "transforms.json").write_text(json.dumps({
+            "fl_x": 10, "fl_y": 10, "cx": 4, "cy": 3, "w": 8, "h": 6, "depth_unit_scale_factor": bad,
+            "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+        with pytest.raises(SplatuError, match="depth_unit_scale_factor must be a positive number"):
+            load_nerfstudio(root, 1, (1.0, 1.0, 1.0))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -131,3 +133,42 @@ def test_a_model_with_extra_uncertainty_heads_exports_only_its_own(tmp_path):
     loaded = load_ply(tmp_path / "heads.ply", cfg)
     assert loaded.u_sh.shape == (12, 9, 1)
     assert torch.equal(loaded.u_sh, model.u_sh[..., :1])
+
+
+def _with_element_before_vertices(raw: bytes) -> bytes:
+    """The same PLY with a 2-record `camera` element (two floats each) declared, and stored, before the vertices."""
+    head, body = raw.split(b"end_header\n", 1)
+    head = head.replace(b"element vertex", b"element camera 2\nproperty float a\nproperty float b\nelement vertex")
+    return head + b"end_header\n" + np.arange(4, dtype="<f4").tobytes() + body
+
+
+def test_elements_before_or_after_the_vertices_do_not_shift_them(tmp_path):
+    """The reader assumed the vertices came first: an element before them was read as vertex data, silently."""
+    model = _random_model(1, 1, n=5)
+    save_ply(model, tmp_path / "plain.ply", IDENTITY)
+    raw = (tmp_path / "plain.ply").read_bytes()
+    before = tmp_path / "before.ply"
+    before.write_bytes(_with_element_before_vertices(raw))
+    after = tmp_path / "after.ply"
+    after.write_bytes(raw.replace(b"end_header\n", b"element face 1\nproperty list uchar int vertex_indices\n"
+                                  b"end_header\n") + bytes([3]) + np.arange(3, dtype="<i4").tobytes())
+    for path in (before, after):
+        loaded = load_ply(path, ModelConfig())
+        for name in GaussianModel.PARAM_NAMES:
+            assert torch.equal(getattr(loaded, name), getattr(model, name)), (path.name, name)
+
+
+def test_malformed_headers_are_user_errors(tmp_path):
+    save_ply(_random_model(1, 1, n=2), tmp_path / "good.ply", IDENTITY)
+    raw = (tmp_path / "good.ply").read_bytes()
+    cases = {
+        "count.ply": raw.replace(b"element vertex 2", b"element vertex 2x"),
+        "no_count.ply": raw.replace(b"element vertex 2", b"element vertex"),
+        "list_before.ply": raw.replace(b"element vertex", b"element face 1\nproperty list uchar int idx\n"
+                                       b"element vertex"),
+        "int_property.ply": raw.replace(b"property float opacity", b"property uchar opacity"),
+    }
+    for name, content in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(SplatuError, match=re.escape(str(tmp_path / name))):
+            load_ply(tmp_path / name, ModelConfig())
