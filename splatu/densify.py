@@ -1,9 +1,10 @@
 """Adaptive density control with splatfacto's semantics: clone, split, cull, opacity reset.
 
 Statistics are accumulated over a refine window of `refine_every` steps (`observe` after every
-backward), then `refine` edits the model through `Optimizers.replace_rows`, so parameters and Adam
-state stay aligned, `u_sh` included: clones and split children copy their parent's `u_sh`, pruned rows
-lose it, and the opacity reset does not touch it.
+backward), then `refine` clones, splits and culls together: none of them from an opacity reset until the
+pause after it ends, and culling alone from `stop_split_at` on. It edits the model through
+`Optimizers.replace_rows`, so parameters and Adam state stay aligned, `u_sh` included: clones and split
+children copy their parent's `u_sh`, pruned rows lose it, and the opacity reset does not touch it.
 """
 
 from __future__ import annotations
@@ -63,8 +64,8 @@ class DensifyConfig:
     views, the longest the per-epoch shuffle can leave a view undrawn, so that a Gaussian seen by few views is
     not pruned just because they were not drawn (0: that floor alone)."""
     pause_after_reset: int = 0
-    """Steps without densification after each opacity reset, for opacities to recover (splatfacto uses the
-    number of training images)."""
+    """Steps without densification or culling after each opacity reset, for opacities to recover (splatfacto
+    waits for the number of training images; the presets, at 2,000–4,000 steps, do not wait)."""
 
     def validate(self) -> None:
         """Raise a one-line SplatuError for a schedule or budget below 1."""
@@ -145,6 +146,8 @@ class DensityController:
                 optimizers.replace_rows(model, keep, append)
                 self._edit_rows(keep, append["means"].shape[0])
                 counts["cloned"], counts["split"] = int(clone.sum()), int(split.sum())
+            elif step < cfg.stop_split_at:  # the pause after an opacity reset: no edit at all, as splatfacto
+                cull = torch.zeros_like(cull)
             elif cull.any():
                 optimizers.replace_rows(model, ~cull, None)
                 self._edit_rows(~cull, 0)
@@ -216,12 +219,12 @@ class DensityController:
         return rows
 
     def _reset_opacity(self, model: GaussianModel, optimizers: Optimizers) -> int:
-        """Cap opacity at 2× the cull threshold (splatfacto) and zero the Adam state of the capped rows."""
+        """Cap opacity at 2× the cull threshold and zero every row's Adam moments, as splatfacto does."""
         cap = min(2.0 * self.cfg.cull_alpha_thresh, 0.99)
         cap_logit = math.log(cap / (1.0 - cap))
         capped = model.opacity_logits > cap_logit
         model.opacity_logits[capped] = cap_logit
-        optimizers.reset_state("opacity_logits", capped)
+        optimizers.reset_state("opacity_logits")
         return int(capped.sum())
 
     def state_dict(self) -> dict[str, Any]:

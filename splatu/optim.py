@@ -137,13 +137,13 @@ class Optimizers:
         kept = rows if keep is None else rows[keep]
         return kept.contiguous() if extra is None else torch.cat([kept, extra], dim=0)
 
-    def reset_state(self, name: str, rows: Tensor) -> None:
-        """Zero the Adam moments of `rows` (bool mask or indices) of parameter `name`."""
+    def reset_state(self, name: str) -> None:
+        """Zero the Adam moments of parameter `name` (every row), so its next steps follow fresh gradients."""
         optimizer = self.optimizers[name]
         state = optimizer.state.get(optimizer.param_groups[0]["params"][0], {})
         for key in ("exp_avg", "exp_avg_sq"):
             if key in state:
-                state[key][rows] = 0.0
+                state[key].zero_()
 
     def state_dict(self) -> dict[str, Any]:
         return {name: optimizer.state_dict() for name, optimizer in self.optimizers.items()}

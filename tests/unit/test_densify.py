@@ -120,7 +120,7 @@ def test_clone_split_and_prune_keep_rows_and_adam_state_aligned():
     _assert_aligned(model, optimizers)
 
 
-def test_opacity_reset_caps_opacity_resets_its_adam_rows_and_leaves_u_sh_alone():
+def test_opacity_reset_caps_opacity_zeroes_all_its_adam_rows_and_leaves_u_sh_alone():
     model, optimizers = _tagged_model()
     with torch.no_grad():
         model.opacity_logits[3] = math.log(0.15 / 0.85)  # below the 0.2 cap: untouched
@@ -136,9 +136,25 @@ def test_opacity_reset_caps_opacity_resets_its_adam_rows_and_leaves_u_sh_alone()
     assert torch.allclose(opacity[torch.arange(N) != 3], torch.full((N - 1,), 0.2))
     assert float(opacity[3]) == pytest.approx(0.15)
     assert torch.equal(model.u_sh, u_before)
-    opacity_state = _exp_avg(optimizers, model, "opacity_logits")
-    assert float(opacity_state[3]) == 4.0 and not opacity_state[torch.arange(N) != 3].any()
+    opacity_state = optimizers.optimizers["opacity_logits"].state[model.opacity_logits]
+    assert not opacity_state["exp_avg"].any() and not opacity_state["exp_avg_sq"].any()  # all rows, as splatfacto
     assert torch.equal(_exp_avg(optimizers, model, "u_sh")[:, 0, 0], torch.arange(N, dtype=torch.float32) + 1)
+
+
+def test_nothing_is_culled_during_the_pause_after_an_opacity_reset_but_culling_goes_on_after_stop_split_at():
+    """splatfacto neither densifies nor culls from an opacity reset until every view has been seen again (its
+    pause), so Gaussians whose opacity the reset lowered are not culled before they can recover."""
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=3, pause_after_reset=10,
+                        stop_split_at=100)
+    pruned = {}
+    for step in (30, 40, 50, 100):  # reset at 30; 40 is in the pause (30 + 10 + 10 > 40); 50 densifies; 100 culls
+        model, optimizers = _tagged_model()
+        with torch.no_grad():
+            model.opacity_logits[2] = -3.0  # opacity 0.05: below the cull threshold
+        controller = DensityController(cfg, 1.0)
+        controller.observe(_raster(torch.full((N,), LOW), torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
+        pruned[step] = controller.refine(step, model, optimizers, views_per_epoch=1)["pruned"]
+    assert pruned == {30: 0, 40: 0, 50: 1, 100: 1}
 
 
 def test_budget_densifies_only_the_largest_gradients_that_fit():
