@@ -41,9 +41,9 @@ def num_sh_bases(degree: int) -> int:
 
 def sh_degree_of(num_bases: int) -> int:
     """The degree whose expansion has `num_bases` coefficients: the inverse of `num_sh_bases`."""
-    degree = round(num_bases**0.5) - 1
-    if num_sh_bases(degree) != num_bases:
-        raise ValueError(f"{num_bases} is not the coefficient count of any SH degree")
+    degree = round(max(num_bases, 0) ** 0.5) - 1
+    if not 0 <= degree <= MAX_SH_DEGREE or num_sh_bases(degree) != num_bases:
+        raise ValueError(f"{num_bases} is not the coefficient count of any SH degree 0..{MAX_SH_DEGREE}")
     return degree
 
 
@@ -51,12 +51,16 @@ def safe_normalize(v: Tensor, eps: float = 1e-12) -> Tensor:
     """Unit vectors along the last axis; vectors shorter than `eps` become exactly zero.
 
     Both branches are computed with finite inputs, so the gradient is finite everywhere:
-    zero at the zero vector (the output is constant 0 there).
+    zero at the zero vector (the output is constant 0 there). Each vector is first divided by its largest
+    component, so the squared norm cannot overflow (float32 would at a length of 1.8e19) or underflow; v/|v|
+    does not depend on that factor, so holding it constant leaves the gradient exact.
     """
-    squared_norm = (v * v).sum(dim=-1, keepdim=True)
-    long_enough = squared_norm > eps * eps
+    largest = v.detach().abs().amax(dim=-1, keepdim=True)
+    scaled = v / torch.where(largest > 0, largest, 1.0)  # components in [-1, 1], the largest ±1
+    squared_norm = (scaled * scaled).sum(dim=-1, keepdim=True)
+    long_enough = largest * squared_norm.sqrt() > eps
     inverse_norm = torch.where(long_enough, torch.rsqrt(torch.where(long_enough, squared_norm, 1.0)), 0.0)
-    return v * inverse_norm
+    return scaled * inverse_norm
 
 
 def sh_basis(dirs: Tensor, degree: int) -> Tensor:

@@ -108,16 +108,21 @@ def project_gaussians(
     with torch.no_grad():
         half_diff = 0.5 * (cxx - cyy)
         lam_max = 0.5 * (cxx + cyy) + torch.sqrt(half_diff * half_diff + b * b)
-        radius = torch.ceil(3.0 * torch.sqrt(lam_max)).clamp(max=2.0**30)
+        radius = torch.ceil(3.0 * torch.sqrt(lam_max))
+        # tested uncapped: a footprint wider than the cap, centred further off-screen, still covers the image
         on_screen = (u + radius > 0) & (u - radius < width) & (v + radius > 0) & (v - radius < height)
         visible = in_depth & on_screen
-        radii = torch.where(visible, radius, torch.zeros_like(radius)).to(torch.int32)
+        radii = torch.where(visible, radius.clamp(max=2.0**30), torch.zeros_like(radius)).to(torch.int32)
         cov2d = torch.stack([cxx, b, cyy], dim=-1).detach()
 
+    # culled means may lie beyond float32's range (a mean at x = 1e38 behind the camera); they are never drawn,
+    # so they read 0, and depths saturate rather than overflow to ±inf
+    largest = torch.finfo(out_dtype).max
+    means2d = torch.where(visible[:, None], torch.stack([u, v], dim=-1), 0.0).clamp(-largest, largest)
     return Projection(
-        means2d=torch.stack([u, v], dim=-1).to(out_dtype),
+        means2d=means2d.to(out_dtype),
         conics=conics.to(out_dtype),
-        depths=z.to(out_dtype),
+        depths=z.clamp(-largest, largest).to(out_dtype),
         cov2d=cov2d,
         det=det.detach(),
         radii=radii,

@@ -1,4 +1,9 @@
-"""The public entry point: world-space Gaussians + a pinhole camera → image, alpha, depth and per-Gaussian stats."""
+"""The public entry point: world-space Gaussians + a pinhole camera → image, alpha, depth and per-Gaussian stats.
+
+A Gaussian reaches every pixel where its α passes 1/255 (the exact ellipse of `footprint`), not only the 16×16
+tiles its 3σ box touches as in 3DGS's CUDA rasterizer: so the output equals the per-pixel brute-force reference
+(tests/reference_rasterizer.py). The two differ only beyond that box, where σ ≥ 4.5 and so α ≤ 0.0111·o.
+"""
 
 from __future__ import annotations
 

@@ -179,6 +179,26 @@ def test_offscreen_centre_whose_footprint_covers_the_image(fast, dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_a_footprint_wider_than_the_radius_cap_centred_far_off_screen_still_covers_the_image(fast, dtype):
+    """The radius is stored capped at 2³⁰ px; the on-screen test used the capped value, so a Gaussian centred
+    1e10 px away with a far wider footprint was culled and the image left empty."""
+    scene = scene_at_origin([[1e9, 0.0, 1.0]], [[1e12, 1e12, 1e12]], 0.8, width=16, height=16)
+    out, _ = render_backward(fast, scene, dtype)
+    assert out.radii[0] == 2**30 and out.means2d[0, 0] > 2**30
+    assert torch.allclose(out.alpha, torch.full_like(out.alpha, 0.8), atol=1e-6)
+
+
+def test_culled_gaussians_beyond_float32_range_give_finite_outputs(fast):
+    """A culled mean's projection u = fx·x + cx (depth held at 1) overflowed float32 to inf, and so did a depth
+    past 3.4e38; neither is drawn, and render_backward checks every output is finite."""
+    behind = scene_at_origin([[1e38, 0.0, -1.0], [0.0, 0.0, 2.0]], 0.1, 0.5)  # u = 10·x: 1e39
+    beyond = scene_at_origin([[0.0, 0.0, 3e38]], 0.1, 0.5)
+    beyond.world_to_camera[2, 3] = 1e38  # camera-space z = 4e38
+    assert render_backward(fast, behind, torch.float32)[0].radii[0] == 0
+    assert render_backward(fast, beyond, torch.float32)[0].radii[0] == 0
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 def test_one_pixel_image(fast, dtype):
     scene = random_scene(seed=4, n=20, width=1, height=1)
     out, _ = render_backward(fast, scene, dtype)

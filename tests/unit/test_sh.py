@@ -209,6 +209,16 @@ def test_safe_normalize():
     assert (v.grad[1] == 0).all()
 
 
+def test_safe_normalize_keeps_very_long_directions_and_an_exact_gradient():
+    """The float32 squared norm overflowed beyond a length of 1.8e19, so such a direction became zero (DC only)."""
+    long = torch.tensor([[1e20, 0.0, 0.0], [3e30, -4e30, 0.0], [3e-10, 4e-10, 0.0]])
+    expected = torch.tensor([[1.0, 0.0, 0.0], [0.6, -0.8, 0.0], [0.6, 0.8, 0.0]])
+    torch.testing.assert_close(safe_normalize(long), expected)
+    v = torch.tensor([[3.0, -4.0, 12.0], [1e-3, 2e-3, -5e-4], [7e5, 0.0, 1.0]], dtype=torch.float64,
+                     requires_grad=True)
+    assert torch.autograd.gradcheck(safe_normalize, (v,))
+
+
 def test_gradients_match_finite_differences():
     d = random_unit(6, seed=8).requires_grad_(True)
     coeffs = torch.randn(6, 16, 2, dtype=torch.float64, requires_grad=True)
