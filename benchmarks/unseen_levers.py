@@ -5,8 +5,8 @@
     python benchmarks/unseen_levers.py --lever true-depth --weight 1
 
 The target under study is 28 dB on the observed pixels of the held-out contiguous block (the unseen angle);
-`fast` read 26.46 dB there (the `none` row, measured before commit 6e1ac8f changed density control; 26.28
-after). Each lever but the oracle is our version of a published fix for novel views, applied to this process's
+`fast` read 26.46 dB there (the `none` row, measured before commit 6e1ac8f changed density control; 26.53
+at 588755b). Each lever but the oracle is our version of a published fix for novel views, applied to this process's
 training only (the script patches the trainer while it trains, and puts everything back after):
 
 - `filter-3d W`: Mip-Splatting's 3D smoothing filter. Each Gaussian's covariance gets + W/ν² on every axis,
