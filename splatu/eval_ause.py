@@ -80,10 +80,13 @@ def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, 
 
 
 def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncertainty",
-                  output: Path | None = None, options: dict[str, Any] | None = None) -> dict[str, Any]:
+                  output: Path | None = None, options: dict[str, Any] | None = None,
+                  entries: list[MapEntry] | None = None) -> dict[str, Any]:
     """Score a maps directory, write the JSON and the curve plot beside it, and return the report; `options`
-    (what rendered the maps) are recorded in it."""
-    entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
+    (what rendered the maps) are recorded in it. `entries` are its views when the caller already holds them as
+    stored (write_maps_dir), so the directory is not read again."""
+    if entries is None:
+        entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
     report, curves = score_entries(entries, metric)
     report["method"] = label
     report["options"] = options or {"maps": str(maps_dir)}
@@ -163,11 +166,12 @@ def run(config: EvalAuseConfig) -> None:
 
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)
-        maps_dir = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
-                                    config.seed, data=config.data, head=config.head)
+        maps_dir, entries = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
+                                             config.seed, data=config.data, head=config.head)
         label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         options = {name: getattr(config, name) for name in LOAD_ONLY_OPTIONS}
-        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options})
+        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options},
+                               entries)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

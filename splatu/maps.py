@@ -163,10 +163,15 @@ def write_entry(root: Path, entry: MapEntry) -> None:
             _write_png(root / folder / f"{entry.name}.png", binary.astype(np.float64))
 
 
-def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, str] | None = None) -> None:
+def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, str] | None = None
+                   ) -> list[MapEntry]:
     """Write a whole maps directory beside `root`, then put it in place of any earlier one: a crash mid-write
     leaves the earlier directory or none, never one with views missing or lacking their masks, which
-    `eval-ause --maps` would score without complaint. `extra_files` (name → text) go in with the views."""
+    `eval-ause --maps` would score without complaint. `extra_files` (name → text) go in with the views.
+
+    Returns the views as stored (read back before the swap), which is what `eval-ause --maps` reads: a caller
+    scores those rather than `root`, which another process may replace at any time.
+    """
     staging = root.with_name(f".{root.name}.tmp-{os.getpid()}")
     shutil.rmtree(staging, ignore_errors=True)
     try:
@@ -175,15 +180,17 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
             write_entry(staging, entry)
         for name, text in (extra_files or {}).items():
             (staging / name).write_text(text, encoding="utf-8")
+        stored = [read_entry(staging, name) for name in entry_names(staging)]
         _swap_in(staging, root)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    return stored
 
 
 def _swap_in(staging: Path, root: Path) -> None:
     """Rename `staging` to `root`, moving any earlier `root` aside first. Another process may be swapping in its
     own directory at the same moment (two `eval-ause --load` runs of one method on one run): the last rename
-    wins, and neither fails or deletes the other's views mid-read of its own."""
+    wins and neither fails."""
     aside = root.with_name(f".{root.name}.old-{os.getpid()}")
     shutil.rmtree(aside, ignore_errors=True)
     while True:

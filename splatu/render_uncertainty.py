@@ -291,8 +291,10 @@ def output_label(method: UncertaintyMethod, head: str | None, density_aware: boo
 
 
 def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
-                     fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None) -> Path:
-    """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder."""
+                     fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None
+                     ) -> tuple[Path, list[MapEntry]]:
+    """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder and
+    the views as stored there (see write_maps_dir)."""
     run = _load(load, method, head)
     label = output_label(method, head, density_aware, fisher_probes, seed)
     folder = writable_dir(run_folder(load) / "uncertainty" / f"{label}-eval",
@@ -308,8 +310,7 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     timing = {"train_seconds": run.train_seconds, "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored
-    write_maps_dir(root, entries, {"timing.json": json.dumps(timing)})
-    return root
+    return root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)})
 
 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")

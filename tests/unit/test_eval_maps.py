@@ -272,5 +272,9 @@ def test_a_maps_directory_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch)
     assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["maps"]  # no staging folder left behind
     monkeypatch.undo()
-    maps.write_maps_dir(root, fresh)
+    stored = maps.write_maps_dir(root, fresh)
     assert entry_names(root) == ["new_view_0", "new_view_1"]  # the earlier views are gone, not mixed in
+    for entry in stored:  # what it returns for scoring is what eval-ause --maps would read
+        again = read_entry(root, entry.name)
+        for field in ("rgb", "gt", "uncertainty", "mask", "unobserved"):
+            assert np.array_equal(getattr(entry, field), getattr(again, field)), field
