@@ -3,6 +3,7 @@ right byte whatever other elements the file declares, and refuse a malformed hea
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +19,7 @@ PLY_TYPES = {
 }
 """PLY scalar type names → numpy kinds, without byte order (the file's format line sets it)."""
 FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
+END_HEADER = re.compile(rb"^end_header[ \t]*\r?(?:\n|$)", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -59,11 +61,10 @@ def read_vertex_layout(data: bytes, path: Path, fix: str) -> PlyVertices:
 
     if not data.startswith(b"ply"):
         raise bad("not a PLY file (no 'ply' magic)")
-    end = data.find(b"end_header")
-    if end < 0:
+    found = END_HEADER.search(data)  # as a line of its own: a comment may mention it
+    if found is None:
         raise bad("the PLY header has no end_header (is the file truncated?)")
-    newline = data.find(b"\n", end)
-    body_start = len(data) if newline < 0 else newline + 1
+    end, body_start = found.start(), found.end()
     fmt = None
     elements: list[_Element] = []
     for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
@@ -102,4 +103,7 @@ def read_vertex_layout(data: bytes, path: Path, fix: str) -> PlyVertices:
     vertex = elements[vertex_at]
     if vertex.record_bytes() is None:
         raise bad("the PLY vertex element has a list property")
+    names = [name for name, _ in vertex.properties]
+    if not names or len(set(names)) != len(names):
+        raise bad("the PLY vertex element has no properties, or one name twice")
     return PlyVertices(fmt, vertex.count, vertex.properties, offset, body_start)  # type: ignore[arg-type]

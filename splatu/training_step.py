@@ -168,7 +168,7 @@ def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | N
 
 
 def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> StepOutcome:
-    """Render one camera, one backward for both losses, then optimise and refine (unless non-finite)."""
+    """Render one camera, one backward for both losses, then optimise (unless non-finite) and refine."""
     step = state.step
     background = training_background(config.train_background, state.generator)
     level = resolution_level(step, config.resolution_levels, config.resolution_interval)

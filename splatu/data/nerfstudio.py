@@ -151,7 +151,9 @@ def _by_file_path(frames_json: list[Any]) -> list[tuple[int, Any]]:
 
 def _depth_unit(top: Mapping[str, Any], json_path: Path) -> float:
     """Metres per depth-image unit; a zero, negative or non-numeric factor would scale every depth wrongly."""
-    value = top.get("depth_unit_scale_factor", DEFAULT_DEPTH_UNIT)
+    value = top.get("depth_unit_scale_factor")
+    if value is None:  # absent or null
+        return DEFAULT_DEPTH_UNIT
     if isinstance(value, bool) or not isinstance(value, int | float) or not (np.isfinite(value) and value > 0):
         raise SplatuError(f"depth_unit_scale_factor must be a positive number (got {value!r})", f"in {json_path}",
                           f"fix it, or remove it for nerfstudio's default of {DEFAULT_DEPTH_UNIT} (millimetres)")

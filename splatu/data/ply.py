@@ -52,12 +52,18 @@ def read_ply_points(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         raise _bad(path, "non-finite coordinates")
     rgb = None
     if {"red", "green", "blue"} <= set(names):
-        kind = np.dtype(dict(props)["red"])
-        # integer colours (8- or 16-bit) span the type's range; float ones [0, 1], or [0, 255] from some tools
-        floats_scale = 255.0 if column["red"].max(initial=0) > 1 else 1.0
-        scale = float(np.iinfo(kind).max) if kind.kind in "iu" else floats_scale
+        scale = _colour_scale(np.dtype(dict(props)["red"]), float(column["red"].max(initial=0)))
         rgb = (np.stack([column["red"], column["green"], column["blue"]], axis=1) / scale).astype(np.float32)
     return xyz, rgb
+
+
+def _colour_scale(kind: np.dtype, largest: float) -> float:
+    """What full intensity reads as: 255 for 8-bit colours, and for wider integers holding 8-bit values (as
+    some tools write them); a wider type's maximum (65535 for 16-bit) otherwise; floats are in [0, 1], or in
+    [0, 255] when any exceeds 1."""
+    if kind.kind in "iu" and kind.itemsize > 1 and largest > 255:
+        return float(np.iinfo(kind).max)
+    return 255.0 if kind.kind in "iu" or largest > 1 else 1.0
 
 
 def write_ply_points(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> None:

@@ -370,6 +370,22 @@ def test_ply_point_reader_skips_elements_before_the_vertices_and_scales_16_bit_c
         read_ply_points(binary)
 
 
+def test_ply_point_reader_ignores_end_header_in_a_comment_and_reads_8_bit_values_in_wider_integers(tmp_path):
+    """find(b"end_header") matched inside a comment, so the rest of the header was read as vertex data; and
+    colours 0–255 stored as ushort or int (as some tools write them) must not be divided by 65535."""
+    records = np.array([(1.0, 2.0, 3.0, 255, 128, 0)],
+                       dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "<u2"), ("g", "<u2"), ("b", "<u2")])
+    path = tmp_path / "c.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n"
+                     b"property float y\nproperty float z\ncomment see end_header notes\nproperty ushort red\n"
+                     b"property ushort green\nproperty ushort blue\nend_header\n" + records.tobytes())
+    xyz, rgb = read_ply_points(path)
+    assert np.allclose(xyz, [[1, 2, 3]]) and np.allclose(rgb, [[1.0, 128 / 255, 0.0]])
+    path.write_bytes(path.read_bytes().replace(b"property ushort green", b"property ushort red"))
+    with pytest.raises(SplatuError, match="one name twice"):
+        read_ply_points(path)
+
+
 TINY_POSTER = PosterConfig(width=24, height=40, frames=20, eval_block=4, points=300, supersample=1)
 
 
