@@ -18,6 +18,7 @@ from splatu.sh import (
     rgb_to_sh,
     safe_normalize,
     sh_basis,
+    sh_degree_of,
     sh_to_rgb,
 )
 
@@ -217,6 +218,14 @@ def test_safe_normalize_keeps_very_long_directions_and_an_exact_gradient():
     v = torch.tensor([[3.0, -4.0, 12.0], [1e-3, 2e-3, -5e-4], [7e5, 0.0, 1.0]], dtype=torch.float64,
                      requires_grad=True)
     assert torch.autograd.gradcheck(safe_normalize, (v,))
+
+
+def test_sh_degree_of_inverts_num_sh_bases_and_names_a_bad_count():
+    """0 and 25 coefficients used to report 'SH degree must be in 0..3, got -1 / 4' instead of the count."""
+    assert [sh_degree_of(num_sh_bases(d)) for d in range(4)] == [0, 1, 2, 3]
+    for count in (-4, 0, 3, 25):
+        with pytest.raises(ValueError, match=f"^{count} is not the coefficient count of any SH degree 0..3"):
+            sh_degree_of(count)
 
 
 def test_gradients_match_finite_differences():
