@@ -72,7 +72,7 @@ def _read_vertices(path: Path) -> np.ndarray:
                           "export the PLY as binary_little_endian 1.0 (the 3DGS format)")
     for name, kind in layout.properties:
         if kind not in ("f4", "f8"):
-            raise SplatuError(f"PLY property {name} has unsupported type {kind}", f"in {path}",
+            raise SplatuError(f"PLY property {name} is not a float (numpy kind {kind})", f"in {path}",
                               "store every vertex property as float")
     dtype = layout.dtype()
     start = layout.body_start + layout.offset
