@@ -34,7 +34,7 @@ class GaussianParams:
     """Per-Gaussian screen-space quantities the compositor reads, all (N, ·) in one dtype."""
 
     means2d: Tensor
-    conics: Tensor
+    sheared_conics: Tensor  # (a, s, q), see projection.py
     opacities: Tensor
     features_ext: Tensor  # (N, C+2): features, depth z, 1
 
@@ -52,12 +52,12 @@ class PixelAccumulators:
 @dataclass
 class GaussianGrads:
     """Gradient accumulators for the compositor's inputs, packed (N, C+2 + 1 + 3 + 2 + 2) so that each
-    chunk scatters into them once: features_ext | opacity | conic | means2d | absgrad."""
+    chunk scatters into them once: features_ext | opacity | sheared conic | means2d | absgrad."""
 
     packed: Tensor
 
     WIDTHS = (1, 3, 2, 2)
-    """Columns after the C+2 feature gradients: opacity, conic, means2d, absgrad."""
+    """Columns after the C+2 feature gradients: opacity, sheared conic, means2d, absgrad."""
 
     @classmethod
     def zeros(cls, like: Tensor, channels_ext: int) -> GaussianGrads:
@@ -65,7 +65,7 @@ class GaussianGrads:
         return cls(like.new_zeros(like.shape[0], channels_ext + sum(cls.WIDTHS)))
 
     def split(self, channels_ext: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """(features_ext, opacities, conics, means2d, absgrad) views."""
+        """(features_ext, opacities, sheared_conics, means2d, absgrad) views."""
         f, o, c, m, a = self.packed.split([channels_ext, *self.WIDTHS], dim=1)
         return f, o.squeeze(1), c, m, a
 
@@ -85,9 +85,9 @@ class EntryView:
 
     gaussian: Tensor
     block: Tensor
-    u: Tensor
+    e: Tensor  # offset of the block's first pixel centre from the ellipse's centre line on its row (kernels.py)
     dy: Tensor
-    conic: Tensor
+    sheared_conic: Tensor
     opacity: Tensor
     in_image_cols: Tensor
 
@@ -156,12 +156,14 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
     x0 = (block % entries.blocks_per_row) * entries.block_width
     row = torch.div(block, entries.blocks_per_row, rounding_mode="floor")
     mean = g.means2d.index_select(0, gaussian)
+    sheared_conic = g.sheared_conics.index_select(0, gaussian)
+    dy = row.to(dtype) + 0.5 - mean[:, 1]
     return EntryView(
         gaussian=gaussian,
         block=block,
-        u=x0.to(dtype) + 0.5 - mean[:, 0],
-        dy=row.to(dtype) + 0.5 - mean[:, 1],
-        conic=g.conics.index_select(0, gaussian),
+        e=x0.to(dtype) + 0.5 - mean[:, 0] - sheared_conic[:, 1] * dy,
+        dy=dy,
+        sheared_conic=sheared_conic,
         opacity=g.opacities.index_select(0, gaussian),
         in_image_cols=width - x0,
     )
@@ -181,7 +183,7 @@ def forward_chunk(
     """
     v = view_entries(entries, positions, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
-        v.u, v.dy, v.conic, v.opacity, v.in_image_cols, entries.block_width
+        v.e, v.dy, v.sheared_conic, v.opacity, v.in_image_cols, entries.block_width
     )
     cumulative = running_sum(log_one_minus)
     seg = segments(v.block)
@@ -261,7 +263,7 @@ def backward_chunk(
     seg = segments(v.block)
     per_entry = kernel("entry_gradients")(
         weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
-        v.u, v.dy, v.conic, v.opacity, grad_features_ext,
+        v.e, v.dy, v.sheared_conic, v.opacity, grad_features_ext,
     )
     grads.packed.index_add_(0, v.gaussian, per_entry)
     block_total = (columns(weighted_cumulative, seg.block_last)

@@ -9,9 +9,10 @@ Compositor layout (row_block_spans instead takes 1-D per-row-record inputs): an 
 Gaussian on one block of B pixels of a row; element [x, q] is that Gaussian at column x of the
 block. Columns come first so that the running sums down each
 pixel's list (along q) are contiguous: torch's CPU cumsum is much slower across a strided dim.
-u_q = x0_q + 0.5 − mean_x and dy_q = row_q + 0.5 − mean_y, so the offset of pixel centre from
-mean is (t, dy) with t = x + u_q. A pair is valid when σ ≥ 0, α ≥ 1/255 and the pixel is inside
-the image; valid pairs are exactly those with log(1 − α) < 0.
+With dx, dy the offset of a pixel centre from the mean and the conic in sheared form (a, s, q) (see
+projection.py), σ = ½a·t² + ½q·dy², t = dx − s·dy: per entry dy_q = row_q + 0.5 − mean_y and
+e_q = x0_q + 0.5 − mean_x − s·dy_q, so t = x + e_q. A pair is valid when σ ≥ 0, α ≥ 1/255 and the pixel
+is inside the image; valid pairs are exactly those with log(1 − α) < 0.
 
 "Extended features" are the per-Gaussian features with two more channels, depth z and 1, so one
 weighted sum yields the colour, Σ w·z and Σ w = alpha together.
@@ -37,21 +38,21 @@ LOG_T_MIN = math.log(1e-4)
 """3DGS stops a pixel before the Gaussian that would bring its transmittance below 1e-4."""
 
 
-def _offsets(u: Tensor, block_width: int) -> Tensor:
-    """t = x + u_q, the horizontal offset from the mean of each pixel centre, (B, Q)."""
-    return torch.arange(block_width, dtype=u.dtype, device=u.device)[:, None] + u
+def _offsets(e: Tensor, block_width: int) -> Tensor:
+    """t = x + e_q, each pixel centre's horizontal offset from the ellipse's centre line on its row, (B, Q)."""
+    return torch.arange(block_width, dtype=e.dtype, device=e.device)[:, None] + e
 
 
 def alpha_and_log_one_minus(
-    u: Tensor, dy: Tensor, conic: Tensor, opacity: Tensor, in_image_cols: Tensor, block_width: int
+    e: Tensor, dy: Tensor, sheared_conic: Tensor, opacity: Tensor, in_image_cols: Tensor, block_width: int
 ) -> tuple[Tensor, Tensor]:
     """α before clamping, and log(1 − α) (float64 for the running sums) where the pair is valid, else 0."""
-    t = _offsets(u, block_width)
-    a, b, c = conic.unbind(-1)
-    sigma = (0.5 * a * t + b * dy) * t + 0.5 * c * dy * dy
+    t = _offsets(e, block_width)
+    a, _, q = sheared_conic.unbind(-1)
+    sigma = 0.5 * (a * t * t + q * dy * dy)
     alpha_raw = opacity * torch.exp(-sigma)
     alpha = alpha_raw.clamp(max=ALPHA_MAX)
-    cols = torch.arange(block_width, device=u.device)[:, None]
+    cols = torch.arange(block_width, device=e.device)[:, None]
     valid = (sigma >= 0) & (alpha >= ALPHA_MIN) & (cols < in_image_cols)
     return alpha_raw, torch.where(valid, torch.log1p(-alpha), 0.0).to(torch.float64)
 
@@ -91,15 +92,15 @@ def upstream_per_weight(
 def entry_gradients(
     weighted_cumulative: Tensor, last: Tensor, block: Tensor, carried_behind: Tensor,
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
-    u: Tensor, dy: Tensor, conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
+    e: Tensor, dy: Tensor, sheared_conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
 ) -> Tensor:
-    """Per entry, one packed row (Q, C+2 + 8): dL/df_ext | dL/do | dL/dconic (3) | dL/dmean2d (2) | Σ|dL/dmean2d|
+    """Per entry, one packed row (Q, C+2 + 8): dL/df_ext | dL/do | dL/d(a, s, q) | dL/dmean2d (2) | Σ|dL/dmean2d|
     per axis (2), so that the caller scatters into the Gaussians once.
 
     dL/dα = T g − (S + T_final h)/(1 − α), S = Σ of w g over the pairs behind this one in the pixel:
     those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
-    holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½a t² + b t dy
-    + ½c dy², the conic and mean gradients are moments Σ gσ tᵏ over the block's pixels.
+    holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½a t² + ½q dy², t = x + e
+    and ∂t/∂mean = (−1, s), ∂t/∂s = −dy, the conic and mean gradients are moments Σ gσ tᵏ over the block's pixels.
     """
     behind = (weighted_cumulative.index_select(1, last) - weighted_cumulative
               + carried_behind.index_select(1, block)).to(alpha_raw.dtype)
@@ -109,15 +110,15 @@ def entry_gradients(
     grad_alpha = torch.where(live, grad_alpha, 0.0)
     grad_opacity = (grad_alpha * alpha_raw).sum(0) / opacity
     grad_sigma = -grad_alpha * alpha_raw
-    t = _offsets(u, alpha_raw.shape[0])
-    a, b, c = conic.unbind(-1)
+    t = _offsets(e, alpha_raw.shape[0])
+    a, s, q = sheared_conic.unbind(-1)
     m0 = grad_sigma.sum(0)
     m1 = (grad_sigma * t).sum(0)
     m2 = (grad_sigma * t * t).sum(0)
-    abs_x = (grad_sigma * (a * t + b * dy)).abs().sum(0)
-    abs_y = (grad_sigma * (b * t + c * dy)).abs().sum(0)
-    rest = torch.stack([grad_opacity, 0.5 * m2, dy * m1, 0.5 * dy * dy * m0,
-                        -(a * m1 + b * dy * m0), -(b * m1 + c * dy * m0), abs_x, abs_y], dim=-1)
+    abs_x = (grad_sigma * t).abs().sum(0) * a
+    abs_y = (grad_sigma * (a * s * t - q * dy)).abs().sum(0)
+    rest = torch.stack([grad_opacity, 0.5 * m2, -a * dy * m1, 0.5 * dy * dy * m0,
+                        -a * m1, a * s * m1 - q * dy * m0, abs_x, abs_y], dim=-1)
     return torch.cat([grad_features_ext, rest], dim=1)
 
 

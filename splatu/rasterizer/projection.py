@@ -4,6 +4,11 @@ Follows the 3DGS conventions: camera-space mean t = R m + tvec (OpenCV axes), th
 perspective projection at t with t.x/t.z and t.y/t.z clamped to ±1.3·tan(half-FoV) before forming J,
 cov2d = J W Σ Wᵀ Jᵀ + 0.3·I, conic = inv(cov2d) with det clamped ≥ 1e-10.
 
+The conic is handed on in sheared form (a, s, q): σ = ½(dx, dy)·conic·(dx, dy)ᵀ = ½a·(dx − s·dy)² + ½q·dy², with
+a = cov_yy/det, s = cov_xy/cov_yy and q = 1/cov_yy (≤ 1/0.3). Both terms are non-negative, so σ never forms as a
+small difference of huge terms: ½a·dx² + b·dx·dy + ½c·dy² does, in float32, for a long thin Gaussian centred far
+off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up to 0.53 at a pixel).
+
 Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
 z ≤ near, z ≥ far, or its box [mx ± r] × [my ± r] with r = ceil(3·sqrt(λ_max(cov2d))) lies
 entirely off-screen: mx + r ≤ 0 or mx − r ≥ width or my + r ≤ 0 or my − r ≥ height.
@@ -31,7 +36,7 @@ LOW_PASS = 0.3
 @dataclass
 class Projection:
     means2d: Tensor  # (N, 2) pixels, input dtype, differentiable
-    conics: Tensor  # (N, 3) (a, b, c) of inv(cov2d), input dtype, differentiable
+    sheared_conics: Tensor  # (N, 3) (a, s, q): the conic in sheared form (module docstring), differentiable
     depths: Tensor  # (N,) camera-space z, input dtype, differentiable
     cov2d: Tensor  # (N, 3) (xx, xy, yy), float64, detached: for footprints
     det: Tensor  # (N,) det(cov2d), float64, detached
@@ -103,7 +108,7 @@ def project_gaussians(
     )
     det = ((minors * minors).sum(-1) + LOW_PASS * (a + c) + LOW_PASS * LOW_PASS).clamp_min(1e-10)
     cxx, cyy = a + LOW_PASS, c + LOW_PASS
-    conics = torch.stack([cyy / det, -b / det, cxx / det], dim=-1)
+    sheared_conics = torch.stack([cyy / det, b / cyy, 1.0 / cyy], dim=-1)
 
     with torch.no_grad():
         half_diff = 0.5 * (cxx - cyy)
@@ -121,7 +126,7 @@ def project_gaussians(
     means2d = torch.where(visible[:, None], torch.stack([u, v], dim=-1), 0.0).clamp(-largest, largest)
     return Projection(
         means2d=means2d.to(out_dtype),
-        conics=conics.to(out_dtype),
+        sheared_conics=sheared_conics.to(out_dtype),
         depths=z.clamp(-largest, largest).to(out_dtype),
         cov2d=cov2d,
         det=det.detach(),

@@ -188,6 +188,26 @@ def test_a_footprint_wider_than_the_radius_cap_centred_far_off_screen_still_cove
     assert torch.allclose(out.alpha, torch.full_like(out.alpha, 0.8), atol=1e-6)
 
 
+@pytest.mark.parametrize("offset", [0.0, 3000.0, 30000.0])
+def test_a_long_thin_gaussian_centred_far_off_screen_renders_the_same_in_float32(fast, offset):
+    """A needle along the diagonal whose centre projects `offset` px off both image edges. Its conic terms
+    ½a·dx², b·dx·dy and ½c·dy² are each ~10⁷ at 3,000 px and cancel to about 1: summed in float32 they moved
+    α by up to 0.53 (3,000 px) and 0.9 (30,000 px); the sheared form keeps float32 within 1e-4 of float64."""
+    focal, size, depth = 64.0, 64, 2.0
+    length_px = max(2.0 * offset, 200.0)
+    scene = scene_at_origin([[0.0, 0.0, depth]], [[length_px * depth / focal, 0.01, 0.01]], 0.9,
+                            width=size, height=size, focal=focal)
+    scene.quats = torch.tensor([[math.cos(math.pi / 8), 0.0, 0.0, math.sin(math.pi / 8)]], dtype=D)  # x → diagonal
+    scene.K[0, 2] -= offset  # the mean projects at (32 − offset, 32 − offset), unclamped by the FoV rule
+    scene.K[1, 2] -= offset
+    out64, _ = render_backward(fast, scene, D)
+    out32, _ = render_backward(fast, scene, torch.float32)
+    assert out64.alpha.diagonal().min() > 0.6  # the needle crosses the image along its diagonal
+    assert (out64.alpha.double() - out32.alpha.double()).abs().max() < 1e-4
+    if offset <= 3000.0:  # further off, the reference's own det = ac − b² cancels to 3e-10 of its terms in float64
+        assert_matches_reference(fast, scene)
+
+
 def test_culled_gaussians_beyond_float32_range_give_finite_outputs(fast):
     """A culled mean's projection u = fx·x + cx (depth held at 1) overflowed float32 to inf, and so did a depth
     past 3.4e38; neither is drawn, and render_backward checks every output is finite."""
