@@ -34,7 +34,8 @@ class GaussianParams:
     """Per-Gaussian screen-space quantities the compositor reads, all (N, ·) in one dtype."""
 
     means2d: Tensor
-    sheared_conics: Tensor  # (a, s, q), see projection.py
+    sheared_conics: Tensor  # (A, S, Q), see projection.py
+    swapped: Tensor  # (N,) bool, see projection.py
     opacities: Tensor
     features_ext: Tensor  # (N, C+2): features, depth z, 1
 
@@ -85,8 +86,11 @@ class EntryView:
 
     gaussian: Tensor
     block: Tensor
-    e: Tensor  # offset of the block's first pixel centre from the ellipse's centre line on its row (kernels.py)
-    dy: Tensor
+    t0: Tensor  # per entry, see kernels.sheared_entry_offsets
+    w0: Tensor
+    p: Tensor
+    r: Tensor
+    swapped: Tensor  # bool: the sheared form runs along y (kernels.py)
     sheared_conic: Tensor
     opacity: Tensor
     in_image_cols: Tensor
@@ -157,12 +161,17 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
     row = torch.div(block, entries.blocks_per_row, rounding_mode="floor")
     mean = g.means2d.index_select(0, gaussian)
     sheared_conic = g.sheared_conics.index_select(0, gaussian)
-    dy = row.to(dtype) + 0.5 - mean[:, 1]
+    swapped = g.swapped.index_select(0, gaussian)
+    t0, w0, p, r = kernel("sheared_entry_offsets")(
+        x0.to(dtype) + 0.5 - mean[:, 0], row.to(dtype) + 0.5 - mean[:, 1], swapped, sheared_conic[:, 1])
     return EntryView(
         gaussian=gaussian,
         block=block,
-        e=x0.to(dtype) + 0.5 - mean[:, 0] - sheared_conic[:, 1] * dy,
-        dy=dy,
+        t0=t0,
+        w0=w0,
+        p=p,
+        r=r,
+        swapped=swapped,
         sheared_conic=sheared_conic,
         opacity=g.opacities.index_select(0, gaussian),
         in_image_cols=width - x0,
@@ -183,7 +192,7 @@ def forward_chunk(
     """
     v = view_entries(entries, positions, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
-        v.e, v.dy, v.sheared_conic, v.opacity, v.in_image_cols, entries.block_width
+        v.t0, v.w0, v.p, v.r, v.sheared_conic, v.opacity, v.in_image_cols, entries.block_width
     )
     cumulative = running_sum(log_one_minus)
     seg = segments(v.block)
@@ -263,7 +272,7 @@ def backward_chunk(
     seg = segments(v.block)
     per_entry = kernel("entry_gradients")(
         weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
-        v.e, v.dy, v.sheared_conic, v.opacity, grad_features_ext,
+        v.t0, v.w0, v.p, v.r, v.swapped, v.sheared_conic, v.opacity, grad_features_ext,
     )
     grads.packed.index_add_(0, v.gaussian, per_entry)
     block_total = (columns(weighted_cumulative, seg.block_last)

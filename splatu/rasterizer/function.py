@@ -71,18 +71,19 @@ def _finish(image_ext: Tensor, background: Tensor, width: int, height: int) -> t
 
 
 class CompositeFunction(torch.autograd.Function):
-    """(means2d, sheared_conics, opacities, extended features, background) → image, alpha, Σ w·z, contributions."""
+    """(means2d, sheared_conics, opacities, extended features, background) → image, alpha, Σ w·z, contributions;
+    `swapped` (which axis each sheared conic runs along) has no gradient."""
 
     @staticmethod
     def forward(
         ctx: Any, means2d: Tensor, sheared_conics: Tensor, opacities: Tensor, features_ext: Tensor,
-        background: Tensor, entries: BlockEntries, width: int, height: int, absgrad: Tensor, max_elements: int,
-        counted: Tensor | None,
+        background: Tensor, swapped: Tensor, entries: BlockEntries, width: int, height: int, absgrad: Tensor,
+        max_elements: int, counted: Tensor | None,
     ) -> tuple[Tensor, ...]:
-        g = GaussianParams(means2d, sheared_conics, opacities, features_ext)
+        g = GaussianParams(means2d, sheared_conics, swapped, opacities, features_ext)
         acc, states = _run_forward(g, entries, width, max_elements, keep_state=True, counted=counted)
         image, alpha, depth_num, t_final = _finish(acc.image_ext, background, width, height)
-        ctx.save_for_backward(means2d, sheared_conics, opacities, features_ext, background)
+        ctx.save_for_backward(means2d, sheared_conics, swapped, opacities, features_ext, background)
         ctx.states, ctx.entries, ctx.t_final, ctx.width, ctx.absgrad = states, entries, t_final, width, absgrad
         pairs = torch.tensor(acc.pairs)
         ctx.mark_non_differentiable(acc.contrib_sum, acc.contrib_max, pairs)
@@ -90,9 +91,9 @@ class CompositeFunction(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx: Any, g_image: Tensor, g_alpha: Tensor, g_depth_num: Tensor, *_: Tensor) -> tuple:
-        means2d, sheared_conics, opacities, features_ext, background = ctx.saved_tensors
+        means2d, sheared_conics, swapped, opacities, features_ext, background = ctx.saved_tensors
         entries = ctx.entries
-        g = GaussianParams(means2d, sheared_conics, opacities, features_ext)
+        g = GaussianParams(means2d, sheared_conics, swapped, opacities, features_ext)
         up_ext = to_blocks(torch.cat([g_image, g_depth_num[..., None], g_alpha[..., None]], dim=-1), entries)
         channels = background.shape[0]
         up_image = up_ext[:, :, :channels]
@@ -105,7 +106,7 @@ class CompositeFunction(torch.autograd.Function):
         ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))
         return (grad_means2d, grad_sheared_conics, grad_opacities, grad_features_ext, grad_background,
-                None, None, None, None, None, None)
+                None, None, None, None, None, None, None)
 
 
 def composite(
@@ -118,7 +119,7 @@ def composite(
     inputs = (g.means2d, g.sheared_conics, g.opacities, g.features_ext, background)
     if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
         image, alpha, depth_num, csum, cmax, pairs = CompositeFunction.apply(
-            *inputs, entries, width, height, absgrad, max_elements, counted
+            *inputs, g.swapped, entries, width, height, absgrad, max_elements, counted
         )
         return image, alpha, depth_num, csum, cmax, int(pairs)
     acc, _ = _run_forward(g, entries, width, max_elements, keep_state=False, counted=counted)

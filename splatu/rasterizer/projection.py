@@ -4,10 +4,13 @@ Follows the 3DGS conventions: camera-space mean t = R m + tvec (OpenCV axes), th
 perspective projection at t with t.x/t.z and t.y/t.z clamped to ±1.3·tan(half-FoV) before forming J,
 cov2d = J W Σ Wᵀ Jᵀ + 0.3·I, conic = inv(cov2d) with det clamped ≥ 1e-10.
 
-The conic is handed on in sheared form (a, s, q): σ = ½(dx, dy)·conic·(dx, dy)ᵀ = ½a·(dx − s·dy)² + ½q·dy², with
-a = cov_yy/det, s = cov_xy/cov_yy and q = 1/cov_yy (≤ 1/0.3). Both terms are non-negative, so σ never forms as a
-small difference of huge terms: ½a·dx² + b·dx·dy + ½c·dy² does, in float32, for a long thin Gaussian centred far
-off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up to 0.53 at a pixel).
+The conic is handed on in sheared form (A, S, Q) along the footprint's longer screen axis. With (v, w) = (dx, dy)
+when cov_yy ≥ cov_xx and (dy, dx) otherwise (`swapped`), σ = ½(dx, dy)·conic·(dx, dy)ᵀ = ½A·(v − S·w)² + ½Q·w²,
+where A = cov_ww/det, S = cov_xy/cov_ww and Q = 1/cov_ww. Both terms are non-negative, so σ never forms as a small
+difference of huge terms, as ½a·dx² + b·dx·dy + ½c·dy² does in float32 for a long thin Gaussian centred far
+off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up to 0.53 at a pixel). Shearing along
+the longer axis keeps |S| ≤ 1 (and A, Q ≤ 1/0.3), so the form is as well conditioned at every orientation; sheared
+along x alone, a needle near the x axis has S up to 0.9 × its length in px.
 
 Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
 z ≤ near, z ≥ far, or its box [mx ± r] × [my ± r] with r = ceil(3·sqrt(λ_max(cov2d))) lies
@@ -36,7 +39,8 @@ LOW_PASS = 0.3
 @dataclass
 class Projection:
     means2d: Tensor  # (N, 2) pixels, input dtype, differentiable
-    sheared_conics: Tensor  # (N, 3) (a, s, q): the conic in sheared form (module docstring), differentiable
+    sheared_conics: Tensor  # (N, 3) (A, S, Q): the conic in sheared form (module docstring), differentiable
+    swapped: Tensor  # (N,) bool: cov_xx > cov_yy, so (v, w) = (dy, dx) in the sheared form
     depths: Tensor  # (N,) camera-space z, input dtype, differentiable
     cov2d: Tensor  # (N, 3) (xx, xy, yy), float64, detached: for footprints
     det: Tensor  # (N,) det(cov2d), float64, detached
@@ -108,7 +112,10 @@ def project_gaussians(
     )
     det = ((minors * minors).sum(-1) + LOW_PASS * (a + c) + LOW_PASS * LOW_PASS).clamp_min(1e-10)
     cxx, cyy = a + LOW_PASS, c + LOW_PASS
-    sheared_conics = torch.stack([cyy / det, b / cyy, 1.0 / cyy], dim=-1)
+    with torch.no_grad():
+        swapped = cxx > cyy
+    cww = torch.where(swapped, cxx, cyy)
+    sheared_conics = torch.stack([cww / det, b / cww, 1.0 / cww], dim=-1)
 
     with torch.no_grad():
         half_diff = 0.5 * (cxx - cyy)
@@ -127,6 +134,7 @@ def project_gaussians(
     return Projection(
         means2d=means2d.to(out_dtype),
         sheared_conics=sheared_conics.to(out_dtype),
+        swapped=swapped,
         depths=z.clamp(-largest, largest).to(out_dtype),
         cov2d=cov2d,
         det=det.detach(),

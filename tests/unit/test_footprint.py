@@ -39,8 +39,8 @@ def sigma_at(proj, x: torch.Tensor, y: torch.Tensor, gaussian: torch.Tensor) -> 
     """σ of Gaussian(s) `gaussian` at the pixel centres (x + 0.5, y + 0.5); shapes broadcast."""
     dx = x + 0.5 - proj.means2d[gaussian, 0]
     dy = y + 0.5 - proj.means2d[gaussian, 1]
-    a, s, q = proj.sheared_conics[gaussian].unbind(-1)
-    return 0.5 * (a * (dx - s * dy) ** 2 + q * dy * dy)
+    cxx, cxy, cyy = proj.cov2d[gaussian].unbind(-1)
+    return 0.5 * (cyy * dx * dx - 2 * cxy * dx * dy + cxx * dy * dy) / proj.det[gaussian]
 
 
 def passing_pairs(scene, proj) -> set[tuple[int, int]]:

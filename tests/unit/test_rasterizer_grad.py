@@ -94,6 +94,7 @@ def test_gradcheck_composite_function_directly():
         entries = block_entries(proj.means2d, proj.cov2d, proj.det, s["opacities"], proj.depths, proj.visible,
                                 WIDTH, HEIGHT, block_width=8)
     n = s["means"].shape[0]
+    assert proj.swapped[proj.visible].any() and not proj.swapped[proj.visible].all()  # both sheared forms
     inputs = [proj.means2d, proj.sheared_conics, s["opacities"], s["features"], proj.depths, s["background"]]
     inputs = [x.detach().clone().requires_grad_(True) for x in inputs]
     absgrad = torch.zeros(n, 2, dtype=F64)
@@ -101,7 +102,8 @@ def test_gradcheck_composite_function_directly():
     def composite(means2d, sheared_conics, opacities, features, depths, background):
         features_ext = torch.cat([features, depths[:, None], torch.ones(n, 1, dtype=F64)], dim=1)
         image, alpha, depth_num, *_ = CompositeFunction.apply(
-            means2d, sheared_conics, opacities, features_ext, background, entries, WIDTH, HEIGHT, absgrad, 1 << 20, None
+            means2d, sheared_conics, opacities, features_ext, background, proj.swapped, entries, WIDTH, HEIGHT,
+            absgrad, 1 << 20, None,
         )
         return image, alpha, depth_num
 
