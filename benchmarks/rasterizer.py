@@ -112,10 +112,10 @@ def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_c
             py = (ty * TILE + local_y + 0.5).reshape(-1)
             dx = px[None, :] - proj.means2d[hit, 0:1]
             dy = py[None, :] - proj.means2d[hit, 1:2]
-            a, s, q = proj.sheared_conics[hit, :, None].unbind(1)
+            A, S, Q = proj.sheared_conics[hit, :, None].unbind(1)
             swapped = proj.swapped[hit, None]
             v, w = torch.where(swapped, dy, dx), torch.where(swapped, dx, dy)
-            sigma = 0.5 * (a * (v - s * w) ** 2 + q * w * w)
+            sigma = 0.5 * (A * (v - S * w) ** 2 + Q * w * w)
             alpha = torch.clamp(opacities[hit, None] * torch.exp(-sigma), max=0.99)
             alpha = torch.where((sigma >= 0) & (alpha >= 1 / 255), alpha, torch.zeros_like(alpha))
             t_incl = torch.cumprod(1 - alpha, dim=0)

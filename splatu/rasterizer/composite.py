@@ -35,7 +35,7 @@ class GaussianParams:
 
     means2d: Tensor
     sheared_conics: Tensor  # (A, S, Q), see projection.py
-    swapped: Tensor  # (N,) bool, see projection.py
+    swapped: Tensor  # (N,) bool: cov_xx > cov_yy, so (v, w) = (dy, dx) in the sheared form (projection.py)
     opacities: Tensor
     features_ext: Tensor  # (N, C+2): features, depth z, 1
 
@@ -90,7 +90,6 @@ class EntryView:
     w0: Tensor
     p: Tensor
     r: Tensor
-    swapped: Tensor  # bool: the sheared form runs along y (kernels.py)
     sheared_conic: Tensor
     opacity: Tensor
     in_image_cols: Tensor
@@ -161,9 +160,8 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
     row = torch.div(block, entries.blocks_per_row, rounding_mode="floor")
     mean = g.means2d.index_select(0, gaussian)
     sheared_conic = g.sheared_conics.index_select(0, gaussian)
-    swapped = g.swapped.index_select(0, gaussian)
-    t0, w0, p, r = kernel("sheared_entry_offsets")(
-        x0.to(dtype) + 0.5 - mean[:, 0], row.to(dtype) + 0.5 - mean[:, 1], swapped, sheared_conic[:, 1])
+    t0, w0, p, r = kernel("sheared_entry_offsets")(x0.to(dtype) + 0.5 - mean[:, 0], row.to(dtype) + 0.5 - mean[:, 1],
+                                                   g.swapped.index_select(0, gaussian), sheared_conic[:, 1])
     return EntryView(
         gaussian=gaussian,
         block=block,
@@ -171,7 +169,6 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
         w0=w0,
         p=p,
         r=r,
-        swapped=swapped,
         sheared_conic=sheared_conic,
         opacity=g.opacities.index_select(0, gaussian),
         in_image_cols=width - x0,
@@ -272,7 +269,7 @@ def backward_chunk(
     seg = segments(v.block)
     per_entry = kernel("entry_gradients")(
         weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
-        v.t0, v.w0, v.p, v.r, v.swapped, v.sheared_conic, v.opacity, grad_features_ext,
+        v.t0, v.w0, v.p, v.r, v.sheared_conic, v.opacity, grad_features_ext,
     )
     grads.packed.index_add_(0, v.gaussian, per_entry)
     block_total = (columns(weighted_cumulative, seg.block_last)

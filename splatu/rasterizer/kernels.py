@@ -13,7 +13,8 @@ With the conic in sheared form (A, S, Q) (see projection.py), σ = ½A·t² + ½
 the pixel centre's offset from the mean, (dx, dy) or, for a `swapped` Gaussian, (dy, dx). Along a block only dx
 changes, by x: per entry t = t0 + p·x and w = w0 + r·x, with t0 and w0 at its first pixel and (p, r) = (1, 0), or
 (−S, 1) when swapped (`sheared_entry_offsets`). A pair
-is valid when σ ≥ 0, α ≥ 1/255 and the pixel is inside the image; valid pairs are exactly those with
+is valid when σ ≥ 0 (3DGS's rule; in this form only a NaN fails it), α ≥ 1/255 and the pixel is inside the image;
+valid pairs are exactly those with
 log(1 − α) < 0.
 
 "Extended features" are the per-Gaussian features with two more channels, depth z and 1, so one
@@ -47,8 +48,10 @@ def sheared_entry_offsets(
     dx0 and dy, that pixel centre's offsets from the mean; `swapped` is bool. Formed once per entry rather than at
     each of its pixels inside the kernels below, which made them 1.3–1.5× slower in a scratch timing.
 
-    An offset past sqrt(max)/4 (4.6e18 px in float32) changes no α unless the footprint is wider than about
-    1e18 px, past what float32 positions resolve; the bound keeps A·t² and Q·w² finite where A or Q underflow to 0.
+    Offsets are clamped to ±sqrt(max)/4 (4.6e18 px in float32), so that A·t² and Q·w² stay finite where A or Q
+    underflow to 0. A clamp changes no α unless the footprint's std along an axis is about 1e18 px or more; the
+    gradients of such a footprint's entries (their S, Q and mean) do change, as the backward takes the clamped
+    offsets and ignores the clamp. float32 cannot carry those gradients anyway (½Σgσw² then exceeds its range).
     """
     limit = torch.finfo(dx0.dtype).max ** 0.5 / 4
     w0 = torch.where(swapped, dx0, dy)
@@ -112,8 +115,7 @@ def upstream_per_weight(
 def entry_gradients(
     weighted_cumulative: Tensor, last: Tensor, block: Tensor, carried_behind: Tensor,
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
-    t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, swapped: Tensor, sheared_conic: Tensor, opacity: Tensor,
-    grad_features_ext: Tensor,
+    t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, sheared_conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
 ) -> Tensor:
     """Per entry, one packed row (Q, C+2 + 8): dL/df_ext | dL/do | dL/d(A, S, Q) | dL/dmean2d (2) | Σ|dL/dmean2d|
     per axis (2), so that the caller scatters into the Gaussians once.
@@ -122,7 +124,7 @@ def entry_gradients(
     those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
     holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½A t² + ½Q w², t = v − S w,
     ∂σ/∂S = −A t w, ∂σ/∂mean_v = −A t and ∂σ/∂mean_w = A S t − Q w, so every gradient is a moment of gσ over the
-    block's pixels; `swapped` maps (mean_v, mean_w) back to (mean_x, mean_y).
+    block's pixels; r = 1 (swapped) maps (mean_v, mean_w) back to (mean_y, mean_x).
     """
     behind = (weighted_cumulative.index_select(1, last) - weighted_cumulative
               + carried_behind.index_select(1, block)).to(alpha_raw.dtype)
@@ -141,6 +143,7 @@ def entry_gradients(
     m0, m1, m2 = grad_sigma.sum(0), (grad_sigma * x).sum(0), (grad_sigma * x * x).sum(0)
     gt, gw = t0 * m0 + p * m1, w0 * m0 + r * m1  # Σ gσ t, Σ gσ w
     gtx = t0 * m1 + p * m2  # Σ gσ t x
+    swapped = r > 0
     grad_v, grad_w = -A * gt, A * S * gt - Q * gw
     rest = torch.stack([
         grad_opacity, 0.5 * (t0 * gt + p * gtx), -A * (w0 * gt + r * gtx), 0.5 * (w0 * gw + r * (w0 * m1 + r * m2)),

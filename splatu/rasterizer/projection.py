@@ -9,8 +9,8 @@ when cov_yy ≥ cov_xx and (dy, dx) otherwise (`swapped`), σ = ½(dx, dy)·coni
 where A = cov_ww/det, S = cov_xy/cov_ww and Q = 1/cov_ww. Both terms are non-negative, so σ never forms as a small
 difference of huge terms, as ½a·dx² + b·dx·dy + ½c·dy² does in float32 for a long thin Gaussian centred far
 off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up to 0.53 at a pixel). Shearing along
-the longer axis keeps |S| ≤ 1 (and A, Q ≤ 1/0.3), so the form is as well conditioned at every orientation; sheared
-along x alone, a needle near the x axis has S up to 0.9 × its length in px.
+the longer axis (w) keeps |S| ≤ 1 (and A, Q ≤ 1/0.3), so the form is as well conditioned at every orientation; with
+w = dy always, a needle near the x axis has S up to about 0.9 × its long-axis std in px.
 
 Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
 z ≤ near, z ≥ far, or its box [mx ± r] × [my ± r] with r = ceil(3·sqrt(λ_max(cov2d))) lies

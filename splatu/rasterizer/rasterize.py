@@ -67,6 +67,12 @@ def rasterize(
             "pass at least one feature channel and a positive image size",
         )
     dtype, device = means.dtype, means.device
+    if dtype not in (torch.float32, torch.float64):  # the kernels' offset bounds and float64 sums assume these
+        raise RasterInputError(
+            f"rasterize got `means` of dtype {dtype}",
+            "in the call to rasterize",
+            "pass float32 or float64 tensors (the rasterizer casts the other inputs to the dtype of `means`)",
+        )
     if background is None:
         background = torch.zeros(channels, dtype=dtype, device=device)
     require_shape("background", background, (channels,))

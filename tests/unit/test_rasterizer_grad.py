@@ -197,6 +197,15 @@ def test_contribution_outputs_carry_no_grad_and_alpha_threshold_holds():
     assert torch.all(out.contrib_sum >= out.contrib_max)
 
 
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.int64])
+def test_a_dtype_other_than_float32_or_float64_raises_a_clear_error(dtype):
+    s = {k: v.detach() for k, v in tiny_scene(12, n=3).items()}
+    w2c, K = camera()
+    with pytest.raises(RasterInputError, match=f"`means` of dtype {dtype}"):
+        rasterize(s["means"].to(dtype), s["quats"], s["scales"], s["opacities"], s["features"], w2c, K, WIDTH,
+                  HEIGHT)
+
+
 def test_mismatched_sizes_raise_a_clear_error():
     s = tiny_scene(12, n=3)
     w2c, K = camera()
