@@ -12,10 +12,8 @@ pixel's list (along q) are contiguous: torch's CPU cumsum is much slower across 
 With the conic in sheared form (A, S, Q) (see projection.py), σ = ½A·t² + ½Q·w², t = v − S·w, where (v, w) is
 the pixel centre's offset from the mean, (dx, dy) or, for a `swapped` Gaussian, (dy, dx). Along a block only dx
 changes, by x: per entry t = t0 + p·x and w = w0 + r·x, with t0 and w0 at its first pixel and (p, r) = (1, 0), or
-(−S, 1) when swapped (`sheared_entry_offsets`). A pair
-is valid when σ ≥ 0 (3DGS's rule; in this form only a NaN fails it), α ≥ 1/255 and the pixel is inside the image;
-valid pairs are exactly those with
-log(1 − α) < 0.
+(−S, 1) when swapped (`sheared_entry_offsets`). A pair is valid when σ ≥ 0 (3DGS's rule; in this form only a NaN
+fails it), α ≥ 1/255 and the pixel is inside the image; valid pairs are exactly those with log(1 − α) < 0.
 
 "Extended features" are the per-Gaussian features with two more channels, depth z and 1, so one
 weighted sum yields the colour, Σ w·z and Σ w = alpha together.
