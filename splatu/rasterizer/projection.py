@@ -112,8 +112,7 @@ def project_gaussians(
     )
     det = ((minors * minors).sum(-1) + LOW_PASS * (a + c) + LOW_PASS * LOW_PASS).clamp_min(1e-10)
     cxx, cyy = a + LOW_PASS, c + LOW_PASS
-    with torch.no_grad():
-        swapped = cxx > cyy
+    swapped = cxx > cyy
     cww = torch.where(swapped, cxx, cyy)
     sheared_conics = torch.stack([cww / det, b / cww, 1.0 / cww], dim=-1)
 
