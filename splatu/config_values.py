@@ -42,7 +42,8 @@ def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: st
     """
     hints = typing.get_type_hints(type(config))
     changes: dict[str, Any] = {}
-    for key, value in values.items():
+    for raw_key, value in values.items():
+        key = _option_name(raw_key, hints, prefix, source)
         if key not in hints:
             known = ", ".join(f.name for f in dataclasses.fields(config))
             raise SplatuError(f"unknown option {prefix + key!r} for {type(config).__name__}", f"in {source}",
@@ -53,6 +54,20 @@ def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: st
         else:
             changes[key] = _coerce_option(hints[key], value, prefix + key, source)
     return dataclasses.replace(config, **changes)
+
+
+YAML11_BOOL_WORDS = {True: ("on", "yes", "true"), False: ("off", "no", "false")}
+"""YAML 1.1 reads these unquoted keys as booleans, so a hand-written `off: true` arrives as the key False."""
+
+
+def _option_name(key: Any, hints: Mapping[str, Any], prefix: str, source: str) -> str:
+    """A mapping key as an option name: a YAML 1.1 boolean key back to the option it spelt (`on`, `off`)."""
+    if isinstance(key, bool):
+        key = next((word for word in YAML11_BOOL_WORDS[key] if word in hints), key)
+    if not isinstance(key, str):
+        raise SplatuError(f"option name {prefix}{key!r} is not a word", f"in {source}",
+                          "write each option as `name: value`, with the option's name as the key")
+    return key
 
 
 class _Mismatch(Exception):

@@ -168,7 +168,8 @@ def run(config: EvalAuseConfig) -> None:
             checked_output(config.output)
         maps_dir, entries = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
                                              config.seed, data=config.data, head=config.head)
-        label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed)
+        label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed,
+                             config.load)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         options = {name: getattr(config, name) for name in LOAD_ONLY_OPTIONS}
         report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options},

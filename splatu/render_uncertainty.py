@@ -2,8 +2,8 @@
 
 For the chosen views (eval, train, or an orbit that also looks from below) and method, it
 writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any option that changes its
-maps) unless --output says otherwise (what an earlier render wrote there is removed first, see
-`clear_previous_render`):
+maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new views are
+rendered, see `previous_render`):
 
     npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
@@ -206,16 +206,23 @@ OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
 (colorbar_*.png and render.json are always rewritten)."""
 
 
-def clear_previous_render(out: Path, default_folder: bool) -> None:
-    """Remove the `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
+def previous_render(out: Path, default_folder: bool) -> list[Path]:
+    """The `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
 
-    A folder is ours when it is the default <run>/uncertainty/<label>-<views> or holds our render.json.
+    A folder is ours when it is the default <run>/uncertainty/<label>-<views> or holds our render.json. Checked
+    before the scene loads, so a refusal costs nothing; removed only once the new views are rendered, so a
+    command that fails (a moved scene, a corrupt image, Ctrl-C) leaves the earlier render whole.
     """
     present = [out / name for name in OWNED if (out / name).exists()]
     if present and not default_folder and not (out / "render.json").is_file():
         raise SplatuError(f"--output already holds {present[0].name!r}, not written by render-uncertainty",
                           f"in {out}", "pass a new or empty --output folder (or the folder of an earlier render)")
-    for path in present:
+    return present
+
+
+def remove(paths: list[Path]) -> None:
+    """Delete files and folders (a symlink is removed, never followed)."""
+    for path in paths:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
         else:
@@ -275,12 +282,15 @@ SEEDED_METHODS = ("random", "fisher")
 
 
 def output_label(method: UncertaintyMethod, head: str | None, density_aware: bool = False,
-                 fisher_probes: int = RenderUncertaintyConfig.fisher_probes, seed: int = RenderUncertaintyConfig.seed
-                 ) -> str:
+                 fisher_probes: int = RenderUncertaintyConfig.fisher_probes, seed: int = RenderUncertaintyConfig.seed,
+                 load: Path | None = None) -> str:
     """The method's name in folder and file names, with every option that changes its maps and is not at its
-    default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`), so that one variant's
-    maps and scores never overwrite another's."""
+    default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`) and, when `load` names a
+    checkpoint file rather than the run, that file's name (`ours-step-0001000`), so that one variant's maps and
+    scores never overwrite another's, nor an earlier checkpoint's the final model's."""
     parts = [method if head is None else f"{method}-{head}"]
+    if load is not None and Path(load).expanduser().is_file():
+        parts.append(Path(load).stem)
     if density_aware:
         parts.append("density-aware")
     if fisher_probes != RenderUncertaintyConfig.fisher_probes:
@@ -296,7 +306,7 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder and
     the views as stored there (see write_maps_dir)."""
     run = _load(load, method, head)
-    label = output_label(method, head, density_aware, fisher_probes, seed)
+    label = output_label(method, head, density_aware, fisher_probes, seed, load)
     folder = writable_dir(run_folder(load) / "uncertainty" / f"{label}-eval",
                           "run directory (--load writes maps there)")
     root = folder / "maps"
@@ -339,14 +349,16 @@ def run(config: RenderUncertaintyConfig) -> None:
     check_method_options(config.method, config.density_aware, config.fisher_probes, config.seed)
     run_info = _load(config.load, config.method, config.head)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed)
+    label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed,
+                         config.load)
     out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                        "--output folder")
-    clear_previous_render(out, config.output is None)
+    previous = previous_render(out, config.output is None)
     scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,
                           config.seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
+    remove(previous)
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         "method": config.method, "head": config.head, "views": config.views, "density_aware": config.density_aware,

@@ -13,6 +13,7 @@ from splatu.checkpoint import (
     checkpoint_step,
     list_checkpoints,
 )
+from splatu.errors import SplatuError
 
 
 class MetricsLog:
@@ -54,8 +55,7 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
     if not later:
         return None
-    folder = run_dir / ABANDONED_DIR / time.strftime("%Y-%m-%d_%H%M%S")
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = new_abandoned_folder(run_dir / ABANDONED_DIR)
     dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
     reports = [*run_dir.glob("ause_*"), run_dir / "uncertainty"]  # renders and scores of the abandoned model
@@ -63,3 +63,26 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
         if path.exists():
             path.replace(folder / path.name)
     return folder
+
+
+def new_abandoned_folder(parent: Path) -> Path:
+    """A fresh abandoned/<time>[-k] folder: two set-asides within a second must not merge (one's step-*.pt and
+    metrics.jsonl would replace the other's)."""
+    parent.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y-%m-%d_%H%M%S")
+    for k in range(1000):
+        folder = parent / (stamp if k == 0 else f"{stamp}-{k}")
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            continue
+    raise SplatuError("cannot make a new folder for the abandoned work", f"in {parent}",
+                      "wait a second and resume again")
+
+
+def refuse_set_aside_checkpoint(checkpoint: Path) -> None:
+    """A checkpoint in abandoned/ has no run folder of its own: resuming it would train inside abandoned/."""
+    if checkpoint.resolve().parent.parent.name == ABANDONED_DIR:
+        raise SplatuError("this checkpoint was set aside by an earlier resume (it is in abandoned/)",
+                          f"at {checkpoint}", "copy it into a new folder and resume from there, or resume the run")

@@ -91,7 +91,8 @@ class TrainConfig:
     seed: int = 0
     """Seeds torch, numpy, random and the trainer's own generator: same seed, same run."""
     resume: Path | None = None
-    """Continue a run exactly from its latest checkpoint (a run directory or a .pt file); other flags are ignored."""
+    """Continue a run exactly from its latest checkpoint (a run directory or a .pt file), with its saved options:
+    other flags are ignored (and named), except --data, which gives the scene's new location."""
     ensemble: int = 1
     """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/."""
     max_nonfinite_steps: int = 5

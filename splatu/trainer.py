@@ -55,13 +55,14 @@ from splatu.densify import DensityController
 from splatu.errors import SplatuError, writable_dir
 from splatu.evaluation import evaluate_scene, refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, deferred_interrupt, exit_code, sigterm_as_ctrl_c
+from splatu.json_files import is_finite_number, read_json
 from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
-from splatu.run_records import MetricsLog, set_aside_later_work
+from splatu.run_records import MetricsLog, refuse_set_aside_checkpoint, set_aside_later_work
 from splatu.train_config import (
     DEFAULT_PRESET,
     TrainConfig,
@@ -288,7 +289,7 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
                "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():
-        summary["degree_choice"] = json.loads((run_dir / DEGREE_CHOICE_FILE).read_text(encoding="utf-8"))
+        summary["degree_choice"] = read_json(run_dir / DEGREE_CHOICE_FILE)
     atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
@@ -332,13 +333,17 @@ def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Seq
     train_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
 
 
-def record_session(run_dir: Path, seconds: float) -> list[float]:
-    """Append one session's wall time to the run's ensemble_sessions.json; returns every session's."""
+def recorded_sessions(run_dir: Path) -> list[float]:
+    """The wall times of an ensemble run's earlier sessions (ensemble_sessions.json), read before any training so
+    that a damaged file is a one-line error then, not one that hides how the session ended."""
     path = run_dir / ENSEMBLE_SESSIONS
-    sessions = json.loads(path.read_text(encoding="utf-8"))["session_seconds"] if path.is_file() else []
-    sessions.append(seconds)
-    atomic_write_text(path, json.dumps({"session_seconds": sessions}, indent=2))
-    return sessions
+    if not path.is_file():
+        return []
+    sessions = read_json(path).get("session_seconds")
+    if not isinstance(sessions, list) or not all(map(is_finite_number, sessions)):
+        raise SplatuError("session_seconds is not a list of numbers", f"in {path}",
+                          "fix the file, or delete it (the ensemble's wall time then counts from this session)")
+    return [float(s) for s in sessions]
 
 
 def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
@@ -360,6 +365,7 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     members = ensemble_members(run_dir, config)
+    sessions = recorded_sessions(run_dir)
     try:
         for k, member_dir in enumerate(members):
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
@@ -370,7 +376,8 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
                                           run_dir, stop.step, stop.signal_number) from None
     finally:
-        sessions = record_session(run_dir, time.perf_counter() - wall_start)
+        sessions.append(time.perf_counter() - wall_start)
+        atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
     record = {"members": [str(m.relative_to(run_dir)) for m in members],
               "seeds": [config.seed + k for k in range(config.ensemble)],
               "wall_seconds": sum(sessions), "session_seconds": sessions}
@@ -397,6 +404,15 @@ def check_options(config: TrainConfig) -> None:
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 
 
+def _flag(config: TrainConfig, name: str) -> str:
+    """How dotted option `name` was spelt on the command line: `--no-progress` for a boolean turned off."""
+    value: Any = config
+    for part in name.split("."):
+        value = getattr(value, part)
+    *parents, last = name.removeprefix("data.").split(".")
+    return "--" + ".".join([*parents, ("no-" if value is False else "") + last]).replace("_", "-")
+
+
 def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
     """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
@@ -405,7 +421,7 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
     ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
                         if name not in ("resume", "data.data")]
     if ignored:
-        flags = " ".join("--" + name.removeprefix("data.").replace("_", "-") for name in ignored)
+        flags = " ".join(_flag(given, name) for name in ignored)
         console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
     if given.data.data != POSTER:
         return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
@@ -438,6 +454,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
             train_ensemble(saved_ensemble, scene, run_dir, wall_start, hooks)
             return run_dir
         path = resolve_checkpoint(config.resume)
+        refuse_set_aside_checkpoint(path)
         checkpoint = read_checkpoint(path, RESUME_KEYS)
         run_dir = run_dir_of(path)
         saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), run_dir)

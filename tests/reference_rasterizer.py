@@ -36,6 +36,7 @@ class Projection:
     cov2d: Tensor  # (N, 2, 2)
     radii: Tensor  # (N,) int64, 0 when culled
     visible: Tensor  # (N,) bool
+    antialiasing: Tensor  # (N,) sqrt(det(cov2d − blur·I) / det(cov2d)): Mip-Splatting's opacity factor
 
 
 @dataclass
@@ -75,7 +76,7 @@ def quaternion_to_rotation(quats: Tensor) -> Tensor:
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tensor, K: Tensor,
-            width: int, height: int, near: float, far: float) -> Projection:
+            width: int, height: int, near: float, far: float, blur: float = BLUR) -> Projection:
     """EWA splatting of every Gaussian, written as the textbook matrix products."""
     W = world_to_camera[:3, :3]
     t = means @ W.T + world_to_camera[:3, 3]
@@ -97,9 +98,11 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tenso
     R = quaternion_to_rotation(quats)
     S = torch.diag_embed(scales)
     sigma3d = R @ S @ S.transpose(-1, -2) @ R.transpose(-1, -2)
-    cov = J @ W @ sigma3d @ W.T @ J.transpose(-1, -2) + BLUR * torch.eye(2, dtype=means.dtype)
+    unblurred = J @ W @ sigma3d @ W.T @ J.transpose(-1, -2)
+    cov = unblurred + blur * torch.eye(2, dtype=means.dtype)
     a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det = (a * c - b * b).clamp_min(DET_MIN)
+    unblurred_det = (unblurred[:, 0, 0] * unblurred[:, 1, 1] - unblurred[:, 0, 1] * unblurred[:, 1, 0]).clamp_min(0.0)
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
 
     with torch.no_grad():
@@ -110,7 +113,7 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tenso
         on_screen = (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
         visible = in_depth & on_screen
         radii = torch.where(visible, radius, torch.zeros_like(radius)).long()
-    return Projection(means2d, z_true, conics, cov, radii, visible)
+    return Projection(means2d, z_true, conics, cov, radii, visible, torch.sqrt(unblurred_det / det))
 
 
 def reference_rasterize(
@@ -128,11 +131,15 @@ def reference_rasterize(
     far: float = 1e10,
     background: Tensor | None = None,
     log_scales: bool = False,
+    blur: float = BLUR,
+    antialiased: bool = False,
 ) -> ReferenceOutput:
     """Render with the exact 3DGS rules, front to back, all pixels at once per Gaussian."""
     if log_scales:
         scales = scales.exp()
-    proj = project(means, quats, scales, world_to_camera, K, width, height, near, far)
+    proj = project(means, quats, scales, world_to_camera, K, width, height, near, far, blur)
+    if antialiased:
+        opacities = opacities * proj.antialiasing
     n, channels = features.shape
     dtype = means.dtype
     ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype), torch.arange(width, dtype=dtype), indexing="ij")

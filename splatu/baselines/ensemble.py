@@ -7,7 +7,6 @@ on "nothing", still reads as uncertain.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from torch import Tensor
 from splatu.baselines import UncertaintyRender
 from splatu.camera import Camera
 from splatu.errors import SplatuError
+from splatu.json_files import read_json
 from splatu.model import GaussianModel
 
 ENSEMBLE_FILE = "ensemble.json"
@@ -37,9 +37,9 @@ def read_ensemble(run_dir: Path) -> EnsembleRecord:
         raise SplatuError("not an ensemble run (no ensemble.json)", f"in {run_dir}",
                           "train one with `splatu train --method ensemble` or pick another --method")
     try:
-        record = json.loads(path.read_text(encoding="utf-8"))
+        record = read_json(path)
         members = [run_dir / m for m in record["members"]]
-    except (json.JSONDecodeError, KeyError, TypeError) as err:
+    except (KeyError, TypeError) as err:
         raise SplatuError(f"ensemble.json is malformed ({type(err).__name__})", f"in {path}",
                           "retrain the ensemble or fix its members list") from None
     if len(members) < 2:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
+from splatu.json_files import is_finite_number, read_json
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
 from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
@@ -50,7 +50,10 @@ def _summary_seconds(run_dir: Path) -> float | None:
     path = run_dir / "summary.json"
     if not path.is_file():
         return None
-    return json.loads(path.read_text(encoding="utf-8")).get("train_seconds")
+    seconds = read_json(path).get("train_seconds")
+    if seconds is not None and not is_finite_number(seconds):
+        raise SplatuError(f"train_seconds is {seconds!r}, not a number", f"in {path}", "fix or regenerate the file")
+    return seconds
 
 
 def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
@@ -64,6 +67,9 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
         loaded = [load_run(member) for member in record.members]
         return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], record.wall_seconds,
                          [m.frame for m in loaded])
+    if (run_dir / "members").is_dir() and not (run_dir / "checkpoints").is_dir():
+        raise SplatuError("this ensemble is unfinished (it has members but no ensemble.json yet)", f"in {run_dir}",
+                          f"finish it with `splatu train --resume {run_dir}`")
     config, model, frame = load_run(run_dir, head)
     return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir), [frame])
 

@@ -17,8 +17,9 @@ import torch
 from splatu.camera import Camera
 from splatu.data.frames import Frame, RawScene, world_to_camera_from_opengl
 from splatu.data.images import PixelRecipe, read_image
-from splatu.data.nerfstudio import frame_entry, read_json
+from splatu.data.nerfstudio import frame_entry
 from splatu.errors import SplatuError
+from splatu.json_files import read_json
 
 SPLIT_FILES = ("train", "val", "test")
 

@@ -12,7 +12,6 @@ frame.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
@@ -31,6 +30,7 @@ from splatu.data.frames import (
 from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
 from splatu.data.ply import read_ply_points
 from splatu.errors import SplatuError
+from splatu.json_files import read_json
 
 DISTORTION_KEYS = {"OPENCV": ("k1", "k2", "p1", "p2", "k3"), "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4")}
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
@@ -41,17 +41,8 @@ DEFAULT_DEPTH_UNIT = 1e-3
 """nerfstudio's depth_unit_scale_factor when a transforms.json gives none: depth images in millimetres."""
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 """The file's explicit split lists (nerfstudio keys)."""
-
-
-def read_json(path: Path) -> dict[str, Any]:
-    """A JSON object from a file, or a one-line error."""
-    try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise SplatuError(f"cannot parse JSON ({err})", f"in {path}", "fix or regenerate the file") from None
-    if not isinstance(content, dict):
-        raise SplatuError("expected a JSON object at the top level", f"in {path}", "fix or regenerate the file")
-    return content
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+"""Cameras are used in float32 for training: a larger intrinsic (fl_x: 1e308) would become inf there."""
 
 
 def frame_name(file_path: str) -> str:
@@ -76,8 +67,9 @@ def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: s
     value = frame.get(key, top.get(key))
     if value is None:
         return None
-    if not isinstance(value, int | float) or not np.isfinite(value):
-        raise SplatuError(f"intrinsic {key} must be a finite number (got {value!r})", where, "fix the value")
+    if isinstance(value, bool) or not isinstance(value, int | float) or not abs(value) <= FLOAT32_MAX:
+        raise SplatuError(f"intrinsic {key} must be a finite number within float32's range (got {value!r})", where,
+                          "fix the value")
     return float(value)
 
 
@@ -171,8 +163,13 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     depth_unit = _depth_unit(top, json_path)
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
+    seen: dict[str, int] = {}
     for index, frame in _by_file_path(frames_json):
         name, where, c2w = frame_entry(frame, index, json_path)
+        if name in seen:  # two poses for one image, and split lists could name only one of them
+            raise SplatuError(f"frames {seen[name]} and {index} both have file_path {name!r}", f"in {json_path}",
+                              "remove the duplicate frame")
+        seen[name] = index
         K, width, height = _intrinsics(frame, top, where)
         distortion = _distortion(frame, top, where)
         key = (K.tobytes(), width, height, distortion)

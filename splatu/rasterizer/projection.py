@@ -2,14 +2,17 @@
 
 Follows the 3DGS conventions: camera-space mean t = R m + tvec (OpenCV axes), the Jacobian of the
 perspective projection at t with t.x/t.z and t.y/t.z clamped to ±1.3·tan(half-FoV) before forming J,
-cov2d = J W Σ Wᵀ Jᵀ + 0.3·I, conic = inv(cov2d) with det clamped ≥ 1e-10.
+cov2d = J W Σ Wᵀ Jᵀ + blur·I (3DGS: 0.3 px², the default), conic = inv(cov2d) with det clamped ≥ 1e-10. `antialiased`
+also scales each opacity by sqrt(det(J W Σ Wᵀ Jᵀ) / det(cov2d)), Mip-Splatting's 2D filter,
+so that a Gaussian smaller than a pixel fades with its footprint's area instead of being widened to the blur at full
+opacity.
 
 The conic is handed on in sheared form (A, S, Q) along the footprint's longer screen axis. With (v, w) = (dx, dy)
 when cov_yy ≥ cov_xx and (dy, dx) otherwise (`swapped`), σ = ½(dx, dy)·conic·(dx, dy)ᵀ = ½A·(v − S·w)² + ½Q·w²,
 where A = cov_ww/det, S = cov_xy/cov_ww and Q = 1/cov_ww. Both terms are non-negative, so σ never forms as a small
 difference of huge terms, as ½a·dx² + b·dx·dy + ½c·dy² does in float32 for a long thin Gaussian centred far
 off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up to 0.53 at a pixel). Shearing along
-the longer axis (w) keeps |S| ≤ 1 (and A, Q ≤ 1/0.3), so the form is as well conditioned at every orientation; with
+the longer axis (w) keeps |S| ≤ 1 (and A, Q ≤ 1/blur), so the form is as well conditioned at every orientation; with
 w = dy always, a needle near the x axis has S up to about 0.9 × its long-axis std in px.
 
 Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
@@ -33,7 +36,7 @@ MAX_SCALE = 1e30
 """Scales are clamped here so float64 covariance products stay finite; no real scene comes close."""
 
 LOW_PASS = 0.3
-"""The 3DGS screen-space blur added to cov2d (about one pixel)."""
+"""The 3DGS screen-space blur added to cov2d (about one pixel), in px²."""
 
 
 @dataclass
@@ -46,6 +49,7 @@ class Projection:
     det: Tensor  # (N,) det(cov2d), float64, detached
     radii: Tensor  # (N,) int32, 0 when culled
     visible: Tensor  # (N,) bool
+    opacity_scale: Tensor | None  # (N,) sqrt(det(cov2d − blur·I) / det(cov2d)), differentiable; None unless antialiased
 
 
 def quaternion_to_rotation(quats: Tensor) -> Tensor:
@@ -64,7 +68,8 @@ def quaternion_to_rotation(quats: Tensor) -> Tensor:
 
 def project_gaussians(
     means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tensor, K: Tensor,
-    width: int, height: int, near: float, far: float, log_scales: bool,
+    width: int, height: int, near: float, far: float, log_scales: bool, blur: float = LOW_PASS,
+    antialiased: bool = False,
 ) -> Projection:
     """Project every Gaussian; culled ones get finite placeholder values and radius 0."""
     out_dtype = means.dtype
@@ -98,7 +103,7 @@ def project_gaussians(
         s = scales.to(f64).clamp(-MAX_SCALE, MAX_SCALE)
     M = quaternion_to_rotation(quats.to(f64)) * s[:, None, :]  # R S
     JW = J @ R_cam  # (N, 2, 3), one (2N, 3) @ (3, 3) product
-    T = (JW[:, :, :, None] * M[:, None, :, :]).sum(2)  # J W R S; cov2d = T Tᵀ + 0.3 I (no tiny-matrix bmm)
+    T = (JW[:, :, :, None] * M[:, None, :, :]).sum(2)  # J W R S; cov2d = T Tᵀ + blur I (no tiny-matrix bmm)
     a = (T[:, 0] * T[:, 0]).sum(-1)
     b = (T[:, 0] * T[:, 1]).sum(-1)
     c = (T[:, 1] * T[:, 1]).sum(-1)
@@ -110,8 +115,8 @@ def project_gaussians(
         ],
         dim=-1,
     )
-    det = ((minors * minors).sum(-1) + LOW_PASS * (a + c) + LOW_PASS * LOW_PASS).clamp_min(1e-10)
-    cxx, cyy = a + LOW_PASS, c + LOW_PASS
+    det = ((minors * minors).sum(-1) + blur * (a + c) + blur * blur).clamp_min(1e-10)
+    cxx, cyy = a + blur, c + blur
     swapped = cxx > cyy
     cww = torch.where(swapped, cxx, cyy)
     sheared_conics = torch.stack([cww / det, b / cww, 1.0 / cww], dim=-1)
@@ -139,4 +144,6 @@ def project_gaussians(
         det=det.detach(),
         radii=radii,
         visible=visible,
+        # |minors| = sqrt(det(T Tᵀ)) (Cauchy–Binet): its gradient stays bounded where a flat footprint makes it 0
+        opacity_scale=(torch.linalg.vector_norm(minors, dim=-1) / det.sqrt()).to(out_dtype) if antialiased else None,
     )

@@ -7,6 +7,7 @@ tiles its 3σ box touches as in 3DGS's CUDA rasterizer: so the output equals the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -16,11 +17,15 @@ from splatu.rasterizer.composite import GaussianParams
 from splatu.rasterizer.errors import RasterInputError, require_finite, require_shape
 from splatu.rasterizer.footprint import block_entries
 from splatu.rasterizer.function import composite
-from splatu.rasterizer.projection import project_gaussians
+from splatu.rasterizer.projection import LOW_PASS, project_gaussians
 
 BLOCK_WIDTH = 8
 """Pixels per block (one row segment). Narrower blocks waste fewer evaluated elements on a small footprint's
 row, at the cost of more entries to sort and composite."""
+
+MIN_BLUR = 1e-3
+"""The smallest screen blur, px²: it keeps det(cov2d) ≥ 1e-6, above projection's 1e-10 clamp, and the sheared
+conic's A, Q ≤ 1/blur well conditioned, for a footprint flat or a point."""
 
 MAX_CHUNK_ELEMENTS = 1 << 22
 """Entries × block width composited at once; bounds peak memory on large scenes."""
@@ -44,9 +49,13 @@ def rasterize(
     means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, features: Tensor,
     world_to_camera: Tensor, K: Tensor, width: int, height: int, *,
     near: float = 0.01, far: float = 1e10, background: Tensor | None = None, log_scales: bool = False,
-    contribution_mask: Tensor | None = None,
+    contribution_mask: Tensor | None = None, blur: float = LOW_PASS, antialiased: bool = False,
 ) -> RasterOutput:
     """Render N Gaussians with exact 3DGS semantics (EWA splatting, α-blending front to back, early stop).
+
+    `blur` is the px² added to each 2D covariance (3DGS: 0.3). `antialiased` scales each opacity by
+    sqrt(det Σ₂ / det(Σ₂ + blur·I)), Mip-Splatting's 2D filter (used there with blur 0.1), as gsplat's
+    "antialiased" mode does; a fully flat footprint then has opacity 0.
 
     `contribution_mask` (H, W) bool limits `contrib_sum` and `contrib_max` to its pixels (a scene's mask files:
     what a Gaussian shows only where nothing is trained or scored does not count as seen); the image is the same.
@@ -82,8 +91,13 @@ def rasterize(
         require_finite(name, tensor)
     if contribution_mask is not None:
         require_shape("contribution_mask", contribution_mask, (height, width))
+    if not (math.isfinite(blur) and blur >= MIN_BLUR):
+        raise RasterInputError(f"rasterize got blur = {blur}", "in the call to rasterize",
+                               f"pass a blur of at least {MIN_BLUR} px² (3DGS uses 0.3, Mip-Splatting's 2D filter 0.1)")
 
-    proj = project_gaussians(means, quats, scales, world_to_camera, K, width, height, near, far, log_scales)
+    proj = project_gaussians(means, quats, scales, world_to_camera, K, width, height, near, far, log_scales, blur,
+                             antialiased)
+    opacities = opacities.to(dtype) if proj.opacity_scale is None else opacities.to(dtype) * proj.opacity_scale
     entries = block_entries(
         proj.means2d.detach(), proj.cov2d, proj.det, opacities.detach(), proj.depths.detach(), proj.visible,
         width, height, BLOCK_WIDTH,
@@ -91,7 +105,7 @@ def rasterize(
     absgrad = torch.zeros(n, 2, dtype=dtype, device=device)
     ones = torch.ones(n, 1, dtype=dtype, device=device)
     features_ext = torch.cat([features.to(dtype), proj.depths[:, None], ones], dim=1)
-    params = GaussianParams(proj.means2d, proj.sheared_conics, proj.swapped, opacities.to(dtype), features_ext)
+    params = GaussianParams(proj.means2d, proj.sheared_conics, proj.swapped, opacities, features_ext)
     image, alpha, depth_num, contrib_sum, contrib_max, pairs = composite(
         params, background.to(dtype), entries, width, height, absgrad, MAX_CHUNK_ELEMENTS, contribution_mask
     )

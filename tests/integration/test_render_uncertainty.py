@@ -267,6 +267,11 @@ def test_a_second_render_with_fewer_views_leaves_no_stale_files(tiny_run, tmp_pa
                  for p in (out / folder).iterdir()}
         assert stems == set(names), folder
     assert _folder_names(out) < first
+    # a render that fails before it has views (here: its scene is missing) leaves the earlier one whole
+    kept = {name: (out / name).read_bytes() for name in _folder_names(out)}
+    with pytest.raises(SplatuError, match="scene not found"):
+        _render(tiny_run, "--max-views", "1", "--data", str(tmp_path / "moved_away"), "--output", str(out), "--debug")
+    assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept
     # a folder another tool wrote is refused, not cleared
     foreign = tmp_path / "foreign"
     (foreign / "png").mkdir(parents=True)
@@ -300,6 +305,16 @@ def test_unwritable_outputs_are_one_line_errors(tiny_run, tmp_path, capsys):
         read_only.mkdir(mode=0o555)
         line = _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), "--output", str(read_only)])
         assert "cannot write" in line
+
+
+def test_a_damaged_summary_is_a_one_line_error(tiny_run, tmp_path, capsys):
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    for damaged in ('{"train_sec', '{"train_seconds": "slow"}'):
+        (copy / "summary.json").write_text(damaged)
+        for command in ("render-uncertainty", "eval-ause"):
+            line = _one_line(capsys, [command, "--load", str(copy)])
+            assert "summary.json" in line, line
 
 
 @pytest.mark.parametrize("method", ["visibility", "fisher", "random", "spread", "ours-spread", "residual",
@@ -358,16 +373,22 @@ def test_wrong_method_for_the_run_is_one_line(tiny_run, capsys):
     assert len(err) == 1 and "ensemble" in err[0]
 
 
-def test_load_may_name_a_checkpoint_file_and_writes_beside_its_run(tiny_run):
-    """The error messages offer `--load RUN_OR_CHECKPOINT`; a checkpoint used to make the default output
-    folder a path under the .pt file."""
+def test_load_may_name_a_checkpoint_file_and_writes_beside_its_run_under_its_own_name(tiny_run):
+    """The error messages offer `--load RUN_OR_CHECKPOINT`; a checkpoint used to make the default output folder a
+    path under the .pt file, and then the run's own folder, where an earlier checkpoint's render and scores
+    replaced the final model's."""
     from splatu.checkpoint import list_checkpoints
 
     checkpoint = list_checkpoints(tiny_run)[-1]
+    _render(tiny_run, "--max-views", "1")
+    final = tiny_run / "uncertainty" / "ours-eval"
+    kept = {name: (final / name).read_bytes() for name in _folder_names(final)}
     _render(checkpoint, "--max-views", "2")
-    assert len(json.loads((tiny_run / "uncertainty" / "ours-eval" / "render.json").read_text())["per_view"]) == 2
     entrypoint(["eval-ause", "--load", str(checkpoint)])
-    assert (tiny_run / "ause_ours.json").is_file()
+    mine = tiny_run / "uncertainty" / f"ours-{checkpoint.stem}-eval" / "render.json"
+    assert len(json.loads(mine.read_text())["per_view"]) == 2
+    assert (tiny_run / f"ause_ours-{checkpoint.stem}.json").is_file()
+    assert {name: (final / name).read_bytes() for name in _folder_names(final)} == kept
 
 
 def test_training_into_an_output_folder_that_is_a_file_fails_before_the_scene_loads(tmp_path, capsys):

@@ -411,3 +411,20 @@ def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):
     assert caught.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("error: photo folder not found") and "nowhere" in err
+
+
+@pytest.mark.parametrize(("key", "value"), [("w", True), ("fl_x", 1e308), ("h", "480")])
+def test_an_intrinsic_that_is_a_bool_string_or_beyond_float32_names_the_key(tmp_path, key, value):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update({key: value}) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert f"intrinsic {key} must be a finite number" in error.what and "transforms.json" in error.where
+
+
+def test_two_frames_with_the_same_file_path_are_refused(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"].append(dict(c["frames"][1])))
+    error = load_error(root, tmp_path)
+    assert "frames 1 and 4 both have file_path" in error.what and "transforms.json" in error.where

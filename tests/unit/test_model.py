@@ -127,6 +127,25 @@ def test_uncertainty_map_composites_u_with_empty_space_at_one():
     assert u != pytest.approx(float(model.uncertainty(-model.view_dirs(camera)).detach()))
 
 
+def test_the_model_renders_with_its_screen_blur_and_antialiasing():
+    """3DGS's 0.3 px² blur, the presets' 0.1, and Mip-Splatting's 2D filter (0.1 px² with each opacity scaled by
+    sqrt(det Σ₂ / det(Σ₂ + 0.1 I))), for a Gaussian 0.3 px wide at the pixel whose centre is 0.5 px from its mean
+    in x and y (σ = 0.25 / variance)."""
+    std = 0.3  # px: 0.04 units at 30 px per unit, 4 units away
+    alpha = {}
+    for blur, antialiased in ((0.3, False), (0.1, False), (0.1, True)):
+        cfg = ModelConfig(sh_degree=0, init_opacity=0.9, screen_blur=blur, antialiased=antialiased)
+        model = GaussianModel.from_points(torch.tensor([[0.0, 0.0, 0.0]]), torch.tensor([[1.0, 1.0, 1.0]]), cfg,
+                                          torch.Generator())
+        with torch.no_grad():
+            model.log_scales.fill_(math.log(std * 4 / 30))
+            alpha[blur, antialiased] = float(model.render(_camera(), 0, torch.zeros(3)).alpha[11, 15])
+    for blur in (0.3, 0.1):
+        assert alpha[blur, False] == pytest.approx(0.9 * math.exp(-0.25 / (std * std + blur)), rel=1e-4)
+    factor = std * std / (std * std + 0.1)  # sqrt(det Σ₂ / det(Σ₂ + 0.1 I)) of an isotropic footprint
+    assert alpha[0.1, True] == pytest.approx(factor * alpha[0.1, False], rel=1e-4)
+
+
 def test_one_training_step_decreases_the_photometric_loss():
     g = torch.Generator().manual_seed(3)
     cfg = ModelConfig(sh_degree=1)

@@ -117,6 +117,11 @@ class Case:
     far: float = 1e10
     background: bool = True
     opaque: bool = False
+    antialiased: bool = False
+
+    def options(self) -> dict:
+        """Rasterizer keywords: log scales, and Mip-Splatting's 2D filter (blur 0.1 px², opacity compensated)."""
+        return {"log_scales": self.log_scales} | ({"blur": 0.1, "antialiased": True} if self.antialiased else {})
 
 
 CASES = [
@@ -140,8 +145,11 @@ CASES = [
     Case(17, 8, 24, 20),
     Case(18, 90, 22, 11, far=3.5),
     Case(19, 45, 24, 20, opaque=True, log_scales=True),
+    Case(20, 60, 24, 20, antialiased=True),
+    Case(21, 150, 20, 16, anisotropy=100.0, log_scales=True, antialiased=True),
+    Case(22, 200, 16, 12, opaque=True, antialiased=True),
 ]
-IDS = [f"seed{c.seed}-n{c.n}-{c.width}x{c.height}" for c in CASES]
+IDS = [f"seed{c.seed}-n{c.n}-{c.width}x{c.height}{'-antialiased' if c.antialiased else ''}" for c in CASES]
 
 
 def case_scene(case: Case) -> GaussianScene:
@@ -180,7 +188,7 @@ class Rendered:
 def render_with_grads(case: Case, rasterize_fn) -> Rendered:
     scene = case_scene(case)
     params = scene.leaves()
-    out = scene.render(rasterize_fn, params, log_scales=case.log_scales)
+    out = scene.render(rasterize_fn, params, **case.options())
     if out.means2d.requires_grad:
         out.means2d.retain_grad()
     weighted_loss(out, loss_weights(case)).backward()
@@ -267,7 +275,7 @@ def test_float32_matches_reference_closely(fast, case):
     """The training dtype. Rounding could in principle flip a pair at α = 1/255; on these seeds none
     flips (measured), so the same pairs contribute and the values agree to float32 precision."""
     scene = case_scene(case)
-    got = scene.render(fast.rasterize, dtype=torch.float32, log_scales=case.log_scales)
+    got = scene.render(fast.rasterize, dtype=torch.float32, **case.options())
     ref = reference_case(case).out
     assert got.image.dtype == torch.float32
     assert got.num_contributing_pairs == ref.num_contributing_pairs
@@ -316,7 +324,7 @@ def test_weights_sum_to_alpha_per_pixel(fast, case):
     scene = case_scene(case)
     scene.features = torch.eye(case.n, dtype=D)
     scene.background = None
-    out = scene.render(fast.rasterize, log_scales=case.log_scales)
+    out = scene.render(fast.rasterize, **case.options())
     weights = out.image
     assert_close(weights.sum(-1), out.alpha, "sum_i w_i vs alpha", atol=1e-10)
     assert_close(weights.sum((0, 1)), out.contrib_sum, "sum_p w vs contrib_sum", atol=1e-10)
@@ -413,7 +421,7 @@ def test_a_contribution_mask_counts_only_its_pixels_and_changes_nothing_else(fas
     counted = ref.out.weights * mask[..., None]
     with torch.set_grad_enabled(grad):
         params = scene.leaves()
-        got = scene.render(rasterize, params, log_scales=case.log_scales, contribution_mask=mask)
+        got = scene.render(rasterize, params, contribution_mask=mask, **case.options())
         if grad:
             weighted_loss(got, loss_weights(case)).backward()
     assert_close(got.contrib_sum, counted.sum((0, 1)), "masked contrib_sum")

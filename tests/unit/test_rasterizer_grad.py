@@ -48,10 +48,10 @@ def camera() -> tuple[torch.Tensor, torch.Tensor]:
     return w2c.to(F64), K
 
 
-def render_all(means, quats, scales, opacities, features, background, log_scales=False):
+def render_all(means, quats, scales, opacities, features, background, log_scales=False, **options):
     w2c, K = camera()
     out = rasterize(means, quats, scales, opacities, features, w2c, K, WIDTH, HEIGHT,
-                    background=background, log_scales=log_scales)
+                    background=background, log_scales=log_scales, **options)
     return out.image, out.alpha, out.depth
 
 
@@ -62,6 +62,25 @@ def test_gradcheck_all_inputs_linear_scales(seed):
         render_all, (s["means"], s["quats"], s["scales"], s["opacities"], s["features"], s["background"]),
         fast_mode=True, atol=1e-6, rtol=1e-4,
     )
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_gradcheck_antialiased(seed):
+    """Mip-Splatting's 2D filter: the opacity factor sqrt(det Σ₂ / det(Σ₂ + 0.1 I)) adds a gradient path from the
+    opacities' scale back to the means, rotations and scales."""
+    s = tiny_scene(seed)
+    assert torch.autograd.gradcheck(
+        lambda *inputs: render_all(*inputs, blur=0.1, antialiased=True),
+        (s["means"], s["quats"], s["scales"], s["opacities"], s["features"], s["background"]),
+        fast_mode=True, atol=1e-6, rtol=1e-4,
+    )
+
+
+@pytest.mark.parametrize("blur", [0.0, 1e-4, -0.1, float("nan"), float("inf")])
+def test_a_blur_that_is_too_small_or_not_finite_raises_a_clear_error(blur):
+    s = tiny_scene(0)
+    with pytest.raises(RasterInputError, match="blur"):
+        render_all(*s.values(), blur=blur)
 
 
 @pytest.mark.parametrize("seed", [3, 4])

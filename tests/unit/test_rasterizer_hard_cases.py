@@ -111,6 +111,31 @@ def test_zero_scales(fast, dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_zero_scales_antialiased_fade_out_with_finite_gradients(fast, dtype):
+    """Mip-Splatting's 2D filter scales opacity by sqrt(det Σ₂ / det(Σ₂ + blur I)), 0 for a point: it vanishes,
+    and the factor's gradient (through |minors|, not sqrt(det Σ₂)) stays finite where det Σ₂ = 0."""
+    scene = scene_at_origin([[0.1, 0.1, 2.0], [-0.2, 0.0, 3.0]], 0.0, 0.9)
+    out, params = render_backward(fast, scene, dtype, blur=0.1, antialiased=True)
+    assert out.num_contributing_pairs == 0 and float(out.alpha.detach().max()) == 0.0
+    assert all(p.grad is None or torch.isfinite(p.grad).all() for p in params.values())
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_rank_deficient_covariances_antialiased(fast, dtype):
+    """Flat and needle Gaussians (one or two zero scales) under the 2D filter: a disc seen face-on keeps its
+    footprint, the needle along the view axis projects to a point and fades; both match the reference."""
+    scene = scene_at_origin(
+        [[0.1, 0.1, 2.0], [-0.2, 0.05, 2.5], [0.0, -0.1, 3.0]],
+        [[0.3, 0.1, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.5]], 0.8, seed=3)
+    scene.quats[0] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=D)  # a disc facing the camera
+    scene.quats[2] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=D)  # a needle along the view axis
+    out, _ = render_backward(fast, scene, dtype, blur=0.1, antialiased=True)
+    assert out.contrib_max[0] > 0.5 and out.contrib_max[2] == 0.0
+    if dtype == D:
+        assert_matches_reference(fast, scene, grads=False, blur=0.1, antialiased=True)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("log_scales", [False, True])
 def test_enormous_scales(fast, dtype, log_scales):
     scene = scene_at_origin([[0.1, 0.1, 2.0], [0.0, 0.0, 5.0]], 1e6, [0.5, 0.7])

@@ -42,7 +42,8 @@ def _brute_force(model: GaussianModel, views: Views) -> torch.Tensor:
             weights = rasterize(model.means.double(), model.quats.double(), model.log_scales.double(),
                                 torch.sigmoid(model.opacity_logits).double(), torch.eye(n, dtype=torch.float64),
                                 camera.world_to_camera.double(), camera.K.double(), SIZE, SIZE,
-                                near=camera.near, far=camera.far, log_scales=True).image  # (H, W, n)
+                                near=camera.near, far=camera.far, log_scales=True,
+                                blur=model.cfg.screen_blur, antialiased=model.cfg.antialiased).image  # (H, W, n)
             rgb = model.render(camera, 0, torch.zeros(3)).rgb
             error = (rgb.clamp(0, 1) - views.images[i]).abs().mean(-1).double()
             valid = torch.ones_like(error) if views.masks is None else (views.masks[i] > 0).double()

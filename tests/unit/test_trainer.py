@@ -12,10 +12,11 @@ import torch
 import tyro
 
 from splatu import evaluation, interrupts, run_records, train_progress, trainer, training_step
+from splatu.baselines.load import load_any_run
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
 from splatu.cli import entrypoint
-from splatu.config_values import read_yaml, to_dict
+from splatu.config_values import apply_values, read_yaml, to_dict
 from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views
@@ -357,6 +358,7 @@ def test_preset_and_method_flags_set_the_defaults(tmp_path):
     ("data:\n  background: [1, 0]\n", "'data.background'", "a list of 3 float"),
     ("data:\n  downscale: two\n", "'data.downscale'", "int or null"),
     ("model: 3\n", "'model'", "a mapping of ModelConfig options"),
+    ("densify:\n  2: 3\n", "densify.2", "is not a word"),
 ])
 def test_preset_values_of_the_wrong_type_are_one_line_errors(tmp_path, capsys, yaml_text, key, expected):
     custom = tmp_path / "mine.yaml"
@@ -383,6 +385,10 @@ def test_preset_values_are_coerced_to_the_field_types(tmp_path):
     assert config.train_background == "white"
     # recorded absolute, so render-uncertainty and eval-ause find them from any working directory
     assert config.data.data == str(Path.cwd() / "scenes" / "mine") and config.data.eval_list == Path.cwd() / "eval.txt"
+    # YAML 1.1 reads the unquoted keys `on` and `off` as booleans; they still name the options
+    custom.write_text("uncertainty:\n  off: true\ndegree_choice:\n  on: true\n")
+    config = apply_values(preset_config("fast"), read_yaml(custom), str(custom))
+    assert config.uncertainty.off and config.degree_choice.on
 
 
 def test_methods_registry():
@@ -392,6 +398,14 @@ def test_methods_registry():
     assert METHODS["ensemble"].configure(base).ensemble == 10
     with pytest.raises(SplatuError):
         get_method("nerf")
+
+
+def test_presets_blur_less_than_3dgs_and_runs_saved_before_keep_its_blur():
+    for preset in ("fast", "quality"):
+        assert preset_config(preset).model.screen_blur == 0.1 and not preset_config(preset).model.antialiased
+    saved = to_dict(preset_config("fast"))
+    del saved["model"]["screen_blur"], saved["model"]["antialiased"]  # a config.yml written before these options
+    assert from_dict(saved).model.screen_blur == 0.3
 
 
 def test_config_dict_round_trip_keeps_paths_and_tuples():
@@ -510,11 +524,21 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
     assert not (run_dir / "ensemble.json").exists() and not (run_dir / "members" / "2").exists()
     assert [p.name for p in list_checkpoints(run_dir / "members" / "1")] == ["step-0000002.pt"]
     first_session = json.loads((run_dir / "ensemble_sessions.json").read_text())["session_seconds"]
+    with pytest.raises(SplatuError, match="this ensemble is unfinished"):  # what rendering or scoring it says
+        load_any_run(run_dir)
     assert len(first_session) == 1 and first_session[0] > 0
     member_0 = (run_dir / "members" / "0" / "summary.json").read_text()
 
     resumed_steps: list[int] = []
     resumed = dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir)
+    sessions_file = run_dir / "ensemble_sessions.json"
+    good = sessions_file.read_text()
+    for damaged in ('{"session_sec', '{"session_seconds": "long"}'):  # refused before any member trains
+        sessions_file.write_text(damaged)
+        with pytest.raises(SplatuError, match=r"ensemble_sessions\.json"):
+            trainer.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)])
+        assert resumed_steps == [] and sessions_file.read_text() == damaged
+    sessions_file.write_text(good)
     assert trainer.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)]) == run_dir
     assert resumed_steps == [3, 4, 1, 2, 3, 4]  # member 0 skipped, member 1 from step 2, member 2 from scratch
     assert (run_dir / "members" / "0" / "summary.json").read_text() == member_0
@@ -664,6 +688,14 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
     assert {r["step"] for r in moved} == set(range(7, 13))
     assert {r["step"]: r["loss"] for r in moved if r["event"] == "train"} == {
         s: loss for s, loss in abandoned_losses.items() if s > 6}
+
+    # the set-aside checkpoint is not resumed into abandoned/, and a second set-aside gets its own folder
+    with pytest.raises(SplatuError, match="set aside by an earlier resume"):
+        trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
+    assert run_records.new_abandoned_folder(aside.parent) != run_records.new_abandoned_folder(aside.parent)
+    for extra in aside.parent.iterdir():
+        if extra != aside:
+            extra.rmdir()
 
     trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir))
     assert losses_of(run_dir) == losses_of(full_dir)  # the log reads as one run from step 1 to 12
@@ -857,6 +889,11 @@ def test_resume_names_a_preset_or_method_it_ignores(tmp_path, capsys):
     for flag, given in (("--preset", preset_config("quality")), ("--method", preset_config(method="splatfacto"))):
         trainer.resumed_config(dataclasses.replace(given, resume=tmp_path), saved, tmp_path)
         assert f"ignoring {flag}" in capsys.readouterr().err
+    # options named as they were typed: a boolean turned off is --no-<name>, nested ones keep their group
+    given = dataclasses.replace(saved, resume=tmp_path, progress=False, compile_kernels=False, steps=7,
+                                densify=dataclasses.replace(saved.densify, refine_every=3))
+    trainer.resumed_config(given, saved, tmp_path)
+    assert "ignoring --densify.refine-every --steps --no-progress --no-compile-kernels" in capsys.readouterr().err
 
 
 def test_an_ensembles_seeds_must_all_fit():
