@@ -6,22 +6,28 @@ import os
 import time
 from pathlib import Path
 
+from splatu.errors import SplatuError
+
 LATEST = "latest"
 
 
 def new_run_dir(output_dir: Path, scene: str, method: str) -> Path:
-    """Create a fresh timestamped run directory (a suffix keeps runs started in the same second apart)."""
-    parent = Path(output_dir) / scene / method
+    """Create a fresh timestamped run directory."""
+    return new_timestamped_dir(Path(output_dir) / scene / method)
+
+
+def new_timestamped_dir(parent: Path) -> Path:
+    """Create parent/<time>, or parent/<time>_k when that exists: folders made in the same second stay apart."""
     parent.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y-%m-%d_%H%M%S")
     for attempt in range(1000):
-        run_dir = parent / (stamp if attempt == 0 else f"{stamp}_{attempt}")
+        folder = parent / (stamp if attempt == 0 else f"{stamp}_{attempt}")
         try:
-            run_dir.mkdir()
+            folder.mkdir()
         except FileExistsError:
             continue
-        return run_dir
-    raise RuntimeError(f"could not create a fresh run directory under {parent}")
+        return folder
+    raise SplatuError("cannot create a fresh timestamped folder", f"in {parent}", "wait a second and run again")
 
 
 def point_latest(run_dir: Path) -> Path:

@@ -4,7 +4,6 @@ older checkpoint abandons."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +13,7 @@ from splatu.checkpoint import (
     list_checkpoints,
 )
 from splatu.errors import SplatuError
+from splatu.run_dir import new_timestamped_dir
 
 
 class MetricsLog:
@@ -55,7 +55,7 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
     if not later:
         return None
-    folder = new_abandoned_folder(run_dir / ABANDONED_DIR)
+    folder = new_timestamped_dir(run_dir / ABANDONED_DIR)  # never merged with an earlier set-aside
     dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
     reports = [*run_dir.glob("ause_*"), run_dir / "uncertainty"]  # renders and scores of the abandoned model
@@ -63,22 +63,6 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
         if path.exists():
             path.replace(folder / path.name)
     return folder
-
-
-def new_abandoned_folder(parent: Path) -> Path:
-    """A fresh abandoned/<time>[-k] folder: two set-asides within a second must not merge (one's step-*.pt and
-    metrics.jsonl would replace the other's)."""
-    parent.mkdir(parents=True, exist_ok=True)
-    stamp = time.strftime("%Y-%m-%d_%H%M%S")
-    for k in range(1000):
-        folder = parent / (stamp if k == 0 else f"{stamp}-{k}")
-        try:
-            folder.mkdir()
-            return folder
-        except FileExistsError:
-            continue
-    raise SplatuError("cannot make a new folder for the abandoned work", f"in {parent}",
-                      "wait a second and resume again")
 
 
 def refuse_set_aside_checkpoint(checkpoint: Path) -> None:

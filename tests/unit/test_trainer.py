@@ -27,6 +27,7 @@ from splatu.methods import METHODS, get_method
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
+from splatu.run_dir import new_timestamped_dir
 from splatu.train_config import (
     MAX_SEED,
     TrainConfig,
@@ -692,7 +693,7 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
     # the set-aside checkpoint is not resumed into abandoned/, and a second set-aside gets its own folder
     with pytest.raises(SplatuError, match="set aside by an earlier resume"):
         trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
-    assert run_records.new_abandoned_folder(aside.parent) != run_records.new_abandoned_folder(aside.parent)
+    assert new_timestamped_dir(aside.parent) != new_timestamped_dir(aside.parent)
     for extra in aside.parent.iterdir():
         if extra != aside:
             extra.rmdir()
