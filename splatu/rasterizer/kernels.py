@@ -176,7 +176,7 @@ _EAGER: dict[str, Callable] = {
     for fn in (sheared_entry_offsets, alpha_and_log_one_minus, blend, upstream_per_weight, entry_gradients,
                row_block_spans)
 }
-_compiled: dict[str, Callable] = {}
+_compiled: dict[Callable, Callable] = {}
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
 
 
@@ -197,24 +197,33 @@ def kernels_compiled() -> bool:
 
 def kernel(name: str) -> Callable:
     """The eager or compiled version of kernel `name`, as chosen by `set_compile`."""
+    return compiled(_EAGER[name])
+
+
+def compiled(fn: Callable) -> Callable:
+    """`fn` itself, or, after `set_compile(True)`, its torch.compile'd version (made once, with an eager fallback).
+
+    For any pure tensor function of the rasterizer, not only this module's kernels (the projection uses it too)."""
     if not _use_compile:
-        return _EAGER[name]
-    if name not in _compiled:
-        _compiled[name] = _with_eager_fallback(name, torch.compile(_EAGER[name], dynamic=True))
-    return _compiled[name]
+        return fn
+    if fn not in _compiled:
+        _compiled[fn] = _with_eager_fallback(fn, torch.compile(fn, dynamic=True))
+    return _compiled[fn]
 
 
-def _with_eager_fallback(name: str, compiled: Callable) -> Callable:
-    """Use `compiled`, but if compiling fails (no C++ compiler, unsupported backend) warn once and run eager."""
+def _with_eager_fallback(fn: Callable, compiled_fn: Callable) -> Callable:
+    """Use `compiled_fn`, but if compiling fails (no C++ compiler, unsupported backend) warn once and run `fn`."""
 
     def run(*args):
         global _use_compile
         try:
-            return compiled(*args)
+            # a model's parameters change length as it densifies: without this, each new length recompiles
+            with torch._dynamo.config.patch(force_parameter_static_shapes=False):
+                return compiled_fn(*args)
         except Exception as error:  # torch.compile raises many exception types; the fallback is always correct
-            warnings.warn(f"torch.compile of rasterizer kernel {name} failed ({error!r}); using eager torch",
+            warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager torch",
                           stacklevel=2)
             _use_compile = False
-            return _EAGER[name](*args)
+            return fn(*args)
 
     return run
