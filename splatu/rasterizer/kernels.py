@@ -181,10 +181,10 @@ _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
 
 
 def set_compile(enabled: bool) -> bool:
-    """Route the kernels through torch.compile: about 1.6–1.7× faster per render (forward + backward, the
-    rasterizer benchmark in docs/results.md) once compiled, but the first render of a process compiles for
-    ~10 s (warm inductor cache) to about a minute (cold). Also on with the environment variable
-    SPLATU_COMPILE=1. Returns the previous setting."""
+    """Route the kernels (and a differentiated projection) through torch.compile: about 1.6–1.7× faster per render
+    (forward + backward, the rasterizer benchmark in docs/results.md) once compiled, but the first render of a
+    process compiles for ~10 s (warm inductor cache) to about a minute (cold). Also on with the environment
+    variable SPLATU_COMPILE=1. Returns the previous setting."""
     global _use_compile
     previous, _use_compile = _use_compile, enabled
     return previous
@@ -220,7 +220,8 @@ def _with_eager_fallback(fn: Callable, compiled_fn: Callable) -> Callable:
             # a model's parameters change length as it densifies: without this, each new length recompiles
             with torch._dynamo.config.patch(force_parameter_static_shapes=False):
                 return compiled_fn(*args)
-        except Exception as error:  # torch.compile raises many exception types; the fallback is always correct
+        except Exception as error:  # torch.compile raises many exception types; eager gives the same results
+            # (a backward that compiles lazily, at its first call, fails in loss.backward() instead, outside this)
             warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager torch",
                           stacklevel=2)
             _use_compile = False

@@ -75,12 +75,13 @@ def project_gaussians(
 ) -> Projection:
     """Project every Gaussian; culled ones get finite placeholder values and radius 0.
 
-    With gradients, it runs compiled when the rasterizer's kernels are (`kernels.set_compile`): its ~50 float64
-    elementwise steps and their autograd backward then fuse, 13.3 → 3.6 ms per forward + backward at 20,000
-    Gaussians, and a training-sized render takes 0.94× the time (docs/results.md, "Rasterizer"). A no-grad render
-    (evaluation) stays eager rather than compile a second, inference-only graph for a handful of views.
+    When it is differentiated, it runs compiled if the rasterizer's kernels are (`kernels.set_compile`): its ~50
+    float64 elementwise steps and their autograd backward then fuse (a training-sized render took 0.94× the time;
+    docs/results.md, "Rasterizer"). A no-grad render (evaluation) stays eager rather than compile a second,
+    inference-only graph for a handful of views.
     """
-    project = compiled(_projected) if torch.is_grad_enabled() else _projected
+    differentiated = torch.is_grad_enabled() and any(t.requires_grad for t in (means, quats, scales))
+    project = compiled(_projected) if differentiated else _projected
     return Projection(*project(means, quats, scales, world_to_camera, K, width, height, near, far, log_scales, blur,
                                antialiased))
 

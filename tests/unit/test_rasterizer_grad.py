@@ -7,6 +7,7 @@ The fixed seeds were checked to have no pixel within finite-difference reach of 
 
 from __future__ import annotations
 
+import shutil
 import sys
 import warnings
 
@@ -255,27 +256,33 @@ def test_compiled_kernels_match_eager():
         torch.testing.assert_close(compiled, eager, atol=1e-12, rtol=1e-10)
 
 
+@pytest.mark.skipif(not any(shutil.which(c) for c in ("c++", "g++", "clang++")),
+                    reason="torch.compile's CPU backend needs a C++ compiler (without one splatu runs eager)")
 def test_compiled_projection_takes_parameters_of_any_length_without_recompiling():
-    """A densifying model hands the projection nn.Parameters whose length changes every refinement. torch.compile
-    makes a parameter's shape static by default, so each new length recompiled (~10 s each), until dynamo's limit
-    of 8 turned compiling off for good; one graph must serve every length, and agree with eager torch."""
+    """A densifying model hands the projection nn.Parameters whose length changes every refinement, and the
+    resolution schedule changes the image size. torch.compile makes a parameter's shape static by default, so each
+    new length recompiled (~10 s each) until dynamo's limit of 8 turned compiling off for good; one graph must serve
+    every length and size, and agree with eager torch."""
     torch._dynamo.reset()
     counters.clear()
     w2c, K = camera()
-    for n in (5, 6, 9):
+    for n, scale in ((5, 1.0), (6, 0.5), (9, 2.0)):
         scene = tiny_scene(20 + n, n=n)
+        width, height = round(WIDTH * scale), round(HEIGHT * scale)
         results = []
         for compiled in (False, True):
             previous = set_compile(compiled)
             try:
                 means, quats = (torch.nn.Parameter(scene[k].detach().clone()) for k in ("means", "quats"))
+                log_scales = torch.nn.Parameter(scene["scales"].detach().log())
                 with torch._dynamo.config.patch(error_on_recompile=True), warnings.catch_warnings():
                     warnings.filterwarnings("error", message="torch.compile of rasterizer kernel")
-                    proj = project_gaussians(means, quats, scene["scales"].detach(), w2c, K, WIDTH, HEIGHT, 0.01,
-                                             100.0, log_scales=False, blur=0.3, antialiased=True)
+                    proj = project_gaussians(means, quats, log_scales, w2c, K * scale, width, height, 0.01, 100.0,
+                                             log_scales=True, blur=0.3, antialiased=True)
                 outputs = (proj.means2d, proj.sheared_conics, proj.depths, proj.opacity_scale)
                 sum(o.sum() for o in outputs).backward()
-                results.append([o.detach() for o in outputs] + [proj.radii, means.grad, quats.grad])
+                results.append([o.detach() for o in outputs]
+                               + [proj.radii, means.grad, quats.grad, log_scales.grad])
             finally:
                 set_compile(previous)
         for eager, compiled in zip(*results, strict=True):
