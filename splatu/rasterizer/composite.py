@@ -18,6 +18,7 @@ The backward walks the chunks in reverse, carrying each pixel's Σ w g of the ch
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -27,6 +28,11 @@ from torch import Tensor
 
 from splatu.rasterizer.footprint import BlockEntries
 from splatu.rasterizer.kernels import LOG_T_MIN, kernel
+
+COMPACT_AT_MOST_LIVE = 0.8
+"""A chunk's live entries (≥ 1 kept pair) are gathered into compact arrays only when at most this fraction of
+its entries is live. The first chunk of a render is often nearly all live (99.98% on the 20k benchmark case),
+and there the gathers cost more than the dead entries would."""
 
 
 @dataclass
@@ -72,15 +78,6 @@ class GaussianGrads:
 
 
 @dataclass
-class ChunkState:
-    """What one chunk's forward leaves for its backward: only its live entries (≥ 1 kept pair)."""
-
-    positions: Tensor  # (Q',) positions in the full entry list of the live entries, in order
-    transmittance: Tensor  # (B, Q') T before each pair, 0 where the pair does not contribute
-    alpha_raw: Tensor  # (B, Q') o·exp(−σ) before the 0.99 clamp
-
-
-@dataclass
 class EntryView:
     """Some entries (a chunk, or its live subset) with their Gaussians' parameters gathered per entry."""
 
@@ -93,6 +90,21 @@ class EntryView:
     sheared_conic: Tensor
     opacity: Tensor
     in_image_cols: Tensor
+
+    def subset(self, index: Tensor) -> EntryView:
+        """These entries at the ascending positions `index`: a sequential pass over each field, much cheaper
+        than gathering the same fields from the Gaussians again by random index."""
+        return EntryView(**{f.name: getattr(self, f.name).index_select(0, index) for f in dataclasses.fields(self)})
+
+
+@dataclass
+class ChunkState:
+    """What one chunk's forward leaves for its backward: its live entries (≥ 1 kept pair), or all of its entries
+    when nearly all are live."""
+
+    view: EntryView  # those entries, in order, with their Gaussians' parameters as the forward gathered them
+    transmittance: Tensor  # (B, Q') T before each pair, 0 where the pair does not contribute
+    alpha_raw: Tensor  # (B, Q') o·exp(−σ) before the 0.99 clamp
 
 
 @dataclass
@@ -177,15 +189,17 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
 
 def forward_chunk(
     entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int, acc: PixelAccumulators,
-    log_t: Tensor, counted: Tensor | None = None,
-) -> ChunkState:
+    log_t: Tensor, counted: Tensor | None = None, keep_state: bool = True,
+) -> ChunkState | None:
     """Composite some entries into the accumulators and advance each pixel's carried log T (B, num_blocks).
 
     Entries whose pixels have all terminated (or that fail the α test everywhere) keep no pair; even
     within the rounds they are a large part of a chunk. They have w = 0 and zero gradient at every
     pixel, so once the transmittance pass has found them, everything else (image sums,
-    contributions, the saved state and the whole backward) runs on the live entries only.
+    contributions, the saved state and the whole backward) runs on the live entries only, unless
+    nearly all are live (COMPACT_AT_MOST_LIVE).
     `counted` (B, num_blocks, 0 or 1) limits the contributions to some pixels; the image is unaffected.
+    Returns what the backward needs, or None without `keep_state`.
     """
     v = view_entries(entries, positions, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
@@ -203,21 +217,20 @@ def forward_chunk(
     if counted is not None:
         counted_weight = weight * counted.index_select(1, v.block)
         weight_sum, weight_max = counted_weight.sum(0), counted_weight.amax(0)
-    transmittance, weight, alpha_raw = (columns(x, live) for x in (transmittance, weight, alpha_raw))
-    gaussian, block = v.gaussian.index_select(0, live), v.block.index_select(0, live)
-    if live.numel():
-        first, last = int(block[0]), int(block[-1])
-        acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, block - first, last - first + 1,
-                                                             g.features_ext.index_select(0, gaussian))
-    acc.contrib_sum.index_add_(0, gaussian, weight_sum.index_select(0, live))
-    acc.contrib_max.scatter_reduce_(0, gaussian, weight_max.index_select(0, live), reduce="amax")
+    if live.numel() <= COMPACT_AT_MOST_LIVE * weight_max.numel():
+        # otherwise the dead entries stay: their w, T and gradients are exactly 0, so no sum changes
+        v, weight = v.subset(live), columns(weight, live)
+        weight_sum, weight_max = weight_sum.index_select(0, live), weight_max.index_select(0, live)
+        if keep_state:
+            transmittance, alpha_raw = columns(transmittance, live), columns(alpha_raw, live)
+    if v.block.numel():
+        first, last = int(v.block[0]), int(v.block[-1])
+        acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, v.block - first, last - first + 1,
+                                                             g.features_ext.index_select(0, v.gaussian))
+    acc.contrib_sum.index_add_(0, v.gaussian, weight_sum)
+    acc.contrib_max.scatter_reduce_(0, v.gaussian, weight_max, reduce="amax")
     acc.pairs += int(kept_pairs.sum())
-    return ChunkState(_global(positions, live), transmittance, alpha_raw)
-
-
-def _global(positions: slice | Tensor, local: Tensor) -> Tensor:
-    """Positions in the full entry list of the chunk-local indices `local`."""
-    return local + positions.start if isinstance(positions, slice) else positions.index_select(0, local)
+    return ChunkState(v, transmittance, alpha_raw) if keep_state else None
 
 
 def running_sum(values: Tensor) -> Tensor:
@@ -252,18 +265,18 @@ def _sum_per_pixel(weight: Tensor, local_block: Tensor, num_blocks: int, feature
 
 
 def backward_chunk(
-    entries: BlockEntries, state: ChunkState, g: GaussianParams, width: int,
-    up_ext: Tensor, behind: Tensor, grads: GaussianGrads,
+    state: ChunkState, g: GaussianParams, up_planes: Tensor, behind: Tensor, grads: GaussianGrads,
 ) -> None:
     """Accumulate the gradient contributions of one chunk's entries into `grads`; chunks go back to front.
 
-    `up_ext` (B, num_blocks, C+2) holds the upstream gradients of colour, Σ w·z and alpha per pixel.
+    `up_planes` (C+2, B, num_blocks) holds the upstream gradients of colour, Σ w·z and alpha per pixel, channel
+    by channel.
     `behind` (B, num_blocks, float64) holds per pixel T_final · (gC · background) plus Σ w g of the
     chunks behind this one; this chunk's own Σ w g is added to it on the way out.
     """
-    v = view_entries(entries, state.positions, g, width)
+    v = state.view
     per_weight, weighted, grad_features_ext = kernel("upstream_per_weight")(
-        up_ext, v.block, state.transmittance, state.alpha_raw, g.features_ext.index_select(0, v.gaussian)
+        up_planes, v.block, state.transmittance, state.alpha_raw, g.features_ext.index_select(0, v.gaussian)
     )
     weighted_cumulative = running_sum(weighted)
     seg = segments(v.block)

@@ -39,8 +39,8 @@ def _run_forward(
     in_image = to_blocks(torch.ones(height, width, dtype=torch.bool, device=device), entries)
     states = []
     for positions in chunks(entries, log_t, in_image, max_elements):
-        state = forward_chunk(entries, positions, g, width, acc, log_t, counted)
-        if keep_state:
+        state = forward_chunk(entries, positions, g, width, acc, log_t, counted, keep_state)
+        if state is not None:
             states.append(state)
     return acc, states
 
@@ -100,8 +100,9 @@ class CompositeFunction(torch.autograd.Function):
         behind = (ctx.t_final * (up_image * background).sum(-1)).to(torch.float64)
         channels_ext = features_ext.shape[1]
         grads = GaussianGrads.zeros(means2d, channels_ext)
+        up_planes = up_ext.permute(2, 0, 1).contiguous()
         for state in reversed(ctx.states):
-            backward_chunk(entries, state, g, ctx.width, up_ext, behind, grads)
+            backward_chunk(state, g, up_planes, behind, grads)
         grad_features_ext, grad_opacities, grad_sheared_conics, grad_means2d, absgrad = grads.split(channels_ext)
         ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))

@@ -97,17 +97,22 @@ def blend(
 
 
 def upstream_per_weight(
-    up_ext: Tensor, block: Tensor, transmittance: Tensor, alpha_raw: Tensor, features_ext: Tensor
+    up_planes: Tensor, block: Tensor, transmittance: Tensor, alpha_raw: Tensor, features_ext: Tensor
 ) -> tuple[Tensor, Tensor, Tensor]:
     """g = dL/dw per pair, w·g in float64 (for the suffix sums), and dL/df_ext per entry (Q, C+2).
 
-    `up_ext` holds per pixel (B, num_blocks, C+2) the upstream gradients of colour, Σ w·z and alpha.
+    `up_planes` holds per pixel (C+2, B, num_blocks) the upstream gradients of colour, Σ w·z and alpha, one
+    plane per channel, so that the products below run along q. With the channels last, torch.compile vectorised
+    along the C+2 = 5 channels with masked loads, and this kernel cost more than the blend.
     """
     weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
-    up = up_ext.index_select(1, block)  # (B, Q, C+2)
-    per_weight = (up * features_ext).sum(-1)
-    grad_features_ext = (weight[:, :, None] * up).sum(0)
-    return per_weight, (weight * per_weight).to(torch.float64), grad_features_ext
+    per_weight = torch.zeros_like(weight)
+    grad_features_ext = []
+    for channel in range(up_planes.shape[0]):
+        up = up_planes[channel].index_select(1, block)  # (B, Q)
+        per_weight = per_weight + up * features_ext[:, channel]
+        grad_features_ext.append((weight * up).sum(0))
+    return per_weight, (weight * per_weight).to(torch.float64), torch.stack(grad_features_ext, dim=1)
 
 
 def entry_gradients(

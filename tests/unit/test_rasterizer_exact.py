@@ -408,6 +408,47 @@ def test_terminated_blocks_are_skipped_exactly(fast, one_gaussian_rounds):
     assert sum(composited) < 0.5 * listed[0], (sum(composited), listed[0])
 
 
+WITH_DEAD_ENTRIES = [c for c in OPAQUE if c.seed in (8, 12, 22)]
+"""Opaque cases whose chunks hold dead entries under one_gaussian_rounds (the test asserts that they do)."""
+
+
+@pytest.mark.parametrize("case", WITH_DEAD_ENTRIES, ids=[f"seed{c.seed}" for c in WITH_DEAD_ENTRIES])
+def test_keeping_dead_entries_changes_no_value(fast, case, monkeypatch, one_gaussian_rounds):
+    """A chunk that is nearly all live keeps its dead entries instead of compacting them away (composite.py,
+    COMPACT_AT_MOST_LIVE). Their w, T and gradients are exactly 0, so every output and gradient equals the
+    always-compacted render's, with and without a contribution mask: the images bit for bit, the gradients to
+    rounding (eager torch may reduce a (B, Q) tensor over B in another order when Q differs)."""
+    composite_module = sys.modules["splatu.rasterizer.composite"]
+    function_module = sys.modules["splatu.rasterizer.function"]
+    forward_chunk = function_module.forward_chunk
+    mask = torch.rand(case.height, case.width, generator=torch.Generator().manual_seed(case.seed)) < 0.5
+
+    def rendered(compact_at_most_live: float, contribution_mask) -> tuple[Rendered, int]:
+        monkeypatch.setattr(composite_module, "COMPACT_AT_MOST_LIVE", compact_at_most_live)
+        saved = []
+
+        def recording_forward_chunk(*args):
+            state = forward_chunk(*args)
+            saved.append(state.transmittance.shape[1])
+            return state
+
+        monkeypatch.setattr(function_module, "forward_chunk", recording_forward_chunk)
+        result = render_with_grads(case, lambda *a, **k: fast.rasterize(*a, contribution_mask=contribution_mask,
+                                                                        **k))
+        return result, sum(saved)
+
+    for contribution_mask in (None, mask):
+        (compacted, compacted_entries), (kept, kept_entries) = (rendered(limit, contribution_mask)
+                                                                for limit in (1.0, -1.0))
+        assert compacted_entries < kept_entries  # the case has dead entries, so the two paths differ
+        for name in ("image", "alpha", "depth", "contrib_sum", "contrib_max"):
+            assert torch.equal(getattr(kept.out, name), getattr(compacted.out, name)), name
+        gradients = {**compacted.grads, "means2d_absgrad": compacted.out.means2d_absgrad}
+        for name, grad in gradients.items():
+            other = kept.out.means2d_absgrad if name == "means2d_absgrad" else kept.grads[name]
+            assert_close(other, grad, name, atol=1e-13 * max(1.0, grad.abs().max().item()))
+
+
 @pytest.mark.parametrize("case", CASES[1:8:2], ids=IDS[1:8:2])
 @pytest.mark.parametrize("grad", [True, False], ids=["with-grad", "no-grad"])
 def test_a_contribution_mask_counts_only_its_pixels_and_changes_nothing_else(fast, case, grad, one_gaussian_rounds):
