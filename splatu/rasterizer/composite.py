@@ -58,23 +58,25 @@ class PixelAccumulators:
 
 @dataclass
 class GaussianGrads:
-    """Gradient accumulators for the compositor's inputs, packed (N, C+2 + 1 + 3 + 2 + 2) so that each
-    chunk scatters into them once: features_ext | opacity | sheared conic | means2d | absgrad."""
+    """Gradient accumulators for the compositor's inputs, packed channel-first (C+2 + 1 + 3 + 2 + 2, N) so that
+    each chunk scatters into them once, along N: features_ext | opacity | sheared conic | means2d | absgrad.
+    torch's CPU index_add_ of (Q, 13) rows along dim 0 took 8× the time of the same values as (13, Q) along
+    dim 1 (35.6 against 4.2 ms for 900k entries into 20k Gaussians, a scratch timing)."""
 
     packed: Tensor
 
     WIDTHS = (1, 3, 2, 2)
-    """Columns after the C+2 feature gradients: opacity, sheared conic, means2d, absgrad."""
+    """Rows after the C+2 feature gradients: opacity, sheared conic, means2d, absgrad."""
 
     @classmethod
     def zeros(cls, like: Tensor, channels_ext: int) -> GaussianGrads:
         """Zero accumulators for the N Gaussians of `like` (N, ·), in its dtype and device."""
-        return cls(like.new_zeros(like.shape[0], channels_ext + sum(cls.WIDTHS)))
+        return cls(like.new_zeros(channels_ext + sum(cls.WIDTHS), like.shape[0]))
 
     def split(self, channels_ext: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """(features_ext, opacities, sheared_conics, means2d, absgrad) views."""
-        f, o, c, m, a = self.packed.split([channels_ext, *self.WIDTHS], dim=1)
-        return f, o.squeeze(1), c, m, a
+        """(features_ext, opacities, sheared_conics, means2d, absgrad) as (N, ·) views."""
+        f, o, c, m, a = self.packed.split([channels_ext, *self.WIDTHS], dim=0)
+        return f.t(), o.squeeze(0), c.t(), m.t(), a.t()
 
 
 @dataclass
@@ -284,7 +286,7 @@ def backward_chunk(
         weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
         v.t0, v.w0, v.p, v.r, v.sheared_conic, v.opacity, grad_features_ext,
     )
-    grads.packed.index_add_(0, v.gaussian, per_entry)
+    grads.packed.index_add_(1, v.gaussian, per_entry)
     block_total = (columns(weighted_cumulative, seg.block_last)
                    - columns(weighted_cumulative, seg.block_first) + columns(weighted, seg.block_first))
     behind.index_add_(1, seg.blocks, block_total)

@@ -99,7 +99,7 @@ def blend(
 def upstream_per_weight(
     up_planes: Tensor, block: Tensor, transmittance: Tensor, alpha_raw: Tensor, features_ext: Tensor
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """g = dL/dw per pair, w·g in float64 (for the suffix sums), and dL/df_ext per entry (Q, C+2).
+    """g = dL/dw per pair, w·g in float64 (for the suffix sums), and dL/df_ext per entry (C+2, Q).
 
     `up_planes` holds per pixel (C+2, B, num_blocks) the upstream gradients of colour, Σ w·z and alpha, one
     plane per channel, so that the products below run along q. With the channels last, torch.compile vectorised
@@ -112,7 +112,7 @@ def upstream_per_weight(
         up = up_planes[channel].index_select(1, block)  # (B, Q)
         per_weight = per_weight + up * features_ext[:, channel]
         grad_features_ext.append((weight * up).sum(0))
-    return per_weight, (weight * per_weight).to(torch.float64), torch.stack(grad_features_ext, dim=1)
+    return per_weight, (weight * per_weight).to(torch.float64), torch.stack(grad_features_ext)
 
 
 def entry_gradients(
@@ -120,8 +120,8 @@ def entry_gradients(
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
     t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, sheared_conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
 ) -> Tensor:
-    """Per entry, one packed row (Q, C+2 + 8): dL/df_ext | dL/do | dL/d(A, S, Q) | dL/dmean2d (2) | Σ|dL/dmean2d|
-    per axis (2), so that the caller scatters into the Gaussians once.
+    """Per entry, one packed column (C+2 + 8, Q): dL/df_ext | dL/do | dL/d(A, S, Q) | dL/dmean2d (2) | Σ|dL/dmean2d|
+    per axis (2), so that the caller scatters into the Gaussians once (channel-first: see GaussianGrads).
 
     dL/dα = T g − (Σ_b + T_final h)/(1 − α), Σ_b = Σ of w g over the pairs behind this one in the pixel:
     those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
@@ -152,8 +152,8 @@ def entry_gradients(
         grad_opacity, 0.5 * (t0 * gt + p * gtx), -A * (w0 * gt + r * gtx), 0.5 * (w0 * gw + r * (w0 * m1 + r * m2)),
         torch.where(swapped, grad_w, grad_v), torch.where(swapped, grad_v, grad_w),
         torch.where(swapped, abs_w, abs_v), torch.where(swapped, abs_v, abs_w),
-    ], dim=-1)
-    return torch.cat([grad_features_ext, rest], dim=1)
+    ])
+    return torch.cat([grad_features_ext, rest])
 
 
 def row_block_spans(
