@@ -1,6 +1,7 @@
 """A/B of the rasterizer against an earlier commit, in one process: the ratio of render times.
 
     python benchmarks/rasterizer_ab.py --base COMMIT [--cases 20k 100k training] [--pairs 20] [--eager]
+        [--run outputs/poster/splatu/latest]
 
 These shared hosts drift between invocations of benchmarks/rasterizer.py by more than many changes are
 worth (its 20k case read 85–100 ns per pair over three invocations in a row), so a change is measured
@@ -49,6 +50,11 @@ class AbConfig:
     """benchmarks/rasterizer.py's two cases, and a training-sized render (18k Gaussians at 256×144)."""
     pairs: int = 20
     """Timed (base, current) render pairs per case."""
+    run: Path | None = None
+    """Also time a trained run's model (a run folder, e.g. outputs/poster/splatu/latest) at its training views, one
+    view per pair in turn, with the run's screen blur; its colours are those of the view direction, as a training
+    step renders them. A trained scene's renders differ from the random scenes' (more layers per pixel, fewer
+    live entries), and so can the change's effect."""
     eager: bool = False
     """Time the eager kernels instead of the compiled ones that the presets use."""
     json: Path = REPO / "benchmarks" / "results" / "rasterizer_ab.json"
@@ -88,37 +94,68 @@ def load_rasterizer_benchmark() -> ModuleType:
     return module
 
 
-def render_step(rasterize: Callable, bench: ModuleType, case: object, scene: tuple[torch.Tensor, ...],
-                ) -> tuple[torch.Tensor, list[torch.Tensor], int]:
+@dataclass
+class View:
+    """One render's inputs: the five Gaussian tensors and camera of a scene tuple, and the image size and options."""
+
+    scene: tuple[torch.Tensor, ...]
+    width: int
+    height: int
+    options: dict = field(default_factory=lambda: {"log_scales": True})
+
+
+def render_step(rasterize: Callable, bench: ModuleType, view: View) -> tuple[torch.Tensor, list[torch.Tensor], int]:
     """One forward + backward: the image, the gradients of the five Gaussian inputs, the pair count."""
-    leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(scene)]
-    out = rasterize(*leaves, case.width, case.height, log_scales=True)
+    leaves = [t.clone().requires_grad_(i < 5) for i, t in enumerate(view.scene)]
+    out = rasterize(*leaves, view.width, view.height, **view.options)
     bench.loss_of(out.image, out.alpha).backward()
     return out.image.detach(), [leaf.grad for leaf in leaves[:5]], out.num_contributing_pairs
 
 
-def compare_case(name: str, base: ModuleType, current: ModuleType, bench: ModuleType, pairs: int,
-                 footprint_seconds: dict[ModuleType, list[float]]) -> dict:
-    """Check the two agree on one render, then time `pairs` alternating renders of each.
+def case_views(name: str, bench: ModuleType) -> tuple[str, list[View]]:
+    """A named case's name and its one view."""
+    case = {"20k": bench.CASES[0], "100k": bench.CASES[1],
+            "training": bench.Case("18k Gaussians at 256x144 (training-sized)", 18_000, 256, 144, seed=3)}[name]
+    return case.name, [View(bench.make_scene(case), case.width, case.height)]
+
+
+def trained_views(run: Path) -> tuple[str, list[View]]:
+    """A trained run's model at each of its training views: colours evaluated for that view, the run's blur."""
+    from splatu.checkpoint import load_run
+    from splatu.data.resolve import load_scene
+
+    trained = load_run(run)
+    model, degree = trained.model, trained.config.model.sh_degree
+    views = []
+    with torch.no_grad():
+        for camera in load_scene(trained.config.data).train.cameras:
+            scene = (model.means, model.quats, model.log_scales, torch.sigmoid(model.opacity_logits),
+                     model.colors(model.view_dirs(camera), degree), camera.world_to_camera, camera.K)
+            options = {"log_scales": True, "near": camera.near, "far": camera.far, "blur": model.cfg.screen_blur,
+                       "antialiased": model.cfg.antialiased}
+            views.append(View(tuple(t.detach() for t in scene), camera.width, camera.height, options))
+    return f"trained run: {len(model.means):,} Gaussians, {len(views)} views", views
+
+
+def compare_case(name: str, views: list[View], base: ModuleType, current: ModuleType, bench: ModuleType,
+                 pairs: int, footprint_seconds: dict[ModuleType, list[float]]) -> dict:
+    """Check the two agree on the first view, then time `pairs` alternating renders of each, pair k at view k.
 
     `footprint_seconds` holds, per package, the list its footprint passes append their times to.
     """
-    case = {"20k": bench.CASES[0], "100k": bench.CASES[1],
-            "training": bench.Case("18k Gaussians at 256x144 (training-sized)", 18_000, 256, 144, seed=3)}[name]
-    scene = bench.make_scene(case)
     for seconds in footprint_seconds.values():
         seconds.clear()
     (image_b, grads_b, pairs_b), (image_c, grads_c, pairs_c) = (
-        render_step(r, bench, case, scene) for r in (base.rasterize, current.rasterize))
+        render_step(r, bench, views[0]) for r in (base.rasterize, current.rasterize))
     if any(len(seconds) != 1 for seconds in footprint_seconds.values()):
         raise SystemExit("error: a render did not run exactly one footprint pass through "
                          "rasterizer.rasterize.block_entries, so footprint times cannot be paired with renders")
     if base.kernels.kernels_compiled() != current.kernels.kernels_compiled():
         raise SystemExit("error: torch.compile failed for one of the two packages only (see the warning above), "
                          "so their times are not comparable; rerun with --eager")
-    for _ in range(2):
-        render_step(base.rasterize, bench, case, scene)
-        render_step(current.rasterize, bench, case, scene)
+    for index in range(2):
+        render_step(base.rasterize, bench, views[index % len(views)])
+        render_step(current.rasterize, bench, views[index % len(views)])
     base_ms, current_ms = [], []
     for seconds in footprint_seconds.values():
         seconds.clear()
@@ -126,11 +163,11 @@ def compare_case(name: str, base: ModuleType, current: ModuleType, bench: Module
         order = ((base.rasterize, base_ms), (current.rasterize, current_ms))
         for rasterize, times in order if index % 2 == 0 else order[::-1]:
             start = time.perf_counter()
-            render_step(rasterize, bench, case, scene)
+            render_step(rasterize, bench, views[index % len(views)])
             times.append(1e3 * (time.perf_counter() - start))
     footprint_b, footprint_c = ([1e3 * t for t in footprint_seconds[p]] for p in (base, current))
     return {
-        "name": case.name,
+        "name": name,
         "contributing_pairs": {"base": pairs_b, "current": pairs_c},
         "max_abs_image_difference": float((image_b - image_c).abs().max()),
         "max_abs_gradient_difference": max(float((b - c).abs().max()) for b, c in zip(grads_b, grads_c, strict=True)),
@@ -178,8 +215,11 @@ def main(config: AbConfig) -> None:
                 importlib.import_module(f"{package.__name__}.kernels").set_compile(not config.eager)
             footprint_seconds = {base: bench.record_footprint_times(BASE_PACKAGE),
                                  current: bench.record_footprint_times()}
-            results = [compare_case(name, base, current, bench, config.pairs, footprint_seconds)
-                       for name in config.cases]
+            cases = [case_views(name, bench) for name in config.cases]
+            if config.run is not None:
+                cases.append(trained_views(config.run))
+            results = [compare_case(name, views, base, current, bench, config.pairs, footprint_seconds)
+                       for name, views in cases]
         finally:
             sys.path.remove(scratch)
     print(f"{'case':45s} {'base ms':>9s} {'current ms':>11s} {'current / base':>15s} {'quartiles':>14s}")
