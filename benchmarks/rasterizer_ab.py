@@ -51,10 +51,10 @@ class AbConfig:
     pairs: int = 20
     """Timed (base, current) render pairs per case."""
     run: Path | None = None
-    """Also time a trained run's model (a run folder, e.g. outputs/poster/splatu/latest) at its training views, one
-    view per pair in turn, with the run's screen blur; its colours are those of the view direction, as a training
-    step renders them. A trained scene's renders differ from the random scenes' (more layers per pixel, fewer
-    live entries), and so can the change's effect."""
+    """Also time a trained run's model (a run folder, e.g. outputs/poster/splatu/latest) at its training views, the
+    pairs spread evenly over them, with the run's screen blur; its colours are those of the view direction, as a
+    training step renders them. A trained scene's renders differ from the random scenes', and so can a change's
+    effect."""
     eager: bool = False
     """Time the eager kernels instead of the compiled ones that the presets use."""
     json: Path = REPO / "benchmarks" / "results" / "rasterizer_ab.json"
@@ -139,7 +139,8 @@ def trained_views(run: Path) -> tuple[str, list[View]]:
 
 def compare_case(name: str, views: list[View], base: ModuleType, current: ModuleType, bench: ModuleType,
                  pairs: int, footprint_seconds: dict[ModuleType, list[float]]) -> dict:
-    """Check the two agree on the first view, then time `pairs` alternating renders of each, pair k at view k.
+    """Check the two agree on the first view, then time `pairs` alternating renders of each, pair k at view
+    k·len(views)/pairs (rounded down), so that the pairs spread evenly over the views.
 
     `footprint_seconds` holds, per package, the list its footprint passes append their times to.
     """
@@ -163,7 +164,7 @@ def compare_case(name: str, views: list[View], base: ModuleType, current: Module
         order = ((base.rasterize, base_ms), (current.rasterize, current_ms))
         for rasterize, times in order if index % 2 == 0 else order[::-1]:
             start = time.perf_counter()
-            render_step(rasterize, bench, views[index % len(views)])
+            render_step(rasterize, bench, views[index * len(views) // pairs])
             times.append(1e3 * (time.perf_counter() - start))
     footprint_b, footprint_c = ([1e3 * t for t in footprint_seconds[p]] for p in (base, current))
     return {

@@ -32,7 +32,8 @@ from splatu.rasterizer.kernels import LOG_T_MIN, kernel
 COMPACT_AT_MOST_LIVE = 0.8
 """A chunk's live entries (≥ 1 kept pair) are gathered into compact arrays only when at most this fraction of
 its entries is live. The first chunk of a render is often nearly all live (99.98% on the 20k benchmark case),
-and there the gathers cost more than the dead entries would."""
+and there the gathers cost more than the dead entries would. A dead entry adds exact zeros to every sum, as its
+w and T are 0 and its inputs finite (`rasterize` refuses NaN and Inf, which would spread as 0·NaN)."""
 
 
 @dataclass
@@ -104,7 +105,7 @@ class ChunkState:
     """What one chunk's forward leaves for its backward: its live entries (≥ 1 kept pair), or all of its entries
     when nearly all are live."""
 
-    view: EntryView  # those entries, in order, with their Gaussians' parameters as the forward gathered them
+    view: EntryView  # those entries, in order, with their offsets, conics and opacities as the forward formed them
     transmittance: Tensor  # (B, Q') T before each pair, 0 where the pair does not contribute
     alpha_raw: Tensor  # (B, Q') o·exp(−σ) before the 0.99 clamp
 
@@ -219,27 +220,30 @@ def forward_chunk(
     if counted is not None:
         counted_weight = weight * counted.index_select(1, v.block)
         weight_sum, weight_max = counted_weight.sum(0), counted_weight.amax(0)
-    if live.numel() <= COMPACT_AT_MOST_LIVE * weight_max.numel():
-        # otherwise the dead entries stay: their w, T and gradients are exactly 0, so no sum changes
-        v, weight = v.subset(live), columns(weight, live)
+    compact = live.numel() <= COMPACT_AT_MOST_LIVE * v.block.numel()
+    gaussian, block = v.gaussian, v.block
+    if compact:
+        gaussian, block, weight = gaussian.index_select(0, live), block.index_select(0, live), columns(weight, live)
         weight_sum, weight_max = weight_sum.index_select(0, live), weight_max.index_select(0, live)
-        if keep_state:
-            transmittance, alpha_raw = columns(transmittance, live), columns(alpha_raw, live)
-    if v.block.numel():
-        first, last = int(v.block[0]), int(v.block[-1])
-        acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, v.block - first, last - first + 1,
-                                                             g.features_ext.index_select(0, v.gaussian))
-    acc.contrib_sum.index_add_(0, v.gaussian, weight_sum)
-    acc.contrib_max.scatter_reduce_(0, v.gaussian, weight_max, reduce="amax")
+    if block.numel():
+        first, last = int(block[0]), int(block[-1])
+        acc.image_ext[:, first : last + 1] += _sum_per_pixel(weight, block - first, last - first + 1,
+                                                             g.features_ext.index_select(0, gaussian))
+    acc.contrib_sum.index_add_(0, gaussian, weight_sum)
+    acc.contrib_max.scatter_reduce_(0, gaussian, weight_max, reduce="amax")
     acc.pairs += int(kept_pairs.sum())
-    return ChunkState(v, transmittance, alpha_raw) if keep_state else None
+    if not keep_state:
+        return None
+    if compact:
+        return ChunkState(v.subset(live), columns(transmittance, live), columns(alpha_raw, live))
+    return ChunkState(v, transmittance, alpha_raw)
 
 
 def running_sum(values: Tensor) -> Tensor:
     """Inclusive running sum along q of a (B, Q) float64 tensor, row by row (callers only take differences
     within one block of one row).
 
-    torch's CPU cumsum runs the rows in parallel, and one flat sum over all rows in one thread: 0.64 against
+    torch's CPU cumsum runs the rows in parallel, but one flat sum over all rows in a single thread: 0.64 against
     1.36 ms at (8, 320k) (a scratch timing). Inside a render, `benchmarks/rasterizer_ab.py --base a25005b`
     read 0.985, 0.978 and 0.983 (20k, training-sized and 100k cases, 25 pairs) for this against the flat sum.
     """
@@ -267,7 +271,7 @@ def _sum_per_pixel(weight: Tensor, local_block: Tensor, num_blocks: int, feature
 
 
 def backward_chunk(
-    state: ChunkState, g: GaussianParams, up_planes: Tensor, behind: Tensor, grads: GaussianGrads,
+    state: ChunkState, features_ext: Tensor, up_planes: Tensor, behind: Tensor, grads: GaussianGrads,
 ) -> None:
     """Accumulate the gradient contributions of one chunk's entries into `grads`; chunks go back to front.
 
@@ -278,7 +282,7 @@ def backward_chunk(
     """
     v = state.view
     per_weight, weighted, grad_features_ext = kernel("upstream_per_weight")(
-        up_planes, v.block, state.transmittance, state.alpha_raw, g.features_ext.index_select(0, v.gaussian)
+        up_planes, v.block, state.transmittance, state.alpha_raw, features_ext.index_select(0, v.gaussian)
     )
     weighted_cumulative = running_sum(weighted)
     seg = segments(v.block)

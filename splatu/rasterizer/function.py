@@ -83,17 +83,17 @@ class CompositeFunction(torch.autograd.Function):
         g = GaussianParams(means2d, sheared_conics, swapped, opacities, features_ext)
         acc, states = _run_forward(g, entries, width, max_elements, keep_state=True, counted=counted)
         image, alpha, depth_num, t_final = _finish(acc.image_ext, background, width, height)
-        ctx.save_for_backward(means2d, sheared_conics, swapped, opacities, features_ext, background)
-        ctx.states, ctx.entries, ctx.t_final, ctx.width, ctx.absgrad = states, entries, t_final, width, absgrad
+        # the backward reads the Gaussians' parameters from the saved states, as the forward formed them
+        ctx.save_for_backward(means2d, features_ext, background)
+        ctx.states, ctx.entries, ctx.t_final, ctx.absgrad = states, entries, t_final, absgrad
         pairs = torch.tensor(acc.pairs)
         ctx.mark_non_differentiable(acc.contrib_sum, acc.contrib_max, pairs)
         return image, alpha, depth_num, acc.contrib_sum, acc.contrib_max, pairs
 
     @staticmethod
     def backward(ctx: Any, g_image: Tensor, g_alpha: Tensor, g_depth_num: Tensor, *_: Tensor) -> tuple:
-        means2d, sheared_conics, swapped, opacities, features_ext, background = ctx.saved_tensors
+        means2d, features_ext, background = ctx.saved_tensors
         entries = ctx.entries
-        g = GaussianParams(means2d, sheared_conics, swapped, opacities, features_ext)
         up_ext = to_blocks(torch.cat([g_image, g_depth_num[..., None], g_alpha[..., None]], dim=-1), entries)
         channels = background.shape[0]
         up_image = up_ext[:, :, :channels]
@@ -102,7 +102,7 @@ class CompositeFunction(torch.autograd.Function):
         grads = GaussianGrads.zeros(means2d, channels_ext)
         up_planes = up_ext.permute(2, 0, 1).contiguous()
         for state in reversed(ctx.states):
-            backward_chunk(state, g, up_planes, behind, grads)
+            backward_chunk(state, features_ext, up_planes, behind, grads)
         grad_features_ext, grad_opacities, grad_sheared_conics, grad_means2d, absgrad = grads.split(channels_ext)
         ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))

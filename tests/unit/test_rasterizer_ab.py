@@ -3,13 +3,24 @@ renaming must reach every import statement and nothing else, or the "base" would
 
 from __future__ import annotations
 
+import math
 import shutil
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
+import torch
 
+import splatu.data.resolve
+from splatu import checkpoint
+from splatu.camera import Camera
+from splatu.config_values import to_dict
+from splatu.data.poster.path import look_at
+from splatu.model import GaussianModel
+from splatu.rasterizer import rasterize
+from splatu.train_config import ModelConfig, TrainConfig
 from tests.benchmark_scripts import benchmark_script
 
 REPO = Path(__file__).resolve().parents[2]
@@ -54,18 +65,6 @@ def test_a_revision_that_names_no_commit_is_one_clear_line(ab) -> None:
 def test_a_trained_run_is_timed_at_each_training_view_as_training_renders_it(ab, tmp_path: Path, monkeypatch) -> None:
     """`--run`: one view per training camera, and each renders what the model's own render gives there (its
     view-dependent colours, opacities and screen blur), so the A/B times the renders training makes."""
-    import math
-    import types
-
-    import torch
-
-    from splatu import checkpoint
-    from splatu.camera import Camera
-    from splatu.config_values import to_dict
-    from splatu.data.poster.path import look_at
-    from splatu.model import GaussianModel
-    from splatu.train_config import ModelConfig, TrainConfig
-
     config = TrainConfig(model=ModelConfig(sh_degree=2, screen_blur=0.1))
     generator = torch.Generator().manual_seed(0)
     model = GaussianModel.from_points(torch.rand(60, 3, generator=generator) - 0.5, None, config.model, generator)
@@ -75,15 +74,11 @@ def test_a_trained_run_is_timed_at_each_training_view_as_training_renders_it(ab,
     K = torch.tensor([[40.0, 0.0, 24.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
     eyes = [torch.tensor([3 * math.cos(a), 3 * math.sin(a), 0.5], dtype=torch.float64) for a in (0.0, 2.0, 4.0)]
     cameras = [Camera(K, look_at(eye, torch.zeros(3, dtype=torch.float64)).float(), 48, 32) for eye in eyes]
-    import splatu.data.resolve
-
     monkeypatch.setattr(splatu.data.resolve, "load_scene",
                         lambda data: types.SimpleNamespace(train=types.SimpleNamespace(cameras=cameras)))
     name, views = ab.trained_views(tmp_path)
     assert len(views) == 3 and "60 Gaussians" in name
     bench = ab.load_rasterizer_benchmark()
-    from splatu.rasterizer import rasterize
-
     for camera, view in zip(cameras, views, strict=True):
         assert view.options["blur"] == 0.1
         image, _, pairs = ab.render_step(rasterize, bench, view)

@@ -409,21 +409,24 @@ def test_terminated_blocks_are_skipped_exactly(fast, one_gaussian_rounds):
 
 
 WITH_DEAD_ENTRIES = [c for c in OPAQUE if c.seed in (8, 12, 22)]
-"""Opaque cases whose chunks hold dead entries under one_gaussian_rounds (the test asserts that they do)."""
+"""Opaque cases with chunks that mix live and dead entries under one_gaussian_rounds (the test asserts it)."""
+assert len(WITH_DEAD_ENTRIES) == 3, "the random cases changed: pick opaque cases with dead entries again"
 
 
 @pytest.mark.parametrize("case", WITH_DEAD_ENTRIES, ids=[f"seed{c.seed}" for c in WITH_DEAD_ENTRIES])
 def test_keeping_dead_entries_changes_no_value(fast, case, monkeypatch, one_gaussian_rounds):
     """A chunk that is nearly all live keeps its dead entries instead of compacting them away (composite.py,
     COMPACT_AT_MOST_LIVE). Their w, T and gradients are exactly 0, so every output and gradient equals the
-    always-compacted render's, with and without a contribution mask: the images bit for bit, the gradients to
-    rounding (eager torch may reduce a (B, Q) tensor over B in another order when Q differs)."""
+    always-compacted render's, with and without a contribution mask and without gradients: the images bit for
+    bit, the gradients to rounding (eager torch may reduce a (B, Q) tensor over B in another order when Q
+    differs)."""
     composite_module = sys.modules["splatu.rasterizer.composite"]
     function_module = sys.modules["splatu.rasterizer.function"]
     forward_chunk = function_module.forward_chunk
     mask = torch.rand(case.height, case.width, generator=torch.Generator().manual_seed(case.seed)) < 0.5
 
-    def rendered(compact_at_most_live: float, contribution_mask) -> tuple[Rendered, int]:
+    def rendered(compact_at_most_live: float, contribution_mask) -> tuple[Rendered, list[int]]:
+        """The render with gradients, and the number of entries each chunk saved for the backward."""
         monkeypatch.setattr(composite_module, "COMPACT_AT_MOST_LIVE", compact_at_most_live)
         saved = []
 
@@ -435,18 +438,28 @@ def test_keeping_dead_entries_changes_no_value(fast, case, monkeypatch, one_gaus
         monkeypatch.setattr(function_module, "forward_chunk", recording_forward_chunk)
         result = render_with_grads(case, lambda *a, **k: fast.rasterize(*a, contribution_mask=contribution_mask,
                                                                         **k))
-        return result, sum(saved)
+        monkeypatch.setattr(function_module, "forward_chunk", forward_chunk)
+        return result, saved
 
+    def rendered_without_grad(compact_at_most_live: float, contribution_mask):
+        monkeypatch.setattr(composite_module, "COMPACT_AT_MOST_LIVE", compact_at_most_live)
+        with torch.no_grad():
+            return case_scene(case).render(fast.rasterize, contribution_mask=contribution_mask, **case.options())
+
+    outputs = ("image", "alpha", "depth", "contrib_sum", "contrib_max")
     for contribution_mask in (None, mask):
-        (compacted, compacted_entries), (kept, kept_entries) = (rendered(limit, contribution_mask)
-                                                                for limit in (1.0, -1.0))
-        assert compacted_entries < kept_entries  # the case has dead entries, so the two paths differ
-        for name in ("image", "alpha", "depth", "contrib_sum", "contrib_max"):
+        (compacted, compacted_sizes), (kept, kept_sizes) = (rendered(limit, contribution_mask) for limit in (1.0, -1.0))
+        assert any(0 < c < k for c, k in zip(compacted_sizes, kept_sizes, strict=True)), "no chunk mixes live and dead"
+        for name in outputs:
             assert torch.equal(getattr(kept.out, name), getattr(compacted.out, name)), name
         gradients = {**compacted.grads, "means2d_absgrad": compacted.out.means2d_absgrad}
         for name, grad in gradients.items():
             other = kept.out.means2d_absgrad if name == "means2d_absgrad" else kept.grads[name]
             assert_close(other, grad, name, atol=1e-13 * max(1.0, grad.abs().max().item()))
+        no_grad_compacted, no_grad_kept = (rendered_without_grad(limit, contribution_mask) for limit in (1.0, -1.0))
+        for name in outputs:
+            assert torch.equal(getattr(no_grad_kept, name), getattr(no_grad_compacted, name)), name
+            assert torch.equal(getattr(no_grad_kept, name), getattr(kept.out, name).detach()), name
 
 
 @pytest.mark.parametrize("case", CASES[1:8:2], ids=IDS[1:8:2])
