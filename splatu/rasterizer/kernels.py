@@ -9,6 +9,7 @@ Compositor layout (row_block_spans instead takes 1-D per-row-record inputs): an 
 Gaussian on one block of B pixels of a row; element [x, q] is that Gaussian at column x of the
 block. Columns come first so that the running sums down each
 pixel's list (along q) are contiguous: torch's CPU cumsum is much slower across a strided dim.
+Per-entry inputs are (Q,), or for the conic (3, Q), rows A, S, Q, so that every load along q is contiguous.
 With the conic in sheared form (A, S, Q) (see projection.py), σ = ½A·t² + ½Q·w², t = v − S·w, where (v, w) is
 the pixel centre's offset from the mean, (dx, dy) or, for a `swapped` Gaussian, (dy, dx). Along a block only dx
 changes, by x: per entry t = t0 + p·x and w = w0 + r·x, with t0 and w0 at its first pixel and (p, r) = (1, 0), or
