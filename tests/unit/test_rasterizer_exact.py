@@ -306,6 +306,27 @@ def test_gradients_match_autograd_through_reference(fast, case):
         assert_close(got.grads[name], expected, f"d loss / d {name}", atol=1e-7 * scale, rtol=1e-6)
 
 
+@pytest.mark.parametrize("case", CASES[::3], ids=IDS[::3])
+def test_gradients_of_a_loss_on_the_image_alone_match_reference(fast, case):
+    """Training's loss reads the image only, so Σ w·z and alpha get zero upstream gradients (their channels of
+    the extended features then have none); the gradients and the absolute 2D-mean gradients match the reference."""
+    w_image = loss_weights(case)[0]
+    rendered = {}
+    for name, rasterize_fn in (("fast", fast.rasterize), ("reference", reference_rasterize)):
+        scene = case_scene(case)
+        params = scene.leaves()
+        out = scene.render(rasterize_fn, params, **case.options())
+        (out.image * w_image).sum().backward()
+        absgrad = out.means2d_absgrad() if isinstance(out, ReferenceOutput) else out.means2d_absgrad
+        rendered[name] = ({n: p.grad if p.grad is not None else torch.zeros_like(p) for n, p in params.items()},
+                          absgrad)
+    (got, got_absgrad), (ref, ref_absgrad) = rendered["fast"], rendered["reference"]
+    for name, expected in ref.items():
+        scale = max(1.0, expected.abs().max().item())
+        assert_close(got[name], expected, f"d image loss / d {name}", atol=1e-7 * scale, rtol=1e-6)
+    assert_close(got_absgrad, ref_absgrad, "absgrad", atol=1e-7 * max(1.0, ref_absgrad.abs().max().item()), rtol=1e-6)
+
+
 @pytest.mark.parametrize("case", CASES, ids=IDS)
 def test_means2d_gradients_match_reference(fast, case):
     got, ref = fast_case(case), reference_case(case)
