@@ -36,6 +36,7 @@ import torch
 import tyro
 
 from splatu.allocator import keep_freed_memory
+from splatu.errors import SplatuError
 
 REPO = Path(__file__).resolve().parents[1]
 BASE_PACKAGE = "splatu_base"
@@ -218,7 +219,10 @@ def main(config: AbConfig) -> None:
                                  current: bench.record_footprint_times()}
             cases = [case_views(name, bench) for name in config.cases]
             if config.run is not None:
-                cases.append(trained_views(config.run))
+                try:
+                    cases.append(trained_views(config.run))
+                except SplatuError as error:  # a missing or foreign run folder: one line, no traceback
+                    raise SystemExit(f"error: {error}") from None
             results = [compare_case(name, views, base, current, bench, config.pairs, footprint_seconds)
                        for name, views in cases]
         finally:
