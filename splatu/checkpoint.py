@@ -71,6 +71,9 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     if not target.is_dir():
         raise SplatuError("run directory or checkpoint not found", f"at {target}",
                           "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
+    if not (target / CHECKPOINT_DIR).is_dir():
+        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder)", f"in {target}",
+                          "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
     found = list_checkpoints(target)
     if not found:
         raise SplatuError("no checkpoint in this run directory", f"in {target / CHECKPOINT_DIR}",
@@ -91,23 +94,36 @@ def run_dir_of(checkpoint: Path) -> Path:
     return parent.parent if parent.name == CHECKPOINT_DIR else parent
 
 
+OLDER_CHECKPOINT = "use an older checkpoint of the run (its checkpoints/ folder), or retrain"
+
+
 def read_checkpoint(path: Path, required: tuple[str, ...] = ("step",)) -> dict[str, Any]:
-    """Load a checkpoint dict holding the `required` keys, or raise a one-line error for a corrupt,
-    foreign or incomplete file."""
+    """Load a checkpoint dict holding the `required` keys and a finite model, or raise a one-line error for a
+    corrupt, foreign, incomplete or non-finite file. The dict also holds "read_from", the path, for later messages.
+
+    Training never saves a non-finite model (it skips such steps), so NaN or Inf here is damage; caught now, a
+    resume fails before it sets anything aside, and a render names the file rather than blaming the rasterizer."""
+    not_ours = SplatuError("not a splatu checkpoint", f"in {path}", "pass a .pt checkpoint written by `splatu train`")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except MemoryError:
         raise
     except Exception as err:  # any junk (text, a truncated zip, a foreign pickle) raises its own type from torch
+        if path.suffix != ".pt":
+            raise not_ours from None
         raise SplatuError(f"corrupt or unreadable checkpoint ({type(err).__name__})", f"in {path}",
-                          "resume from an older checkpoint in the same folder or retrain") from None
+                          OLDER_CHECKPOINT) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
-        raise SplatuError("not a splatu checkpoint", f"in {path}", "pass a checkpoint written by `splatu train`")
+        raise not_ours
     missing = [key for key in required if key not in state]
     if missing:
-        raise SplatuError(f"incomplete checkpoint (missing {', '.join(missing)})", f"in {path}",
-                          "resume from an older checkpoint in the same folder or retrain")
-    return state
+        raise SplatuError(f"incomplete checkpoint (missing {', '.join(missing)})", f"in {path}", OLDER_CHECKPOINT)
+    for name, value in state.get("model", {}).items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(value.isfinite().all()):
+            count = int((~value.isfinite()).sum())
+            raise SplatuError(f"checkpoint has NaN or Inf in {name} ({count:,} of {value.numel():,} values)",
+                              f"in {path}", OLDER_CHECKPOINT)
+    return {**state, "read_from": str(path)}
 
 
 def capture_rng(generator: torch.Generator) -> dict[str, Any]:
@@ -138,7 +154,8 @@ def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianMode
         model.load_state_dict(state["model"])
     except RuntimeError as err:  # shapes that do not match the saved config (e.g. another SH degree)
         first = str(err).strip().splitlines()[-1].strip()
-        raise SplatuError(f"checkpoint model does not match its config ({first})", "in the run's checkpoint",
+        raise SplatuError(f"checkpoint model does not match its config ({first})",
+                          f"in {state.get('read_from', 'the run checkpoint')}",
                           "retrain, or load the checkpoint with the config it was written with") from None
     return model
 

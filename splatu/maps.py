@@ -138,6 +138,11 @@ def entry_names(root: Path) -> list[str]:
         if missing:
             raise SplatuError(f"{len(missing)} uncertainty maps have no {folder}/ image (e.g. {sorted(missing)[0]!r})",
                               f"in {root / folder}", f"write {folder}/NAME.png for every uncertainty/NAME.npy")
+    unscored = stems["rgb"] - stems["uncertainty"]  # a view whose map was lost would silently drop out of the score
+    if unscored:
+        raise SplatuError(f"{len(unscored)} renders have no uncertainty map (e.g. {sorted(unscored)[0]!r})",
+                          f"in {root / 'uncertainty'}", "write uncertainty/NAME.npy for every rgb/NAME.png, or "
+                          "remove the view's files from every folder")
     return sorted(stems["uncertainty"])
 
 

@@ -25,6 +25,8 @@ from splatu.sh import C0, MAX_SH_DEGREE, eval_sh, num_sh_bases, rgb_to_sh
 
 NEIGHBOURS = 3
 """Initial scale is the mean distance to this many nearest neighbours (3DGS / splatfacto)."""
+MAX_U_INIT_LOGIT = 30.0
+"""sigmoid(30) is 1 to float32's precision, so a larger initial logit only slows the uncertainty loss's start."""
 
 
 @dataclass
@@ -68,7 +70,10 @@ class ModelConfig:
         if not (math.isfinite(self.screen_blur) and self.screen_blur >= MIN_BLUR):
             raise SplatuError(f"--model.screen-blur {self.screen_blur} is below {MIN_BLUR} px² or not a number",
                               "in the model options", "use 0.3 (3DGS) or 0.1 (the presets)")
-        if self.random_init_points < 1 or not self.random_init_extent > 0:
+        if not (math.isfinite(self.u_init_logit) and abs(self.u_init_logit) <= MAX_U_INIT_LOGIT):
+            raise SplatuError(f"--model.u-init-logit {self.u_init_logit} is not a number within ±{MAX_U_INIT_LOGIT:g}",
+                              "in the model options", "use e.g. 2.0 (u starts at sigmoid(2) ≈ 0.88)")
+        if self.random_init_points < 1 or not 0 < self.random_init_extent < math.inf:
             raise SplatuError("random initialisation needs at least one point in a cube of positive side",
                               "--model.random-init-points / --model.random-init-extent", "use e.g. 50000 and 10")
 

@@ -46,6 +46,7 @@ from splatu.figures import (
 )
 from splatu.maps import MapEntry, file_stems, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
+from splatu.train_config import MAX_SEED
 
 ViewSet = Literal["eval", "train", "orbit"]
 
@@ -328,7 +329,11 @@ ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_f
 
 def check_method_options(method: UncertaintyMethod, density_aware: bool, fisher_probes: int, seed: int) -> None:
     """Refuse, in one line, an option `method` never reads (density-aware is the ensemble's, probes are Fisher's,
-    the seed is random's and Fisher's), rather than ignore it silently. Shared with eval-ause."""
+    the seed is random's and Fisher's), rather than ignore it silently; and a seed outside training's range.
+    Shared with eval-ause."""
+    require_at_least(seed, 0, "--seed")
+    if seed >= MAX_SEED:  # the maps seed torch with seed · 1,000,003 + a 32-bit hash (64 bits)
+        raise SplatuError(f"--seed {seed} is too large", "in the command's options", f"pass a seed below {MAX_SEED:,}")
     for flag, is_set, readers in (("--density-aware", density_aware, ("ensemble",)),
                                   ("--fisher-probes", fisher_probes != RenderUncertaintyConfig.fisher_probes,
                                    ("fisher",)),

@@ -64,6 +64,10 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
         if head is not None:
             raise SplatuError("--head needs a single run, this is an ensemble", f"in {run_dir}", "drop --head")
         record = read_ensemble(run_dir)
+        for member in record.members:
+            if not member.is_dir():
+                raise SplatuError("an ensemble member that ensemble.json lists is missing", f"at {member}",
+                                  f"train it again with `splatu train --resume {run_dir}` (trained members are kept)")
         loaded = [load_run(member) for member in record.members]
         return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], record.wall_seconds,
                          [m.frame for m in loaded])

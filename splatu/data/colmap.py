@@ -8,13 +8,14 @@ OpenCV using the exactly equivalent OpenCV coefficients.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import Frame, RawScene
+from splatu.data.frames import FLOAT32_MAX, Frame, RawScene
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
@@ -144,13 +145,18 @@ def _is_pose(tokens: list[str]) -> bool:
             and _is_number(tokens[8], int) and not _is_points(tokens))
 
 
-def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
-    """(line number, line) of the first data line of a COLMAP text file that cannot be parsed, if any."""
+def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
+    """(line number, tokens) of each non-comment, non-blank line of a COLMAP text file."""
     with path.open(encoding="utf-8", errors="replace") as lines:
         for number, line in enumerate(lines, start=1):
-            if line.strip() and not line.startswith("#") and not _valid_text_line(name, line.split()):
-                return number, line.strip()
-    return None
+            if line.strip() and not line.startswith("#"):
+                yield number, line.split()
+
+
+def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
+    """(line number, line) of the first data line of a COLMAP text file that cannot be parsed, if any."""
+    return next(((number, " ".join(tokens)) for number, tokens in _data_lines(path)
+                 if not _valid_text_line(name, tokens)), None)
 
 
 def pose_line_in_place_of_points(path: Path) -> int | None:
@@ -184,13 +190,42 @@ def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
     return reconstruction
 
 
+def broken_reference(files: dict[str, Path]) -> SplatuError | None:
+    """In a text model whose every line parses, the first camera model COLMAP does not know, or the first id that
+    points at nothing: pycolmap names these in its own terms ("Rig with ID 7 does not exist"), without file or line."""
+    cameras, images = files["cameras"], files["images"]
+    camera_ids = set()
+    for number, tokens in _data_lines(cameras):
+        if tokens[1] not in pycolmap.CameraModelId.__members__:
+            return SplatuError(f"unknown camera model {tokens[1]!r} (camera {tokens[0]})",
+                               f"in {cameras} line {number}", f"use one of {', '.join(SUPPORTED_MODELS)}")
+        camera_ids.add(int(tokens[0]))
+    image_ids = set()
+    for number, tokens in _data_lines(images):
+        if not _is_pose(tokens):
+            continue
+        image_ids.add(int(tokens[0]))
+        if int(tokens[8]) not in camera_ids:
+            return SplatuError(f"image {tokens[9]} uses camera {tokens[8]}, which {cameras.name} does not define",
+                               f"in {images} line {number}", "fix its CAMERA_ID or export the model from COLMAP again")
+    for number, tokens in _data_lines(files["points3D"]):
+        missing = next((i for i in tokens[8::2] if int(float(i)) not in image_ids), None)
+        if missing is not None:
+            return SplatuError(f"point {tokens[0]}'s track names image {missing}, which {images.name} does not define",
+                               f"in {files['points3D']} line {number}", "export the model from COLMAP again")
+    return None
+
+
 def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:
-    """The error for a model pycolmap could not read: a text file's first bad line, else pycolmap's reason."""
+    """The error for a model pycolmap could not read: a text file's first bad line or broken reference, else
+    pycolmap's reason."""
     for name, path in files.items():
         bad = first_bad_line(path, name) if path.suffix == ".txt" else None
         if bad is not None:
             return SplatuError(f"cannot parse {path.name} line {bad[0]} ({bad[1][:60]!r})", f"in {path}",
                                "fix that line or export the model from COLMAP again")
+    if all(path.suffix == ".txt" for path in files.values()) and (error := broken_reference(files)) is not None:
+        return error
     reason = re.sub(r"^\[[^]]*\]\s*", "", (str(err).strip().splitlines() or [type(err).__name__])[0])
     return SplatuError(f"pycolmap cannot read the COLMAP model ({reason})", f"in {sparse_dir}",
                        "export cameras, images and points3D from COLMAP again")
@@ -208,6 +243,8 @@ def _world_to_camera(image: pycolmap.Image, where: str) -> np.ndarray:
     world_to_camera[:3] = pose.matrix()
     if not np.isfinite(world_to_camera).all():
         raise SplatuError(f"image {image.name} has a non-finite pose", where, fix)
+    if (largest := float(np.abs(world_to_camera).max())) > FLOAT32_MAX:
+        raise SplatuError(f"image {image.name} has a pose value beyond float32's range ({largest:.3g})", where, fix)
     return world_to_camera
 
 

@@ -16,6 +16,8 @@ from splatu.data.images import PixelRecipe
 from splatu.errors import SplatuError
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+"""Cameras train in float32: a pose value beyond this is finite in the file but infinite in training."""
 """Flips camera y and z: OpenGL/Blender axes (y up, looking along -z) to OpenCV (y down, +z forward)."""
 
 
@@ -45,7 +47,8 @@ class RawScene:
 
 
 def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
-    """A finite 4x4 rigid transform from a JSON value (3x4 or 4x4), or a one-line error naming `where`."""
+    """A finite 4x4 rigid transform within float32's range from a JSON value (3x4 or 4x4), or a one-line error
+    naming `where`."""
     try:
         matrix = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -56,6 +59,8 @@ def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
         raise SplatuError("pose is not a 3x4 or 4x4 matrix", where, fix)
     if not np.isfinite(matrix).all():
         raise SplatuError("pose has non-finite values (NaN or Inf)", where, fix)
+    if (largest := float(np.abs(matrix).max())) > FLOAT32_MAX:
+        raise SplatuError(f"pose has a value beyond float32's range ({largest:.3g})", where, fix)
     rotation = matrix[:3, :3]
     if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) <= 0:
         raise SplatuError("pose rotation is not a rotation matrix", where, fix)

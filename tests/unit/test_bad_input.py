@@ -95,6 +95,30 @@ def test_unknown_colmap_camera_model(tmp_path):
     assert "FULL_OPENCV" in error.what and "cameras.txt" in error.where
 
 
+@pytest.mark.parametrize(("edits", "message", "file", "line"), [
+    ({"camera": "1 FOOBAR 8 6 5 5 4 3"}, "unknown camera model 'FOOBAR' (camera 1)", "cameras.txt", 2),
+    ({"camera": "7 PINHOLE 8 6 5 5 4 3"}, "image a.png uses camera 1, which cameras.txt does not define",
+     "images.txt", 1),
+    ({"camera": "# no camera left"}, "image a.png uses camera 1, which cameras.txt does not define", "images.txt", 1),
+    ({"points": "1 0.5 0.5 2 255 0 0 0.1 1 0\n2 0.5 0.5 2 255 0 0 0.1 8 0\n"},
+     "point 2's track names image 8, which images.txt does not define", "points3D.txt", 2),
+])
+def test_colmap_unknown_model_or_dangling_id_names_the_file_and_line(tmp_path, edits, message, file, line):
+    """pycolmap refuses these in its own terms ("Camera model does not exist", "Rig with ID 7 does not exist")
+    and names no file."""
+    sparse = write_colmap(tmp_path / "scene", **edits)
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == message and error.where == f"in {sparse / file} line {line}"
+
+
+def test_colmap_pose_beyond_float32_names_the_image(tmp_path):
+    sparse = write_colmap(tmp_path / "scene")
+    images = sparse / "images.txt"
+    images.write_text(images.read_text().replace("2 1 0 0 0 1 0 0", "2 1 0 0 0 1e39 0 0"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert "b.png has a pose value beyond float32's range (1e+39)" in error.what and error.where == f"in {images}"
+
+
 @pytest.mark.parametrize(("camera", "message"), [
     ("1 PINHOLE 0 6 5 5 4 3", "camera size 0x6 is not a plausible image size"),
     ("1 PINHOLE 8 0 5 5 4 3", "camera size 8x0 is not a plausible image size"),
@@ -193,6 +217,19 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     edit_transforms(root, poison)
     error = load_error(root, tmp_path)
     assert "non-finite" in error.what and cameras[1].name in error.where
+
+
+def test_pose_beyond_float32_names_the_frame(tmp_path):
+    """Finite in the file, infinite in training: it once trained on, every Gaussian collapsing to one point."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+
+    def push_away(content):
+        next(f for f in content["frames"] if f["file_path"] == cameras[1].name)["transform_matrix"][0][3] = 1e39
+
+    edit_transforms(root, push_away)
+    error = load_error(root, tmp_path)
+    assert error.what == "pose has a value beyond float32's range (1e+39)" and cameras[1].name in error.where
 
 
 @pytest.mark.parametrize(("lists", "message"), [

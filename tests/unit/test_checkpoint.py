@@ -80,9 +80,39 @@ def test_corrupt_foreign_and_missing_checkpoints_are_one_line_errors(tmp_path):
         ckpt.read_checkpoint(foreign)
     with pytest.raises(SplatuError, match="not found"):
         ckpt.resolve_checkpoint(tmp_path / "missing")
-    (tmp_path / "empty_run").mkdir()
-    with pytest.raises(SplatuError, match="no checkpoint"):
+    (tmp_path / "data_folder").mkdir()
+    with pytest.raises(SplatuError, match=r"not a splatu run \(it has no checkpoints/ folder\)"):
+        ckpt.load_run(tmp_path / "data_folder")
+    (tmp_path / "empty_run" / ckpt.CHECKPOINT_DIR).mkdir(parents=True)
+    with pytest.raises(SplatuError, match="no checkpoint in this run directory"):
         ckpt.load_run(tmp_path / "empty_run")
+    transforms = tmp_path / "transforms.json"  # a scene file passed to --load is not a damaged checkpoint
+    transforms.write_text('{"frames": []}')
+    with pytest.raises(SplatuError) as caught:
+        ckpt.load_run(transforms)
+    assert caught.value.what == "not a splatu checkpoint" and caught.value.where == f"in {transforms}"
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_a_checkpoint_with_nan_or_inf_names_the_file_and_tensor(tmp_path, bad):
+    """It used to load, and the render then blamed the rasterizer's input; a resume set later work aside first."""
+    state = _state(TrainConfig(), 0)
+    state["model"]["u_sh"][3, 0, 0] = bad
+    path = ckpt.save_checkpoint(tmp_path, 5, state)
+    with pytest.raises(SplatuError) as caught:
+        ckpt.load_run(tmp_path)
+    assert caught.value.what == "checkpoint has NaN or Inf in u_sh (1 of 800 values)"
+    assert caught.value.where == f"in {path}"
+
+
+def test_a_checkpoint_that_does_not_fit_its_config_names_the_file(tmp_path):
+    state = _state(TrainConfig(), 0)
+    state["model"]["sh_rest"] = state["model"]["sh_rest"][:, :3]
+    path = ckpt.save_checkpoint(tmp_path, 5, state)
+    with pytest.raises(SplatuError) as caught:
+        ckpt.load_run(tmp_path)
+    assert caught.value.what.startswith("checkpoint model does not match its config")
+    assert caught.value.where == f"in {path}"
 
 
 def test_rng_states_round_trip_through_a_saved_checkpoint(tmp_path):

@@ -112,6 +112,9 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
     ["train", "--seed", "-1"], ["train", "--seed", str(2**44)], ["train", "--ssim-lambda", "2"],
     ["train", "--model.screen-blur", "0"], ["train", "--model.screen-blur", "nan"],
+    ["train", "--model.u-init-logit", "inf"], ["train", "--model.u-init-logit", "nan"],
+    ["train", "--model.u-init-logit", "1e30"], ["render-uncertainty", "--method", "random", "--seed", "-1"],
+    ["eval-ause", "--method", "fisher", "--seed", str(2**40)],
     ["render-uncertainty", "--orbit-frames", "4"], ["render-uncertainty", "--density-aware"],
     ["render-uncertainty", "--method", "random", "--fisher-probes", "4"], ["eval-ause", "--density-aware"],
 ])

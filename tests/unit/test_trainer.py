@@ -3,6 +3,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import time
 from pathlib import Path
@@ -946,6 +947,17 @@ def test_an_ensemble_whose_record_was_never_written_is_finished_by_a_resume(tmp_
     (run_dir / "ensemble.json").unlink()  # stopped after the last member, before the record
     trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert json.loads((run_dir / "ensemble.json").read_text())["members"] == ["members/0", "members/1", "members/2"]
+
+
+def test_a_deleted_ensemble_member_is_named_and_the_suggested_resume_trains_it_again(tmp_path, scene):
+    run_dir = trainer.train(_ensemble_config(tmp_path))
+    shutil.rmtree(run_dir / "members" / "1")
+    with pytest.raises(SplatuError) as caught:
+        load_any_run(run_dir)
+    assert caught.value.what == "an ensemble member that ensemble.json lists is missing"
+    assert caught.value.where == f"at {run_dir / 'members' / '1'}" and f"--resume {run_dir}" in caught.value.fix
+    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert len(load_any_run(run_dir).models) == 3
 
 
 def test_full_resolution_targets_of_a_plain_scene_are_not_copied():
