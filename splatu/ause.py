@@ -32,7 +32,7 @@ RANDOM_STREAM = 0x5A5E
 """Stream key mixed into the baseline seeds, so the noise never replays a user's own seeded draws."""
 TIE_SEED = 0
 """Seed of the fixed permutation that breaks ties in u, so equal u never follows pixel order."""
-CAPTION = "grid r=k/100 k=0..99, joint-max normalisation, mean over images"
+CAPTION = "per-pixel error summed over RGB, grid r=k/100 k=0..99, joint-max normalisation, mean over images"
 
 
 @dataclass(frozen=True)

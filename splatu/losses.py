@@ -113,7 +113,10 @@ class UncertaintyLossConfig:
     1 in the uncertainty study, on the same Gaussians; on fox it read 0.439 against 0.432); antipodal: the paper's
     own default u(−d) term; mean: ū over random directions (the paper's variant)."""
     lam: float = 0.3
-    """λ in (1−λ)·u(d) + λ·(1−u(−d)); must be < 0.5 so Gaussians seen from opposite sides stay certain."""
+    """λ in (1−λ)·u(d) + λ·(1−u(−d)); must be < 0.5 so that a Gaussian seen from opposite sides ends up certain
+    from both (antipodal, mean). `weighted` scales the first term by the max blend weight w, so there this holds
+    only where w > λ/(1−λ) (0.43 at λ = 0.3): a Gaussian that never gives any pixel more than that stays uncertain
+    even from where it was seen."""
     threshold: float = 0.05
     """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean)."""
     num_dirs: int = 16
@@ -135,8 +138,8 @@ class UncertaintyLossConfig:
         if not 0.0 <= self.lam < 0.5:
             raise SplatuError(f"uncertainty λ = {self.lam} is not in [0, 0.5)", "--uncertainty.lam",
                               "use λ < 0.5 (the paper's condition), e.g. 0.3")
-        if not 0.0 <= self.threshold <= 1.0:
-            raise SplatuError(f"uncertainty threshold = {self.threshold} is not a blend weight in [0, 1]",
+        if not 0.0 < self.threshold <= 1.0:  # 0 would supervise Gaussians this view never drew as seen
+            raise SplatuError(f"uncertainty threshold = {self.threshold} is not a blend weight in (0, 1]",
                               "--uncertainty.threshold", "use e.g. 0.05")
         if self.num_dirs < 1:
             raise SplatuError(f"uncertainty num_dirs = {self.num_dirs} is below 1", "--uncertainty.num-dirs",
@@ -257,5 +260,7 @@ def _head_loss(u_sh: Tensor, head: UncertaintyHead, means: Tensor, camera_center
         parity = 1.0 - 2.0 * (torch.arange(terms.shape[-1]).sqrt().floor() % 2)  # (−1)^l per coefficient
         seen, other = torch.sigmoid(terms.sum(-1)), torch.sigmoid(terms @ parity.to(terms))
     first = seen * weights[selected] if cfg.kind == "weighted" else seen
+    # λ·(1 − u(−d)), as REFERENCE §1: the paper prints λ·(u(−x) − 1), which minimised would push u(−x) down,
+    # against its stated intent that the directions opposite a view stay uncertain
     loss = ((1.0 - cfg.lam) * first + cfg.lam * (1.0 - other)).mean()
     return cfg.weight * loss

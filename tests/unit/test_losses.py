@@ -92,6 +92,13 @@ def test_lambda_outside_range_is_a_user_error(lam):
         UncertaintyLossConfig(lam=lam)
 
 
+@pytest.mark.parametrize("threshold", [0.0, -0.1, 1.5, float("nan")])
+def test_a_threshold_that_is_no_positive_blend_weight_is_a_user_error(threshold):
+    """0 supervised every Gaussian, the ones this view never drew too, as seen from this camera."""
+    with pytest.raises(SplatuError, match="is not a blend weight in"):
+        UncertaintyLossConfig(threshold=threshold)
+
+
 def _single_gaussian(u_degree: int) -> tuple[GaussianModel, Camera]:
     """One opaque Gaussian 3 units in front of a camera at the origin, seen along +z."""
     cfg = ModelConfig(sh_degree=0, u_sh_degree=u_degree, init_opacity=0.95)
