@@ -36,9 +36,11 @@ class ModelConfig:
     sh_degree_interval: int = 1000
     """Raise the active colour SH degree by one every this many steps."""
     u_sh_degree: int = 3
-    """Uncertainty SH degree (0-3). On the poster stand-in (benchmarks/uncertainty_study.py, one training with a
-    head per degree) the weighted loss's AUSE-MAE reads 0.431 / 0.421 / 0.392 / 0.341 for degrees 0 / 1 / 2 / 3,
-    so the default is 3; fox needs only 1 (docs/results.md). --degree-choice.on picks it per scene."""
+    """Uncertainty SH degree (0-3). On the poster stand-in (one `fast` training with a head per degree) the
+    antipodal loss's area under the sparsification curve (MAE) reads 0.100 / 0.078 / 0.074 / 0.070 for degrees
+    0 / 1 / 2 / 3, AUSE-MAE 0.409 / 0.373 / 0.330 for 1 / 2 / 3 (the weighted loss's study read 0.431 / 0.421 /
+    0.392 / 0.341 for 0-3), so the default is 3; fox needs only 1 (docs/results.md). --degree-choice.on picks it
+    per scene."""
     u_init_logit: float = 2.0
     """Initial uncertainty logit: u starts at sigmoid(2) ≈ 0.88 everywhere (unseen means uncertain)."""
     init_opacity: float = 0.1
