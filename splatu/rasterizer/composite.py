@@ -57,7 +57,8 @@ class GaussianParams:
 
 @dataclass
 class PixelAccumulators:
-    """Per-pixel Σ w·f_ext in block layout (B, num_blocks, C+2) and per-Gaussian contributions (N,)."""
+    """Per-pixel Σ w·f_ext in block layout (B, num_blocks, C+2) and per-Gaussian contributions (N,); the sums
+    in float64 until the render ends."""
 
     image_ext: Tensor
     contrib_sum: Tensor
@@ -228,7 +229,7 @@ def forward_chunk(
     live = torch.nonzero(weight_max > 0).squeeze(1)
     if counted is not None:
         counted_weight = weight * counted.index_select(1, v.block)
-        weight_sum, weight_max = counted_weight.sum(0), counted_weight.amax(0)
+        weight_sum, weight_max = counted_weight.sum(0, dtype=torch.float64), counted_weight.amax(0)
     compact = live.numel() <= COMPACT_AT_MOST_LIVE * v.block.numel()
     gaussian, block = v.gaussian, v.block
     if compact:

@@ -31,7 +31,8 @@ def _run_forward(
     dtype, device = g.means2d.dtype, g.means2d.device
     acc = PixelAccumulators(
         image_ext=torch.zeros(entries.block_width, entries.num_blocks, channels_ext, dtype=dtype, device=device),
-        contrib_sum=torch.zeros(n, dtype=dtype, device=device),
+        # float64: a Gaussian that covers a 4096×3072 frame summed 0.58% short in float32 (a numerics review)
+        contrib_sum=torch.zeros(n, dtype=torch.float64, device=device),
         contrib_max=torch.zeros(n, dtype=dtype, device=device),
     )
     log_t = torch.zeros(entries.block_width, entries.num_blocks, dtype=torch.float64, device=device)
@@ -42,6 +43,7 @@ def _run_forward(
         state = forward_chunk(entries, positions, g, width, acc, log_t, counted, keep_state)
         if state is not None:
             states.append(state)
+    acc.contrib_sum = acc.contrib_sum.to(dtype)
     return acc, states
 
 

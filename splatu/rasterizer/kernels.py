@@ -82,8 +82,9 @@ def alpha_and_log_one_minus(
 def blend(
     log_one_minus: Tensor, cumulative: Tensor, first: Tensor, carried_log_t: Tensor, block: Tensor, alpha_raw: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """Transmittance of kept pairs (0 elsewhere), weight w = T·α (B, Q), and Σ_x w, max_x w and the number
-    of kept pairs per entry (counted here, fused, rather than by a pass over the chunk afterwards).
+    """Transmittance of kept pairs (0 elsewhere), weight w = T·α (B, Q), and Σ_x w (float64, for the summed
+    contributions), max_x w and the number of kept pairs per entry (counted here, fused, rather than by a pass over
+    the chunk afterwards).
 
     `cumulative` is the inclusive running sum of `log_one_minus` along q; subtracting its exclusive
     value at the first entry of the same block in this chunk, and adding the log T each pixel carries
@@ -97,7 +98,7 @@ def blend(
     kept = (log_one_minus < 0) & (log_t + log_one_minus >= LOG_T_MIN)
     transmittance = torch.where(kept, torch.exp(log_t.to(alpha_raw.dtype)), 0.0)
     weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
-    return transmittance, weight, weight.sum(0), weight.amax(0), (transmittance > 0).sum(0)
+    return transmittance, weight, weight.sum(0, dtype=torch.float64), weight.amax(0), (transmittance > 0).sum(0)
 
 
 def upstream_per_weight(

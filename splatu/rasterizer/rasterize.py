@@ -91,6 +91,9 @@ def rasterize(
         require_finite(name, tensor)
     if contribution_mask is not None:
         require_shape("contribution_mask", contribution_mask, (height, width))
+    if not (math.isfinite(near) and near > 0 and far > near):  # far may be inf; NaN fails every comparison
+        raise RasterInputError(f"rasterize got near = {near}, far = {far}", "in the call to rasterize",
+                               "pass 0 < near < far (3DGS uses near 0.01; far may be inf)")
     if not (math.isfinite(blur) and blur >= MIN_BLUR):
         raise RasterInputError(f"rasterize got blur = {blur}", "in the call to rasterize",
                                f"pass a blur of at least {MIN_BLUR} px² (3DGS uses 0.3, Mip-Splatting's 2D filter 0.1)")
@@ -112,7 +115,8 @@ def rasterize(
     return RasterOutput(
         image=image,
         alpha=alpha,
-        depth=depth_num / alpha.clamp_min(1e-10),
+        # 0 where nothing was drawn, and no gradient there: 1/1e-10 times a depth once made 0·inf = NaN
+        depth=torch.where(alpha > 0, depth_num / alpha.clamp_min(1e-10), 0.0),
         radii=proj.radii,
         means2d=proj.means2d,
         means2d_absgrad=absgrad,
