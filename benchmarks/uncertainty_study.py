@@ -146,7 +146,7 @@ def head_rows(budget: Budget, default_degree: int, ablations: bool) -> tuple[Var
     ablation; and row name → head (None: the run's own head, the weighted loss at the highest degree).
 
     L_u never moves the geometry, so each head is the u_sh a separate run would learn (tests/unit/test_trainer.py
-    checks this), on the same Gaussians as ours-antipodal. λ and the degree vary the default (weighted) loss at the
+    checks this), on the same Gaussians as ours-antipodal. λ and the degree vary the weighted loss at the
     default degree; the threshold varies the paper's antipodal loss, since the weighted loss has none.
     """
     degrees = sorted({*budget.u_degrees, default_degree}) if ablations else [default_degree]

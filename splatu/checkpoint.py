@@ -71,8 +71,8 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     if not target.is_dir():
         raise SplatuError("run directory or checkpoint not found", f"at {target}",
                           "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
-    if not (target / CHECKPOINT_DIR).is_dir():
-        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder)", f"in {target}",
+    if not (target / CHECKPOINT_DIR).is_dir() and not (target / "config.yml").is_file():  # a run saves its config first
+        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}",
                           "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
     found = list_checkpoints(target)
     if not found:

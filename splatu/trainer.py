@@ -274,7 +274,7 @@ def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step
         found = list_checkpoints(run_dir)
         where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
         return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}", run_dir, state.step,
-                                   signal_number)
+                                   signal_number, resumable=bool(found))
     path = save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
     return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step, signal_number)
 

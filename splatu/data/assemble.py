@@ -122,11 +122,27 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     )
 
 
+OUTLYING_CAMERA_RATIO = 1e6
+"""A camera this many times farther from the cameras' median position than their median distance to it is a
+broken pose, not a capture: normalisation would squeeze every other camera to within float32 rounding of a point."""
+
+
+def refuse_outlying_camera(frames: list[Frame], centers: torch.Tensor, source: str) -> None:
+    """One line naming the frame whose camera sits absurdly far from all the others (e.g. a translation of 1e20)."""
+    distance = (centers - centers.median(dim=0).values).norm(dim=-1)
+    typical, worst = float(distance.median()), int(distance.argmax())
+    if typical > 0 and float(distance[worst]) > OUTLYING_CAMERA_RATIO * typical:
+        raise SplatuError(f"the camera of {frames[worst].name!r} is {float(distance[worst]) / typical:.3g} times "
+                          "farther from the others' median position than they are", f"in {source}",
+                          "fix or remove that frame's pose")
+
+
 def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
     """Split, normalise (cameras of all frames define centre and scale) and decode a parsed scene."""
     check_downscaled_size(raw.frames, cfg.downscale or 1)
     train, held_out, extras, own = choose_split(raw, cfg)
     centers = torch.stack([f.camera.center() for f in raw.frames])
+    refuse_outlying_camera(raw.frames, centers, raw.source)
     center, scale = normalization(centers)
     points = torch.as_tensor(np.asarray(raw.points, dtype=np.float64)).reshape(-1, 3)
 

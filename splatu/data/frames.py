@@ -16,9 +16,9 @@ from splatu.data.images import PixelRecipe
 from splatu.errors import SplatuError
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+"""Flips camera y and z: OpenGL/Blender axes (y up, looking along -z) to OpenCV (y down, +z forward)."""
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Cameras train in float32: a pose value beyond this is finite in the file but infinite in training."""
-"""Flips camera y and z: OpenGL/Blender axes (y up, looking along -z) to OpenCV (y down, +z forward)."""
 
 
 @dataclass

@@ -60,7 +60,8 @@ def quaternion_to_rotation(quats: Tensor) -> Tensor:
     Each quaternion is first multiplied by the power of two that brings its largest component into [1, 2): exact,
     so a unit quaternion's rotation is the same to the bit, while q·1e-13 (its norm below the 1e-12 floor) and
     q·1e200 (its norm overflowing) now give q's rotation, not another shape. The factor is a constant to autograd,
-    which is exact: the normalisation makes the result independent of it."""
+    which is exact: the normalisation makes the result independent of it. The gradient scales as 1/|q|, so in
+    float32 a quaternion of norm below about 1e-37 has an infinite one (training skips such a step)."""
     largest = quats.detach().abs().amax(-1, keepdim=True).clamp_min(torch.finfo(quats.dtype).tiny)
     scaled = quats * torch.exp2(-torch.floor(torch.log2(largest)))
     q = scaled / scaled.norm(dim=-1, keepdim=True).clamp_min(1e-12)

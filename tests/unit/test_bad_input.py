@@ -219,6 +219,20 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     assert "non-finite" in error.what and cameras[1].name in error.where
 
 
+@pytest.mark.parametrize("far", [1e20, 3e38])
+def test_a_camera_absurdly_far_from_the_others_names_the_frame(tmp_path, far):
+    """Within float32's range it loaded, and normalisation squeezed every other camera to within 1e-17 of a point."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=6)
+
+    def push_away(content):
+        next(f for f in content["frames"] if f["file_path"] == cameras[2].name)["transform_matrix"][1][3] = far
+
+    edit_transforms(root, push_away)
+    error = load_error(root, tmp_path)
+    assert f"the camera of {cameras[2].name!r} is" in error.what and error.where.endswith("transforms.json")
+
+
 def test_pose_beyond_float32_names_the_frame(tmp_path):
     """Finite in the file, infinite in training: it once trained on, every Gaussian collapsing to one point."""
     root = tmp_path / "scene"

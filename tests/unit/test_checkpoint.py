@@ -81,8 +81,12 @@ def test_corrupt_foreign_and_missing_checkpoints_are_one_line_errors(tmp_path):
     with pytest.raises(SplatuError, match="not found"):
         ckpt.resolve_checkpoint(tmp_path / "missing")
     (tmp_path / "data_folder").mkdir()
-    with pytest.raises(SplatuError, match=r"not a splatu run \(it has no checkpoints/ folder\)"):
+    with pytest.raises(SplatuError, match=r"not a splatu run \(it has no checkpoints/ folder or config.yml\)"):
         ckpt.load_run(tmp_path / "data_folder")
+    (tmp_path / "aborted_run").mkdir()  # stopped in its first step: its config, no checkpoint yet
+    (tmp_path / "aborted_run" / "config.yml").write_text("steps: 10\n")
+    with pytest.raises(SplatuError, match="no checkpoint in this run directory"):
+        ckpt.load_run(tmp_path / "aborted_run")
     (tmp_path / "empty_run" / ckpt.CHECKPOINT_DIR).mkdir(parents=True)
     with pytest.raises(SplatuError, match="no checkpoint in this run directory"):
         ckpt.load_run(tmp_path / "empty_run")

@@ -960,6 +960,14 @@ def test_a_deleted_ensemble_member_is_named_and_the_suggested_resume_trains_it_a
     assert len(load_any_run(run_dir).models) == 3
 
 
+def test_an_abort_before_any_checkpoint_does_not_advise_a_resume(tmp_path):
+    """A resume of a run with no checkpoint can only fail; the advice used to be `--resume` all the same."""
+    state = dataclasses.replace(trainer.fresh_state(tiny_config(tmp_path), tiny_scene()), step=0)
+    stop = trainer._interrupted(state, tiny_config(tmp_path), tmp_path, mid_step=True, signal_number=signal.SIGINT)
+    assert stop.message == ("aborted during step 1; no checkpoint was written; nothing to resume, so run the same "
+                            "`splatu train` command again")
+
+
 def test_full_resolution_targets_of_a_plain_scene_are_not_copied():
     """A scene's images can be GBs; without alpha or masks, level 0 must share them, not hold a second copy."""
     views = tiny_scene().train
