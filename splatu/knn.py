@@ -11,6 +11,11 @@ import math
 import torch
 from torch import Tensor
 
+MAX_DISTANCE = 1e18
+"""Neighbour distances are capped here: float32 squares overflow from about 1.8e19, and an outlier point 1e20
+from the rest once got an infinite initial scale (a numerics review). The capped Gaussian is huge, and is culled
+as such."""
+
 
 def mean_neighbour_distance(points: Tensor, k: int, max_pairs: int = 4_000_000) -> Tensor:
     """(N,) mean Euclidean distance of each point to its k nearest other points, exact.
@@ -18,18 +23,19 @@ def mean_neighbour_distance(points: Tensor, k: int, max_pairs: int = 4_000_000) 
     A uniform grid whose cell is about the typical k-th neighbour distance (estimated on a sample) gives each
     point candidates in its 27 surrounding cells; an answer is exact when its k-th distance is within one cell.
     The points where it is not are retried with a cell twice as large, and brute force finishes the last few
-    (far outliers). Memory stays O(max_pairs). Coincident points are floored at a tiny positive distance and a
-    lone point gets 1, so log-scales stay finite.
+    (far outliers). Memory stays O(max_pairs). Coincident points are floored at a tiny positive distance, far
+    outliers capped at MAX_DISTANCE, and a lone point gets 1, so log-scales stay finite.
     """
     n = points.shape[0]
     if n <= 1:
         return points.new_ones(n)
     k = min(k, n - 1)
     extent = float((points.max(0).values - points.min(0).values).max())
+    floor = max(_bulk_extent(points), 1.0) * 1e-7
     result = torch.zeros(n)
     pending = torch.arange(n)
     if n * n <= max_pairs:  # small clouds: one brute-force pass is cheaper than building a grid
-        return _brute_knn_mean(points, pending, k, max_pairs).clamp_min(max(extent, 1.0) * 1e-7)
+        return _brute_knn_mean(points, pending, k, max_pairs).clamp(floor, MAX_DISTANCE)
     cell = _typical_kth_distance(points, k)
     for _ in range(4):
         if pending.numel() == 0 or not 0 < cell < extent:
@@ -41,7 +47,15 @@ def mean_neighbour_distance(points: Tensor, k: int, max_pairs: int = 4_000_000) 
         cell *= 2.0
     if pending.numel() > 0:
         result[pending] = _brute_knn_mean(points, pending, k, max_pairs)
-    return result.clamp_min(max(extent, 1.0) * 1e-7)
+    return result.clamp(floor, MAX_DISTANCE)
+
+
+def _bulk_extent(points: Tensor) -> float:
+    """The largest side of the box holding the middle 98% of the points along each axis: the floor for coincident
+    points scales with it, not with the full box, which one outlier 1e20 away made the floor of every point."""
+    sample = points[torch.linspace(0, points.shape[0] - 1, min(points.shape[0], 100_000)).long()].double()
+    low, high = torch.quantile(sample, torch.tensor([0.01, 0.99], dtype=torch.float64), dim=0)
+    return float((high - low).max())
 
 
 def _typical_kth_distance(points: Tensor, k: int, sample: int = 256) -> float:

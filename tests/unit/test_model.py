@@ -49,6 +49,19 @@ def test_neighbour_distance_with_fewer_points_than_neighbours():
     assert mean_neighbour_distance(torch.zeros(1, 3), 3).shape == (1,)
 
 
+@pytest.mark.parametrize("outlier", [1e20, 3e38])
+def test_an_outlying_initial_point_gets_a_finite_scale(outlier):
+    """float32 squares of 1e20 overflow: the knn distance was inf, so was its log-scale, and the first render then
+    blamed a learning rate or a camera pose."""
+    inliers = torch.rand(200, 3, generator=torch.Generator().manual_seed(3))
+    points = torch.cat([inliers, torch.tensor([[outlier, 0.0, 0.0]])])
+    model = GaussianModel.from_points(points, None, ModelConfig(), torch.Generator().manual_seed(0))
+    assert torch.isfinite(model.log_scales).all()
+    # the inliers' scales are as without the outlier: it once also set the floor of every point's distance (1e13)
+    alone = GaussianModel.from_points(inliers, None, ModelConfig(), torch.Generator().manual_seed(0))
+    assert torch.equal(model.log_scales[:200], alone.log_scales)
+
+
 def test_random_init_fills_the_cube():
     cfg = ModelConfig(random_init_points=5000, random_init_extent=4.0)
     model = GaussianModel.from_points(torch.zeros(0, 3), None, cfg, torch.Generator().manual_seed(1))
