@@ -10,7 +10,8 @@ RUN    := outputs/poster/splatu/latest
 
 install: $(STAMP)
 
-# torch==2.13.0 first: it is the CPU wheel on disk; a bare `torch` would pull a CUDA build.
+# torch==2.13.0 first: on this project's machines pip finds its CPU wheel on disk, and a bare `torch` would pull a
+# CUDA build. Elsewhere, install the CPU wheel into .venv first (README, Quickstart).
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(BIN)/pip install --quiet torch==2.13.0

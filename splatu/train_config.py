@@ -94,7 +94,8 @@ class TrainConfig:
     """Continue a run exactly from its latest checkpoint (a run directory or a .pt file), with its saved options:
     other flags are ignored (and named), except --data, which gives the scene's new location."""
     ensemble: int = 1
-    """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/."""
+    """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/; `--method ensemble`
+    trains the paper's 10 when this is left at 1."""
     max_nonfinite_steps: int = 5
     """Stop when this many steps in a row have a non-finite loss or gradient (each one is skipped)."""
     progress: bool = True
