@@ -13,6 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
+from splatu.errors import os_error_behind, unwritable
+
 
 def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
     """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`."""
@@ -26,6 +28,11 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
         _fsync_dir(path.parent)
+    except Exception as err:
+        refused = os_error_behind(err)
+        if refused is None:
+            raise
+        raise unwritable(path, refused) from err
     finally:
         tmp.unlink(missing_ok=True)
 

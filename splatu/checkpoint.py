@@ -59,7 +59,8 @@ def checkpoint_step(path: Path) -> int:
 def list_checkpoints(run_dir: Path) -> list[Path]:
     """Checkpoints of a run, oldest first. Only names the trainer writes count: a user's copy such as
     "step-0000200 (copy).pt" is neither resumed from nor pruned."""
-    found = [path for path in (run_dir / CHECKPOINT_DIR).glob("step-*.pt") if CHECKPOINT_NAME.fullmatch(path.name)]
+    found = [path for path in (run_dir / CHECKPOINT_DIR).glob("step-*.pt")
+             if CHECKPOINT_NAME.fullmatch(path.name) and path.is_file()]
     return sorted(found, key=checkpoint_step)
 
 

@@ -58,3 +58,19 @@ def writable_dir(path: Path, option: str) -> Path:
         raise SplatuError(f"cannot write the output folder ({err.strerror or type(err).__name__})", f"in {path}",
                           f"pass a writable {option}") from None
     return path
+
+
+def os_error_behind(err: BaseException) -> OSError | None:
+    """The OSError behind a failed write, if that is what failed: torch.save re-raises a failed write (a full
+    disk, a file-size limit) as a RuntimeError whose context is the OSError. Other errors are bugs."""
+    if isinstance(err, RuntimeError):
+        err = err.__cause__ or err.__context__
+    return err if isinstance(err, OSError) else None
+
+
+def unwritable(path: Path, err: OSError) -> SplatuError:
+    """A write that the disk refused (full, read-only, over a quota or size limit) as one line."""
+    reason = err.strerror or str(err) or type(err).__name__
+    return SplatuError(f"could not write {path.name} ({reason})", f"in {path.parent}",
+                       "free space on that disk or make the folder writable, then run the command again (a training "
+                       "continues from its last checkpoint with `splatu train --resume RUN`)")

@@ -31,9 +31,14 @@ class Terminated(KeyboardInterrupt):
     signal_number = signal.SIGTERM
 
 
+def signal_of(stop: KeyboardInterrupt) -> int:
+    """The signal behind a stop: SIGTERM for `Terminated` and what carries it, else Ctrl-C's SIGINT."""
+    return int(getattr(stop, "signal_number", signal.SIGINT))
+
+
 def exit_code(stop: KeyboardInterrupt) -> int:
     """128 + the signal that stopped the command, the shell's convention: 130 for Ctrl-C, 143 for SIGTERM."""
-    return 128 + int(getattr(stop, "signal_number", signal.SIGINT))
+    return 128 + signal_of(stop)
 
 
 @dataclass

@@ -9,11 +9,18 @@ from typing import Any
 
 from splatu.atomic import atomic_write_text
 from splatu.checkpoint import (
+    CHECKPOINT_DIR,
     checkpoint_step,
     list_checkpoints,
 )
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, unwritable
 from splatu.run_dir import new_timestamped_dir
+
+REDONE_AT_RESUME = ("eval", "degree_choice")
+"""Records of a step that a resume from that step's checkpoint redoes: its evaluation (which a stop may have
+skipped or cut short, and which the final one repeats) and the degree choice, made after the checkpoint of
+its step. Redone rather than trusted, a resumed run's log reads as an uninterrupted run's."""
+DEGREE_CHOICE_FILE = "degree_choice.json"
 
 
 class MetricsLog:
@@ -23,13 +30,16 @@ class MetricsLog:
         self.path = path
 
     def write(self, record: dict[str, Any]) -> None:
-        with self.path.open("a") as f:
-            f.write(json.dumps(record) + "\n")
+        try:
+            with self.path.open("a") as f:
+                f.write(json.dumps(record) + "\n")
+        except OSError as err:
+            raise unwritable(self.path, err) from None
 
     def drop_after(self, step: int) -> list[str]:
-        """On resume: forget the lines logged after the checkpoint (they are about to be redone) and a line
-        torn by a killed process; return the dropped whole lines. Rewritten atomically: a crash here keeps
-        the old log."""
+        """On resume: forget the lines logged after the checkpoint of `step` (they are about to be redone), the
+        lines of that step that its checkpoint does not hold (`REDONE_AT_RESUME`), and a line torn by a killed
+        process; return the dropped whole lines. Rewritten atomically: a crash here keeps the old log."""
         if not self.path.is_file():
             return []
         kept, dropped = [], []
@@ -38,7 +48,9 @@ class MetricsLog:
                 record = json.loads(line)
             except json.JSONDecodeError:
                 continue  # empty, or half a line: the process died while appending it
-            (kept if record.get("step", 0) <= step else dropped).append(line)
+            later = record.get("step", 0) > step or (record.get("step") == step and
+                                                     record.get("event") in REDONE_AT_RESUME)
+            (dropped if later else kept).append(line)
         atomic_write_text(self.path, "".join(ln + "\n" for ln in kept))
         return dropped
 
@@ -59,10 +71,30 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
     reports = [*run_dir.glob("ause_*"), run_dir / "uncertainty"]  # renders and scores of the abandoned model
+    choice = run_dir / DEGREE_CHOICE_FILE
+    if choice.is_file() and _choice_step(choice) >= step:  # made at or after `step`: the resume chooses again
+        reports.append(choice)
     for path in [*later, run_dir / "summary.json", run_dir / "splat.ply", *reports]:
         if path.exists():
             path.replace(folder / path.name)
     return folder
+
+
+def remove_torn_checkpoints(run_dir: Path) -> list[Path]:
+    """On resume: delete the temporary files of checkpoint writes that a killed process left (each the size of a
+    checkpoint); a write that completes renames its own away. Only one process trains a run at a time."""
+    torn = sorted((run_dir / CHECKPOINT_DIR).glob(".step-*.pt.tmp-*"))
+    for path in torn:
+        path.unlink(missing_ok=True)
+    return torn
+
+
+def _choice_step(path: Path) -> int:
+    """The step a degree choice was made after; a damaged record counts as made late, so it is set aside."""
+    try:
+        return int(json.loads(path.read_text(encoding="utf-8"))["step"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 1 << 62
 
 
 def refuse_set_aside_checkpoint(checkpoint: Path) -> None:

@@ -29,6 +29,8 @@ from splatu.atomic import atomic_write_text
 from splatu.checkpoint import (
     RESUME_KEYS,
     capture_rng,
+    checkpoint_path,
+    checkpoint_step,
     list_checkpoints,
     model_from_state,
     read_checkpoint,
@@ -54,7 +56,13 @@ from splatu.degree_choice import (
 from splatu.densify import DensityController
 from splatu.errors import SplatuError, writable_dir
 from splatu.evaluation import evaluate_scene, refuse_unscorable_sets
-from splatu.interrupts import TrainingInterrupted, deferred_interrupt, exit_code, sigterm_as_ctrl_c
+from splatu.interrupts import (
+    TrainingInterrupted,
+    deferred_interrupt,
+    exit_code,
+    signal_of,
+    sigterm_as_ctrl_c,
+)
 from splatu.json_files import is_finite_number, read_json
 from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
@@ -62,7 +70,13 @@ from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
 from splatu.run_dir import new_run_dir, point_latest
-from splatu.run_records import MetricsLog, refuse_set_aside_checkpoint, set_aside_later_work
+from splatu.run_records import (
+    DEGREE_CHOICE_FILE,
+    MetricsLog,
+    refuse_set_aside_checkpoint,
+    remove_torn_checkpoints,
+    set_aside_later_work,
+)
 from splatu.train_config import (
     DEFAULT_PRESET,
     TrainConfig,
@@ -162,6 +176,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     images = TrainImages(training_views(scene.train, config, state.step))
     log = MetricsLog(run_dir / "metrics.jsonl")
     log.drop_after(state.step)
+    if _eval_due(state.step, config):  # a resume redoes its step's evaluation, which a stop may have skipped
+        _log_eval(state, config, scene, log)
     smoothed_psnr = float("nan")
     step_rate = StepRate(time.perf_counter())
     on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
@@ -191,8 +207,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 if plain_every and (state.step % plain_every == 0 or state.step == config.steps):
                     console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
                                                 len(state.model), rate), highlight=False, soft_wrap=True)
-                if (config.eval_every_steps and state.step % config.eval_every_steps == 0 and state.step < config.steps
-                        and not interrupt.requested):  # a stop request must not wait for a whole evaluation
+                if _eval_due(state.step, config) and not interrupt.requested:  # a stop must not wait for it
                     _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
                     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
@@ -200,12 +215,12 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     hook(state.step, state)
                 if interrupt.requested:
                     raise KeyboardInterrupt
+            _save_once(state, config, run_dir)  # the final checkpoint, still deferring a stop until it is whole
+            if interrupt.requested:
+                raise KeyboardInterrupt
         except KeyboardInterrupt:
             raise _interrupted(state, config, run_dir, in_step, interrupt.signal_number) from None
     return state, config
-
-
-DEGREE_CHOICE_FILE = "degree_choice.json"
 
 
 def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog,
@@ -259,6 +274,17 @@ def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: 
                    **({"refined": outcome.refined} if outcome.refined else {})})
 
 
+def _eval_due(step: int, config: TrainConfig) -> bool:
+    """A periodic evaluation follows this step (the last step's is the final one, in `finish_run`)."""
+    return bool(config.eval_every_steps) and 0 < step < config.steps and step % config.eval_every_steps == 0
+
+
+def _save_once(state: TrainState, config: TrainConfig, run_dir: Path) -> Path:
+    """The checkpoint of the current step, unless it is on disk already (a periodic one, or the one resumed)."""
+    path = checkpoint_path(run_dir, state.step)
+    return path if path.is_file() else save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+
+
 def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog) -> dict[str, dict[str, float]]:
     results = evaluate_scene(state.model, scene, config)
     for name, metrics in results.items():
@@ -269,19 +295,27 @@ def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: Metrics
 
 def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool,
                  signal_number: int) -> TrainingInterrupted:
-    """Save (only at a step boundary, where the state is consistent) and say how to resume."""
+    """Save (only at a step boundary, where the state is consistent) and say how to resume. A second stop during
+    that save aborts it (the file is never left torn) and names the checkpoint before."""
     if mid_step:
-        found = list_checkpoints(run_dir)
-        where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
-        return TrainingInterrupted(f"aborted during step {state.step + 1}; {where}", run_dir, state.step,
-                                   signal_number, resumable=bool(found))
-    path = save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+        return _stopped_outside_steps(f"aborted during step {state.step + 1}", run_dir, signal_number)
+    try:
+        path = _save_once(state, config, run_dir)
+    except KeyboardInterrupt:
+        return _stopped_outside_steps(f"aborted while saving step {state.step}", run_dir, signal_number)
     return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step, signal_number)
 
 
+def _stopped_outside_steps(what: str, run_dir: Path, signal_number: int) -> TrainingInterrupted:
+    """A stop where no consistent state could be saved: name the checkpoint a resume would continue from."""
+    found = list_checkpoints(run_dir)
+    where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
+    return TrainingInterrupted(f"{what}; {where}", run_dir, checkpoint_step(found[-1]) if found else 0,
+                               signal_number, resumable=bool(found))
+
+
 def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
-    """Final checkpoint, evaluation, PLY export and summary.json."""
-    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+    """Final evaluation, PLY export and summary.json (the final checkpoint is `run_loop`'s)."""
     results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
     save_ply(state.model, run_dir / "splat.ply", state.to_world)
     summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
@@ -303,18 +337,24 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     keep_freed_memory()  # likewise: without it the first training of a process page-faults ~20% of its time away
     if checkpoint is None and config.degree_choice.on:
         config = with_choice_heads(config)
-    state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, run_dir / "config.yml")  # after the checks of restored_state: a refused resume changes nothing
-    if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
-        abandoned = set_aside_later_work(run_dir, state.step)
-        if abandoned is not None:
-            console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
-                          f"{abandoned}", soft_wrap=True)
-    # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
-    state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
-    state, config = run_loop(state, config, scene, run_dir, hooks)
-    return finish_run(state, config, scene, run_dir)
+    try:
+        state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        save_config(config, run_dir / "config.yml")  # after restored_state's checks: a refused resume changes nothing
+        if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
+            remove_torn_checkpoints(run_dir)
+            abandoned = set_aside_later_work(run_dir, state.step)
+            if abandoned is not None:
+                console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
+                              f"{abandoned}", soft_wrap=True)
+        # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
+        state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
+        state, config = run_loop(state, config, scene, run_dir, hooks)
+        return finish_run(state, config, scene, run_dir)
+    except TrainingInterrupted:
+        raise
+    except KeyboardInterrupt as stop:  # outside the steps: before the first, or finishing the run
+        raise _stopped_outside_steps("interrupted", run_dir, signal_of(stop)) from None
 
 
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"
@@ -375,6 +415,9 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
             except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
                                           run_dir, stop.step, stop.signal_number) from None
+            except KeyboardInterrupt as stop:  # between members: a resume finishes every unfinished one
+                raise TrainingInterrupted(f"interrupted at ensemble member {k + 1}/{config.ensemble}", run_dir, 0,
+                                          signal_of(stop)) from None
     finally:
         sessions.append(time.perf_counter() - wall_start)
         atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))

@@ -3,6 +3,7 @@ import torch
 
 from splatu.atomic import atomic_write, atomic_write_text
 from splatu.checkpoint import list_checkpoints, read_checkpoint, save_checkpoint
+from splatu.errors import SplatuError
 
 
 def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path):
@@ -13,7 +14,7 @@ def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path
         f.write(b"ne")
         raise OSError("disk full")
 
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(SplatuError, match=r"could not write summary\.json \(disk full\)"):
         atomic_write(path, half_then_crash)
     assert path.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from splatu import interrupts, trainer, training_step
+from splatu import interrupts, run_records, trainer, training_step
 from splatu.checkpoint import load_run
 from splatu.data.scene import Views
 from splatu.degree_choice import (
@@ -30,7 +30,7 @@ from splatu.losses import UncertaintyLossConfig, uncertainty_heads
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.sh import C0, safe_normalize, sh_basis
-from tests.unit.test_trainer import losses_of, tiny_config, tiny_scene
+from tests.unit.test_trainer import logged_events, losses_of, tiny_config, tiny_scene
 
 
 def choice_config(tmp_path, **changes):
@@ -293,6 +293,7 @@ def assert_same_run(run_dir, reference_dir) -> None:
     record = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
     assert record == json.loads((reference_dir / trainer.DEGREE_CHOICE_FILE).read_text()) | {
         "seconds": record["seconds"]}
+    assert logged_events(run_dir) == logged_events(reference_dir)  # one choice record, every evaluation once
 
 
 @pytest.mark.parametrize("stop_at", [5, 9, 12])
@@ -370,3 +371,35 @@ def test_the_colour_scores_leave_out_what_the_mask_files_exclude(tmp_path):
     nothing_kept = dataclasses.replace(targets, valid=torch.zeros_like(valid))
     with pytest.raises(SplatuError, match="every held-out view's mask excludes all of its pixels"):
         score_degrees(model, nothing_kept, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3))
+
+
+def test_a_resume_after_an_abort_that_followed_the_choice_chooses_and_logs_it_once(tmp_path, scene, monkeypatch):
+    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
+    step_once = trainer.train_step
+
+    def abort_step_10_once(state, config, images):
+        if state.step == 9 and not aborted:
+            aborted.append(1)
+            raise KeyboardInterrupt  # a second Ctrl-C: the choice is made and logged, step 10 is not
+        return step_once(state, config, images)
+
+    aborted: list[int] = []
+    monkeypatch.setattr(trainer, "train_step", abort_step_10_once)
+    with pytest.raises(interrupts.TrainingInterrupted, match="aborted during step 10"):
+        trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
+    interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    assert_same_run(resumed_dir, full_dir)
+
+
+@pytest.mark.parametrize(("choice_step", "set_aside"), [(9, True), (12, True), (6, False)])
+def test_resuming_from_a_checkpoint_before_the_choice_sets_its_record_aside(tmp_path, choice_step, set_aside):
+    """The checkpoint of the decision step holds the model before the choice, so a resume from it (or from an
+    earlier one) chooses again: the old record must not sit in the run as if it were the new one's."""
+    (tmp_path / "checkpoints").mkdir()
+    for step in (9, 12):
+        (tmp_path / "checkpoints" / f"step-{step:07d}.pt").write_bytes(b"")
+    (tmp_path / trainer.DEGREE_CHOICE_FILE).write_text(json.dumps({"step": choice_step}))
+    folder = run_records.set_aside_later_work(tmp_path, 9)
+    assert (folder / trainer.DEGREE_CHOICE_FILE).is_file() == set_aside
+    assert (tmp_path / trainer.DEGREE_CHOICE_FILE).is_file() != set_aside

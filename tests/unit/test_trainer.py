@@ -975,3 +975,142 @@ def test_full_resolution_targets_of_a_plain_scene_are_not_copied():
     _, target = images.get(0, 0)
     assert target.untyped_storage().data_ptr() == views.images.untyped_storage().data_ptr()
     assert images.weight(0, 0) is None
+
+
+def logged_events(run_dir) -> list[dict]:
+    """metrics.jsonl without its timings, which differ between any two runs."""
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if not k.endswith("seconds")} for r in records]
+
+
+def test_a_resume_logs_the_evaluation_that_a_stop_skipped_as_an_uninterrupted_run_does(tmp_path, scene, monkeypatch):
+    full_dir = trainer.train(tiny_config(tmp_path / "a", steps=6, eval_every_steps=2, checkpoint_every=0))
+    step_once = training_step.train_step
+
+    def sigterm_during_step_2(state, config, images):
+        outcome = step_once(state, config, images)
+        if state.step == 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return outcome
+
+    monkeypatch.setattr(trainer, "train_step", sigterm_during_step_2)
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
+        trainer.train(tiny_config(tmp_path / "b", steps=6, eval_every_steps=2, checkpoint_every=0))
+    run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    monkeypatch.setattr(trainer, "train_step", step_once)
+    trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
+    assert [e["step"] for e in logged_events(run_dir) if e["event"] == "eval"] == [2, 4, 6]
+    assert logged_events(run_dir) == logged_events(full_dir)
+
+
+def test_a_stop_during_the_final_checkpoint_lets_it_finish_and_a_resume_finishes_the_run(tmp_path, scene, monkeypatch):
+    real_save = trainer.save_checkpoint
+
+    def sigint_during_the_last_save(run_dir, step, state):
+        if step == 12:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_save(run_dir, step, state)
+
+    monkeypatch.setattr(trainer, "save_checkpoint", sigint_during_the_last_save)
+    with pytest.raises(interrupts.TrainingInterrupted, match=r"interrupted at step 12, saved .*step-0000012\.pt"):
+        trainer.train(tiny_config(tmp_path, checkpoint_every=5))  # 12 is no multiple: the final save is its own
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000010.pt", "step-0000012.pt"]
+    assert not (run_dir / "summary.json").exists()
+    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 12
+
+
+def test_a_second_stop_during_the_save_names_the_checkpoint_before(tmp_path, scene, monkeypatch):
+    real_save = trainer.save_checkpoint
+
+    def second_ctrl_c_while_saving_step_7(run_dir, step, state):
+        if step == 7:
+            raise KeyboardInterrupt
+        return real_save(run_dir, step, state)
+
+    def ctrl_c_at_7(step, state):
+        if step == 7:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer, "save_checkpoint", second_ctrl_c_while_saving_step_7)
+    with pytest.raises(interrupts.TrainingInterrupted) as stop:
+        trainer.train(tiny_config(tmp_path), hooks=[ctrl_c_at_7])
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert stop.value.message == (f"aborted while saving step 7; the last checkpoint is {run_dir}/checkpoints/"
+                                  f"step-0000006.pt; resume with `splatu train --resume {run_dir}`")
+
+
+@pytest.mark.parametrize("stage", ["evaluate_scene", "save_ply"])
+def test_a_stop_while_finishing_names_the_final_checkpoint_and_the_resume_logs_the_end_once(
+        tmp_path, scene, monkeypatch, stage):
+    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    real = getattr(trainer, stage)
+    calls = []
+
+    def ctrl_c_the_first_time(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(trainer, stage, ctrl_c_the_first_time)
+    with pytest.raises(SystemExit) as exit_:
+        trainer.run_command(tiny_config(tmp_path / "b"))
+    run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert exit_.value.code == 130
+    trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
+    assert logged_events(run_dir) == logged_events(full_dir)  # the final evaluation once per set
+
+
+def test_the_stop_message_while_finishing_says_where_to_resume_from(tmp_path, scene, monkeypatch, capsys):
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer, "save_ply", ctrl_c)
+    with pytest.raises(SystemExit):
+        trainer.run_command(tiny_config(tmp_path))
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"interrupted; the last checkpoint is {run_dir}/checkpoints/step-0000012.pt; resume with "
+        f"`splatu train --resume {run_dir}`")
+
+
+def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_earlier_checkpoint(tmp_path, scene, monkeypatch):
+    real_save = trainer.save_checkpoint
+
+    def full_disk_at_step_12(run_dir, step, state):
+        if step < 12:
+            return real_save(run_dir, step, state)
+        import resource
+        limits = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, limits[1]))  # Python ignores SIGXFSZ: writes fail, EFBIG
+        try:
+            return real_save(run_dir, step, state)
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, limits)
+
+    monkeypatch.setattr(trainer, "save_checkpoint", full_disk_at_step_12)
+    with pytest.raises(SplatuError) as caught:
+        trainer.train(tiny_config(tmp_path))
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert caught.value.what == "could not write step-0000012.pt (File too large)"
+    assert caught.value.where == f"in {run_dir / 'checkpoints'}" and "--resume" in caught.value.fix
+    assert [p.name for p in (run_dir / "checkpoints").iterdir()] == ["step-0000006.pt"]  # no temporary file left
+    read_checkpoint(run_dir / "checkpoints" / "step-0000006.pt")
+
+
+def test_an_unwritable_metrics_log_is_one_line(tmp_path):
+    (tmp_path / "metrics.jsonl").mkdir()
+    with pytest.raises(SplatuError, match=r"could not write metrics\.jsonl"):
+        run_records.MetricsLog(tmp_path / "metrics.jsonl").write({"step": 1})
+
+
+def test_a_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, scene):
+    run_dir = _stopped_at_step_7(tmp_path)
+    torn = run_dir / "checkpoints" / ".step-0000012.pt.tmp-99999"
+    torn.write_bytes(b"half a checkpoint")
+    (run_dir / "checkpoints" / "step-0000009.pt").mkdir()  # a folder by a checkpoint's name is not one
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000007.pt"]
+    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert not torn.exists()
