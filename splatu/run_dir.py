@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from splatu.errors import SplatuError
 
 LATEST = "latest"
+LOCK_FILE = ".training.lock"
 
 
 def new_run_dir(output_dir: Path, scene: str, method: str) -> Path:
@@ -38,3 +42,18 @@ def point_latest(run_dir: Path) -> Path:
     tmp.symlink_to(run_dir.name, target_is_directory=True)
     os.replace(tmp, link)
     return link
+
+
+@contextmanager
+def training_lock(run_dir: Path) -> Iterator[None]:
+    """One training per run folder at a time: a second `--resume` of a run still training (a requeued batch job,
+    a second terminal) would interleave its checkpoints and log with the first's. The kernel drops the lock when
+    its process ends, however it ends, so a killed run never leaves a stale one."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / LOCK_FILE, "a") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise SplatuError("another `splatu train` is training this run now", f"in {run_dir}",
+                              "let it finish, or stop it (Ctrl-C saves) and then resume") from None
+        yield

@@ -69,7 +69,7 @@ from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
-from splatu.run_dir import new_run_dir, point_latest
+from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import (
     DEGREE_CHOICE_FILE,
     MetricsLog,
@@ -339,22 +339,28 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
         config = with_choice_heads(config)
     try:
         state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        save_config(config, run_dir / "config.yml")  # after restored_state's checks: a refused resume changes nothing
-        if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
-            remove_torn_checkpoints(run_dir)
-            abandoned = set_aside_later_work(run_dir, state.step)
-            if abandoned is not None:
-                console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
-                              f"{abandoned}", soft_wrap=True)
-        # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
-        state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
-        state, config = run_loop(state, config, scene, run_dir, hooks)
-        return finish_run(state, config, scene, run_dir)
+        with training_lock(run_dir):
+            return _train_locked(state, config, scene, run_dir, hooks, checkpoint, wall_start)
     except TrainingInterrupted:
         raise
     except KeyboardInterrupt as stop:  # outside the steps: before the first, or finishing the run
         raise _stopped_outside_steps("interrupted", run_dir, signal_of(stop)) from None
+
+
+def _train_locked(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
+                  checkpoint: dict[str, Any] | None, wall_start: float) -> dict:
+    """`train_run` once it holds the run folder."""
+    save_config(config, run_dir / "config.yml")  # after restored_state's checks: a refused resume changes nothing
+    if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
+        remove_torn_checkpoints(run_dir)
+        abandoned = set_aside_later_work(run_dir, state.step)
+        if abandoned is not None:
+            console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
+                          f"{abandoned}", soft_wrap=True)
+    # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
+    state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
+    state, config = run_loop(state, config, scene, run_dir, hooks)
+    return finish_run(state, config, scene, run_dir)
 
 
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"

@@ -165,3 +165,18 @@ def test_start_normalised_curves_start_at_one_and_random_baseline_averages_its_s
     assert np.all(zero.oracle == 0.0) and np.all(np.isfinite(zero.sparsification))
     per_seed = [A.ause(A.random_curves(errors, "mae", s)) for s in A.RANDOM_SEEDS]
     assert A.random_baseline(errors, "mae")[0] == pytest.approx(np.mean(per_seed))
+
+
+def test_pixels_outside_the_valid_mask_change_no_score():
+    """Scoring with a mask equals scoring the valid pixels alone, whatever the masked pixels hold."""
+    rng = _rng()
+    target = rng.random((32, 40, 3))
+    rendered = target + rng.normal(0.0, 0.1, target.shape)
+    uncertainty = rng.random((32, 40))
+    unobserved = rng.random((32, 40)) < 0.3
+    valid = rng.random((32, 40)) < 0.6
+    alone = A.score_image(rendered[valid][:, None], target[valid][:, None], uncertainty[valid][:, None],
+                          unobserved=unobserved[valid][:, None])  # an N×1 image, in the mask's row-major order
+    rendered[~valid] = 5.0  # far worse than any valid pixel, and ranked the most certain
+    uncertainty[~valid] = -1.0
+    assert A.score_image(rendered, target, uncertainty, valid=valid, unobserved=unobserved) == alone

@@ -479,3 +479,18 @@ def test_two_frames_with_the_same_file_path_are_refused(tmp_path):
     edit_transforms(root, lambda c: c["frames"].append(dict(c["frames"][1])))
     error = load_error(root, tmp_path)
     assert "frames 1 and 4 both have file_path" in error.what and "transforms.json" in error.where
+
+
+def test_a_mirrored_pose_names_the_frame(tmp_path):
+    """A camera axis flipped (R·diag(−1, 1, 1)) is still orthonormal, but a reflection: determinant −1."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+
+    def mirror(content):
+        matrix = next(f for f in content["frames"] if f["file_path"] == cameras[1].name)["transform_matrix"]
+        for row in matrix[:3]:
+            row[0] = -row[0]
+
+    edit_transforms(root, mirror)
+    error = load_error(root, tmp_path)
+    assert error.what == "pose rotation is not a rotation matrix" and cameras[1].name in error.where

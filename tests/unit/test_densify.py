@@ -280,3 +280,80 @@ def test_a_gaussian_is_not_pruned_while_its_only_view_may_still_be_undrawn():
         controller.observe(_raster(torch.full((n,), LOW), torch.full((n,), 2), only_row_0[:n]), SIZE, SIZE)
         pruned.append(controller.refine(step, model, optimizers, views_per_epoch=views)["pruned"])
     assert pruned == [0] * (2 * views - 2) + [N - 1, 0]  # the silent rows go after 2N − 1 = 9 steps, not 1
+
+
+def test_split_children_are_offset_along_the_parents_rotated_long_axis():
+    """A needle along local x, turned 90° about z, lies along world y: its children must be sampled along y."""
+    model, optimizers = _tagged_model()
+    with torch.no_grad():
+        model.log_scales[0] = torch.tensor([0.5, 1e-4, 1e-4]).log()
+        model.quats[0] = torch.tensor([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+    grads = torch.full((N,), LOW)
+    grads[0] = HIGH
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, n_split_samples=8)
+    controller = DensityController(cfg, 1.0, torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
+
+    assert controller.refine(10, model, optimizers, views_per_epoch=1)["split"] == 1
+
+    offsets = model.means.detach()[_row_of(model, 0)]  # the parent's mean is the origin
+    assert offsets.shape == (8, 3)
+    assert offsets[:, 1].abs().max() > 0.1  # spread like the parent's 0.5 scale
+    assert (offsets[:, [0, 2]].abs() < 1e-2 * offsets.norm(dim=-1, keepdim=True)).all()
+
+
+def test_a_gradient_just_above_the_threshold_in_the_only_view_that_sees_a_gaussian_densifies_it():
+    """The mean is over the views where the Gaussian is visible, not over every view of the window: row 0 (seen in 1
+    view of 4) is cloned, row 1 (seen in all 4, the same gradient in one) averages to half the threshold."""
+    model, optimizers = _tagged_model()
+    cfg = DensifyConfig(warmup_length=0, refine_every=10)
+    controller = DensityController(cfg, 1.0)
+    twice_threshold = 2 * cfg.densify_grad_thresh / (SIZE / 2)  # in pixels
+    grads = torch.full((N,), LOW)
+    grads[:2] = twice_threshold
+    controller.observe(_raster(grads, torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
+    not_row_0 = torch.tensor([0, 2, 2, 2, 2, 2, 2, 2])
+    quiet = torch.full((N,), LOW)
+    quiet[1] = 0.0
+    for _ in range(3):
+        controller.observe(_raster(quiet, not_row_0, torch.full((N,), 0.5)), SIZE, SIZE)
+
+    counts = controller.refine(10, model, optimizers, views_per_epoch=1)
+
+    assert counts["cloned"] == 1 and len(_row_of(model, 0)) == 2 and len(_row_of(model, 1)) == 1
+
+
+def test_visible_count_counts_only_the_views_where_each_gaussian_is_visible():
+    controller = DensityController(DensifyConfig(), 1.0)
+    grads, contrib = torch.full((2,), LOW), torch.full((2,), 0.5)
+    controller.observe(_raster(grads, torch.tensor([2, 0]), contrib), SIZE, SIZE)
+    controller.observe(_raster(grads, torch.tensor([0, 2]), contrib), SIZE, SIZE)
+    assert controller.visible_count is not None
+    assert controller.visible_count.tolist() == [1.0, 1.0]
+
+
+def test_pixel_gradients_become_ndc_gradients_by_half_the_image_width_and_height():
+    """pixel = (ndc + 1)·size/2, so dL/dndc = dL/dpixel · (width/2, height/2): at 200×100, (1, 0) → 100, (0, 1) → 50."""
+    controller = DensityController(DensifyConfig(), 1.0)
+    raster = _raster(torch.zeros(2), torch.full((2,), 2), torch.full((2,), 0.5))
+    raster.means2d_absgrad = torch.tensor([[1.0, 0.0], [0.0, 1.0]])
+    controller.observe(raster, 200, 100)
+    assert controller.grad_norm_sum is not None
+    assert controller.grad_norm_sum.tolist() == [100.0, 50.0]
+
+
+def test_size_culling_starts_after_the_first_opacity_reset_not_at_it():
+    """splatfacto culls too-large Gaussians (world scale or screen size) only when step > refine_every ×
+    reset_alpha_every. Past stop_split_at the reset step itself culls (no pause), so the boundary is visible there."""
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=2, stop_split_at=10)
+    pruned = {}
+    for step in (20, 30):  # 20 = refine_every × reset_alpha_every: not yet; 30: the next refinement
+        model, optimizers = _tagged_model()
+        with torch.no_grad():
+            model.log_scales[0] = math.log(0.8)  # above cull_scale_thresh × extent = 0.5
+        radii = torch.full((N,), 2)
+        radii[1] = 20  # 20% of the screen: above cull_screen_size = 0.15
+        controller = DensityController(cfg, 1.0)
+        controller.observe(_raster(torch.full((N,), LOW), radii, torch.full((N,), 0.5)), SIZE, SIZE)
+        pruned[step] = controller.refine(step, model, optimizers, views_per_epoch=1)["pruned"]
+    assert pruned == {20: 0, 30: 2}

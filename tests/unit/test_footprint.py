@@ -15,7 +15,7 @@ import itertools
 import pytest
 import torch
 
-from splatu.rasterizer import footprint
+from splatu.rasterizer import footprint, rasterize
 from splatu.rasterizer.errors import RasterInputError
 from splatu.rasterizer.footprint import ALPHA_MIN, block_entries
 from splatu.rasterizer.projection import project_gaussians
@@ -131,3 +131,36 @@ def test_no_candidates_give_an_empty_list():
                             proj.visible, WIDTH, HEIGHT, BLOCK_WIDTH)
     assert entries.block.numel() == entries.gaussian.numel() == 0
     assert entries.round_bounds == [0, 0]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_pixel_centre_exactly_on_the_alpha_contour_is_not_dropped(seed, dtype, monkeypatch):
+    """Each Gaussian's opacity is e^σ/255 for σ at a pixel centre near it, so α there is 1/255 to the last bits and
+    the compositor's α test passes or fails on rounding. Where it passes, the footprint must list the pair: the
+    render equals one whose footprint is widened far past the contour (its extra entries fail the α test).
+    Without the footprint's rounding slack each of these scenes lost 4 to 12 of its ~150 such pairs.
+
+    The brute-force reference cannot judge these pairs: its σ rounds differently, so it draws other ones."""
+    n, width, height = 400, 64, 48
+    scene = random_scene(seed, n, width, height, anisotropy=20.0)
+    gaussians = [getattr(scene, name).to(dtype) for name in ("means", "quats", "scales")]
+    camera = (scene.world_to_camera.to(dtype), scene.K.to(dtype), width, height)
+    proj = project_gaussians(*gaussians, *camera, scene.near, scene.far, False)
+    offset = torch.randn(n, 2, generator=torch.Generator().manual_seed(seed), dtype=torch.float64) * 2.0
+    x, y = (proj.means2d.double() + offset).floor().unbind(1)
+    x, y = x.clamp(0, width - 1), y.clamp(0, height - 1)
+    sigma = sigma_at(proj, x, y, torch.arange(n))
+    on_contour = proj.visible & (sigma > 0.05) & (sigma < 5.0)  # so that o = e^σ/255 is in (0, 1)
+    assert int(on_contour.sum()) >= 100
+    opacities = torch.where(on_contour, torch.exp(sigma) / 255, 0.0).to(dtype)
+    features = torch.eye(n, dtype=dtype)  # the image holds every pair's weight
+
+    def render():
+        return rasterize(*gaussians, opacities, features, *camera, near=scene.near, far=scene.far)
+
+    exact = render()
+    monkeypatch.setattr(footprint, "FOOTPRINT_SLACK", 0.5)
+    widened = render()
+    assert exact.num_contributing_pairs == widened.num_contributing_pairs
+    torch.testing.assert_close(exact.image, widened.image, rtol=0.0, atol=1e-15)

@@ -457,3 +457,91 @@ def test_a_bad_depth_unit_scale_factor_is_a_user_error(tmp_path):
             "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
         with pytest.raises(SplatuError, match="depth_unit_scale_factor must be a positive number"):
             load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+
+
+def _distorted_photo(K: np.ndarray, coeffs: tuple[float, ...], width: int, height: int) -> np.ndarray:
+    """_smooth_pattern as a camera with intrinsics K and OpenCV distortion coeffs (k1, k2, p1, p2[, k3]) sees it."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    pixels = np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1)[:, None, :]  # +0.5: pixel centres
+    rays = cv2.undistortPoints(pixels, K, np.array(coeffs), R=np.eye(3), P=np.eye(3), criteria=
+                               (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)).reshape(height, width, 2)
+    return np.round(_smooth_pattern(rays[..., 0], rays[..., 1]) * 255).astype(np.uint8)
+
+
+def _pinhole_errors(camera, image: np.ndarray) -> tuple[float, float]:
+    """Median and 99th percentile of |image − the pattern a pinhole camera with camera.K sees|, off the border.
+
+    The median is ~0.001 (8-bit rounding) and a half-pixel error in K takes it past 0.0022, as in the test above; a
+    coefficient that is wrong or missing shifts mostly the corners, which the 99th percentile (~0.003) shows."""
+    Kn = camera.K.double().numpy()
+    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    expected = _smooth_pattern((u + 0.5 - Kn[0, 2]) / Kn[0, 0], (v + 0.5 - Kn[1, 2]) / Kn[1, 1])
+    error = np.abs(image - expected)[2:-2, 2:-2]
+    return float(np.median(error)), float(np.quantile(error, 0.99))
+
+
+@pytest.mark.parametrize(("model", "distortion", "coeffs"), [
+    ("SIMPLE_RADIAL", [-0.25], (-0.25, 0.0, 0.0, 0.0)),
+    ("RADIAL", [-0.25, 0.08], (-0.25, 0.08, 0.0, 0.0)),
+    ("OPENCV", [-0.25, 0.08, 0.01, -0.004], (-0.25, 0.08, 0.01, -0.004)),
+])
+def test_undistorted_colmap_image_matches_the_pinhole_camera(tmp_path, model, distortion, coeffs):
+    """COLMAP's SIMPLE_RADIAL, RADIAL and OPENCV models are OpenCV's distortion with coefficients (k1, k2, p1, p2)
+    in this order (COLMAP puts pixel centres at +0.5 like splatu): a photo through each is undistorted to its K."""
+    width, height = 160, 120
+    focal = [110.0, 112.0] if model == "OPENCV" else [110.0]  # fx fy, or one f
+    K = np.array([[focal[0], 0.0, 81.3], [0.0, focal[-1], 59.1], [0.0, 0.0, 1.0]])
+    photo = _distorted_photo(K, coeffs, width, height)
+    root = tmp_path / "scene"
+    _write_colmap_text(root, model, [*focal, 81.3, 59.1, *distortion], ring_cameras(3, width, height))
+    for i in range(3):
+        write_rgb(root / "images" / f"img_{i}.png", photo)
+
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=3))
+    camera, image = scene.train.cameras[0], scene.train.images[0].numpy()
+    median, worst = _pinhole_errors(camera, image)
+    assert median < 0.0018 and worst < 0.005, (median, worst)
+    assert _pinhole_errors(camera, photo / 255.0)[0] > 3 * median  # the distortion was really there, and was removed
+
+
+def test_undistorted_image_with_k3_matches_the_pinhole_camera(tmp_path):
+    """nerfstudio's OPENCV model has a sixth-order radial term k3 (OpenCV's fifth coefficient)."""
+    width, height = 160, 120
+    K = np.array([[110.0, 0.0, 81.3], [0.0, 112.0, 59.1], [0.0, 0.0, 1.0]])
+    coeffs = (-0.25, 0.08, 0.002, -0.001, 0.1)
+    photo = _distorted_photo(K, coeffs, width, height)
+    root = tmp_path / "scene"
+    write_rgb(root / "images" / "a.png", photo)
+    write_rgb(root / "images" / "b.png", photo)
+    frame = {"transform_matrix": np.eye(4).tolist()}
+    (root / "transforms.json").write_text(json.dumps({
+        "camera_model": "OPENCV", "fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "w": width,
+        "h": height, **dict(zip(("k1", "k2", "p1", "p2", "k3"), coeffs, strict=True)),
+        "frames": [{"file_path": "images/a.png", **frame}, {"file_path": "images/b.png", **frame}]}))
+
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=2))
+    camera, image = scene.train.cameras[0], scene.train.images[0].numpy()
+    median, worst = _pinhole_errors(camera, image)
+    assert median < 0.0018 and worst < 0.005, (median, worst)
+
+
+def test_principal_point_defaults_to_the_image_centre(tmp_path):
+    """Without cx, cy the principal point is the image centre, (w/2, h/2) with pixel centres at +0.5."""
+    root = tmp_path / "scene"
+    write_rgb(root / "a.png", noise_image(0, 41, 31))
+    (root / "transforms.json").write_text(json.dumps({
+        "camera_model": "PINHOLE", "fl_x": 40.0, "w": 41, "h": 31,
+        "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+    K = load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.K
+    assert (float(K[0, 2]), float(K[1, 2])) == (20.5, 15.5)
+    assert float(K[1, 1]) == 40.0  # fl_y defaults to fl_x
+
+
+def test_downscaled_colour_is_the_mean_of_each_block(tmp_path):
+    """Colour is area-averaged: a bilinear resize by 4 reads only the middle 2x2 pixels of each 4x4 block."""
+    photo = noise_image(0, 40, 32)
+    write_rgb(tmp_path / "photo.png", photo)
+    recipe = PixelRecipe(path=tmp_path / "photo.png", kind="color", width=40, height=32, target_width=10,
+                         target_height=8)
+    block_means = photo.astype(np.float64).reshape(8, 4, 10, 4, 3).mean(axis=(1, 3))
+    assert np.abs(compute_pixels(recipe) - block_means).max() <= 0.5 + 1e-3  # rounded to 8 bits

@@ -237,3 +237,31 @@ def test_the_one_basis_parity_evaluation_equals_evaluating_both_directions(kind,
     grad, = torch.autograd.grad(loss, model.u_sh)
     expected_grad, = torch.autograd.grad(expected, model.u_sh)
     torch.testing.assert_close(grad, expected_grad, rtol=1e-5, atol=1e-8)
+
+
+def test_each_uncertainty_head_reads_only_its_own_u_sh_channel():
+    """With two heads the loss is head 0's on channel 0 plus head 1's on channel 1, each as if it trained alone."""
+    from types import SimpleNamespace
+
+    g = torch.Generator().manual_seed(7)
+    n = 200
+    model = GaussianModel.empty_like_config(n, ModelConfig(u_sh_degree=2), u_heads=2)
+    with torch.no_grad():
+        model.means.copy_(torch.randn(n, 3, generator=g))
+        model.u_sh.copy_(torch.randn(model.u_sh.shape, generator=g))
+        model.u_sh[:, 0, 1] += 5.0  # channel 1 reads far more uncertain than channel 0
+    raster = SimpleNamespace(contrib_max=torch.rand(n, generator=g))
+    cfg = UncertaintyLossConfig(kind="antipodal", lam=0.3, threshold=0.2, extra_heads=("lam=0.1",))
+    centre = torch.tensor([0.3, -2.0, 0.5])
+
+    def alone(channel: int, head_cfg: UncertaintyLossConfig) -> torch.Tensor:
+        single = GaussianModel.empty_like_config(n, ModelConfig(u_sh_degree=2))
+        with torch.no_grad():
+            single.means.copy_(model.means)
+            single.u_sh.copy_(model.u_sh[..., channel:channel + 1])
+        return uncertainty_loss(single, centre, raster, head_cfg).detach()
+
+    own, extra = uncertainty_heads(cfg, model_degree=2)
+    expected = alone(0, own.loss) + alone(1, extra.loss)
+    torch.testing.assert_close(uncertainty_loss(model, centre, raster, cfg).detach(), expected)
+    assert float(alone(1, extra.loss)) > float(alone(0, extra.loss)) + 0.1  # so head 1 reading channel 0 would show

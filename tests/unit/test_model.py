@@ -14,7 +14,7 @@ from splatu.knn import mean_neighbour_distance
 from splatu.losses import photometric_loss
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
-from splatu.sh import num_sh_bases
+from splatu.sh import C0, num_sh_bases
 
 
 def _brute_force_mean_distance(points: torch.Tensor, k: int) -> torch.Tensor:
@@ -187,3 +187,12 @@ def test_empty_like_config_holds_a_state_dict():
     loaded.load_state_dict(model.state_dict())
     for name in GaussianModel.PARAM_NAMES:
         assert torch.equal(getattr(loaded, name), getattr(model, name))
+
+
+def test_colours_are_clamped_at_zero_but_not_at_one():
+    """max(SH + 0.5, 0) as 3DGS: a negative colour would subtract light from the blend; above 1 is left to training."""
+    model = GaussianModel.from_points(torch.zeros(1, 3), None, ModelConfig(sh_degree=0), torch.Generator())
+    with torch.no_grad():
+        model.sh_dc[0, 0] = torch.tensor([-1.0, 0.0, 1.0]) / C0  # SH + 0.5 = -0.5, 0.5, 1.5
+        colors = model.colors(torch.tensor([[0.0, 0.0, 1.0]]), 0)
+    assert torch.allclose(colors, torch.tensor([[0.0, 0.5, 1.5]]))

@@ -509,3 +509,16 @@ def test_a_contribution_mask_counts_only_its_pixels_and_changes_nothing_else(fas
         for name, expected in ref.grads.items():
             scale = max(1.0, expected.abs().max().item())
             assert_close(params[name].grad, expected, f"d loss / d {name}", atol=1e-7 * scale, rtol=1e-6)
+
+
+def test_terminated_blocks_past_the_image_edge_are_skipped_too(fast, one_gaussian_rounds):
+    """13 px wide: each row's second block has 3 columns outside the image, which no Gaussian ever reaches, so
+    their T stays 1; the skip must look at the in-image pixels only, or no such block is ever skipped."""
+    listed, composited = one_gaussian_rounds
+    layers = 12
+    scene = axis_scene([[0.02 * k, -0.01 * k, 1.0 + 0.1 * k] for k in range(layers)], [0.99] * layers, scale=5.0,
+                       width=13, height=6, features=[[k / layers, 1.0 - k / layers, 0.5] for k in range(layers)])
+    got, ref = scene.render(fast.rasterize), scene.render(reference_rasterize)
+    for name in ("image", "alpha", "depth", "contrib_sum", "contrib_max"):
+        assert_close(getattr(got, name), getattr(ref, name), name)
+    assert sum(composited) < 0.5 * listed[0], (sum(composited), listed[0])

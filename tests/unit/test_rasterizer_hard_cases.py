@@ -397,3 +397,12 @@ def test_summed_contribution_of_a_frame_filling_gaussian_is_accurate_in_float32(
     scene = scene_at_origin([[0.0, 0.0, 2.0]], 50.0, 0.9, width=1024, height=1024, focal=100.0)
     sums = [scene.render(fast.rasterize, dtype=dtype).contrib_sum.double() for dtype in (torch.float32, D)]
     torch.testing.assert_close(sums[0], sums[1], rtol=1e-6, atol=0)
+
+
+def test_opacity_of_exactly_one_255th_is_drawn_where_it_is_centred(fast):
+    """At the mean α = o·e^0 = 1/255, which passes α ≥ 1/255 (255·(1/255) is exactly 1 in float64): one pair."""
+    scene = scene_at_origin([[0.0, 0.0, 2.0]], 0.2, 1 / 255)
+    scene.K[0, 2], scene.K[1, 2] = 4.5, 3.5  # the mean projects onto the centre of pixel (3, 4)
+    out, _ = render_backward(fast, scene, D)
+    assert out.num_contributing_pairs == 1 and out.alpha[3, 4].item() == 1 / 255
+    assert_matches_reference(fast, scene)

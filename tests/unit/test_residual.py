@@ -29,6 +29,7 @@ from splatu.data.scene import Scene, Views
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.rasterizer import rasterize
+from splatu.sh import rgb_to_sh
 from splatu.train_config import eval_background, preset_config
 from tests.small_models import SIZE, noise_views, overlapping_gaussians
 
@@ -218,3 +219,15 @@ def test_build_method_wires_the_direction_and_the_angle_only_where_named(method,
     assert (source.directional is not None) == directional and (source.coverage is not None) == angle
     expected = training_residuals(model, views, 0, eval_background(config))
     torch.testing.assert_close(source.residuals, expected, equal_nan=True)  # both paths: the same mean residual
+
+
+def test_the_error_is_that_of_the_render_clamped_to_the_displayable_range():
+    """Colour 2.0 over a white background renders above 1 wherever it is drawn; clamped to [0, 1], as evaluation
+    scores it, it is exactly the white target, so every seen Gaussian has residual 0."""
+    model, views = overlapping_gaussians(), noise_views()
+    with torch.no_grad():
+        model.sh_dc.fill_(float(rgb_to_sh(torch.tensor(2.0))))
+        views.images.fill_(1.0)
+    residuals = training_residuals(model, views, 0, torch.ones(3))
+    assert math.isnan(float(residuals[-1]))
+    assert torch.equal(residuals[:-1], torch.zeros(len(model) - 1))

@@ -13,6 +13,7 @@ import torch
 import tyro
 
 from splatu import evaluation, interrupts, run_records, train_progress, trainer, training_step
+from splatu import run_dir as run_dir_module
 from splatu.baselines.load import load_any_run
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
@@ -1114,3 +1115,87 @@ def test_a_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, scene):
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000007.pt"]
     trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     assert not torn.exists()
+
+
+def test_a_second_training_of_the_same_run_is_refused_while_the_first_runs(tmp_path, scene):
+    run_dir = _stopped_at_step_7(tmp_path)
+    log_before = (run_dir / "metrics.jsonl").read_text()
+    with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError) as caught:  # the first still runs
+        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert caught.value.what == "another `splatu train` is training this run now"
+    assert (run_dir / "metrics.jsonl").read_text() == log_before
+    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))  # the lock ends with its holder
+    assert (run_dir / "summary.json").is_file()
+
+
+def test_a_restored_checkpoint_keeps_the_step_the_nonfinite_streak_and_the_train_seconds(tmp_path, scene):
+    config = tiny_config(tmp_path)
+    state = dataclasses.replace(trainer.fresh_state(config, scene), step=5, nonfinite_streak=2, train_seconds=12.5)
+    run_dir = tmp_path / "run"
+    checkpoint = read_checkpoint(trainer._save_once(state, config, run_dir))
+    restored = trainer.restored_state(checkpoint, config, scene)
+    assert (restored.step, restored.nonfinite_streak, restored.train_seconds) == (5, 2, 12.5)
+    started = time.perf_counter()
+    summary = trainer.train_run(config, scene, run_dir, checkpoint=checkpoint)
+    assert summary["steps"] == 12
+    assert 12.5 < summary["train_seconds"] <= 12.5 + time.perf_counter() - started  # the earlier session's time too
+
+
+def test_an_infinite_screen_space_gradient_skips_the_step_and_leaves_the_model_untouched(tmp_path, monkeypatch):
+    """The 2D-mean absgrad is no parameter gradient: it needs its own check, or density control reads an inf."""
+    scene = tiny_scene(n_train=2)
+    config = tiny_config(tmp_path, resolution_levels=0)
+    state = trainer.fresh_state(config, scene)
+    render = GaussianModel.render
+
+    def render_with_inf_absgrad(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        out.raster.means2d_absgrad[0, 0] = float("inf")  # the backward adds to it: it stays inf
+        return out
+
+    monkeypatch.setattr(GaussianModel, "render", render_with_inf_absgrad)
+    before = {name: getattr(state.model, name).detach().clone() for name in GaussianModel.PARAM_NAMES}
+    outcome = training_step.train_step(state, config, training_step.TrainImages(scene.train))
+    assert outcome.skipped == "screen-space gradient"
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(state.model, name), before[name]), name
+    assert state.density.grad_norm_sum is None  # nothing observed
+
+
+def test_pixels_a_mask_file_excludes_send_no_gradient_to_the_render(tmp_path, monkeypatch):
+    """Both the render and the target are weighted: weighting the target alone would train masked pixels to black."""
+    scene = _with_masked_right_side(tiny_scene(n_train=2), 1, masked=True)
+    config = tiny_config(tmp_path, resolution_levels=0)
+    state = trainer.fresh_state(config, scene)
+    render = GaussianModel.render
+    rgb_grads: list[torch.Tensor] = []
+
+    def recording_render(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        out.rgb.register_hook(rgb_grads.append)
+        return out
+
+    monkeypatch.setattr(GaussianModel, "render", recording_render)
+    images = training_step.TrainImages(scene.train)
+    assert training_step.train_step(state, config, images).skipped is None
+    (grad,) = rgb_grads
+    weight = images.weight(0, 0)  # every view has the same mask
+    assert (weight == 0).any() and grad[weight > 0].abs().sum() > 0
+    assert torch.count_nonzero(grad[weight == 0]) == 0
+
+
+def test_a_downsampled_masked_target_averages_only_the_kept_pixels():
+    """At level 1 the mask's edge (column W/2 + 1) cuts a 2×2 block in half: its target is the kept pixels' mean,
+    not that mean diluted by the excluded half."""
+    views = _with_masked_right_side(tiny_scene(n_train=1), 1, masked=True).train
+    images = training_step.TrainImages(dataclasses.replace(views, images=torch.full_like(views.images, 0.8)))
+    _, target = images.get(0, 1)
+    weight = images.weight(0, 1)
+    assert ((weight > 0) & (weight < 1)).any()
+    assert torch.allclose(target[weight > 0], torch.tensor(0.8))
+
+
+def test_scene_extent_is_1_1_times_the_largest_camera_distance_from_the_mean_centre():
+    K = torch.tensor([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1]])
+    cameras = [Camera(K, look_at(torch.tensor([x, 0.0, 1.0])), W, H) for x in (1.0, 2.0, 6.0)]  # mean x = 3
+    assert training_step.scene_extent(cameras) == pytest.approx(1.1 * 3.0)

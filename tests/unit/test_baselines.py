@@ -1,0 +1,29 @@
+"""The ensemble and visibility-count baselines (REFERENCE §5), on closed-form cases."""
+
+from __future__ import annotations
+
+import torch
+
+from splatu.baselines.ensemble import EnsembleSource
+from splatu.baselines.visibility import visibility_feature
+from splatu.sh import rgb_to_sh
+from tests.small_models import overlapping_gaussians, two_cameras
+
+
+def test_ensemble_uncertainty_is_the_population_std_of_the_members():
+    """Two members that differ only in colour render a and b: their std over members (ddof 0) is |a − b|/2."""
+    first, second = overlapping_gaussians(), overlapping_gaussians()
+    with torch.no_grad():
+        second.sh_dc.copy_(rgb_to_sh(torch.rand(len(second), 3, generator=torch.Generator().manual_seed(5))[:, None]))
+    camera = two_cameras()[0]
+    with torch.no_grad():
+        a, b = (member.render(camera, 0, torch.zeros(3)).rgb for member in (first, second))
+        out = EnsembleSource([first, second], 0, torch.zeros(3)).render(camera)
+    torch.testing.assert_close(out.uncertainty, ((a - b).abs() / 2).mean(-1))
+    torch.testing.assert_close(out.rgb, (a + b) / 2)
+    assert float(out.uncertainty.max()) > 0.05  # the members really differ
+
+
+def test_visibility_feature_is_one_over_one_plus_the_count():
+    """1 for a Gaussian no training view saw, 1/2 for one view, 1/4 for three."""
+    torch.testing.assert_close(visibility_feature(torch.tensor([0.0, 1.0, 3.0])), torch.tensor([1.0, 0.5, 0.25]))
