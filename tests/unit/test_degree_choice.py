@@ -30,7 +30,7 @@ from splatu.losses import UncertaintyLossConfig, uncertainty_heads
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.sh import C0, safe_normalize, sh_basis
-from tests.unit.test_trainer import logged_events, losses_of, tiny_config, tiny_scene
+from tests.unit.test_trainer import ctrl_c_on_the_first_call, logged_events, losses_of, tiny_config, tiny_scene
 
 
 def choice_config(tmp_path, **changes):
@@ -315,21 +315,13 @@ def test_resume_before_at_or_after_the_choice_equals_an_uninterrupted_run(tmp_pa
 
 def test_ctrl_c_during_the_choice_resumes_by_choosing_again(tmp_path, scene, monkeypatch):
     full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
-    real_score = trainer.score_degrees
-    calls = []
-
-    def interrupted_once(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 1:
-            raise KeyboardInterrupt
-        return real_score(*args, **kwargs)
-
-    monkeypatch.setattr(trainer, "score_degrees", interrupted_once)
+    score_degrees = ctrl_c_on_the_first_call(trainer.score_degrees)
+    monkeypatch.setattr(trainer, "score_degrees", score_degrees)
     with pytest.raises(interrupts.TrainingInterrupted, match="aborted during step 10; the last checkpoint is"):
         trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
-    assert len(calls) == 2
+    assert score_degrees.calls == 2
     assert_same_run(resumed_dir, full_dir)
 
 

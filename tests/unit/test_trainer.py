@@ -984,6 +984,18 @@ def logged_events(run_dir) -> list[dict]:
     return [{k: v for k, v in r.items() if not k.endswith("seconds")} for r in records]
 
 
+def ctrl_c_on_the_first_call(real):
+    """`real`, except that its first call is stopped by Ctrl-C; `.calls` counts the calls."""
+    def stopped_once(*args, **kwargs):
+        stopped_once.calls += 1
+        if stopped_once.calls == 1:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    stopped_once.calls = 0
+    return stopped_once
+
+
 def test_a_resume_logs_the_evaluation_that_a_stop_skipped_as_an_uninterrupted_run_does(tmp_path, scene, monkeypatch):
     full_dir = trainer.train(tiny_config(tmp_path / "a", steps=6, eval_every_steps=2, checkpoint_every=0))
     step_once = training_step.train_step
@@ -1046,16 +1058,7 @@ def test_a_second_stop_during_the_save_names_the_checkpoint_before(tmp_path, sce
 def test_a_stop_while_finishing_names_the_final_checkpoint_and_the_resume_logs_the_end_once(
         tmp_path, scene, monkeypatch, stage):
     full_dir = trainer.train(tiny_config(tmp_path / "a"))
-    real = getattr(trainer, stage)
-    calls = []
-
-    def ctrl_c_the_first_time(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 1:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(trainer, stage, ctrl_c_the_first_time)
+    monkeypatch.setattr(trainer, stage, ctrl_c_on_the_first_call(getattr(trainer, stage)))
     with pytest.raises(SystemExit) as exit_:
         trainer.run_command(tiny_config(tmp_path / "b"))
     run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
