@@ -19,9 +19,9 @@ from splatu.errors import os_error_behind, unwritable
 def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
     """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as f:
             write(f)
             f.flush()
@@ -29,6 +29,8 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
         os.replace(tmp, path)
         _fsync_dir(path.parent)
     except Exception as err:
+        if isinstance(err.__context__, KeyboardInterrupt):  # torch.save re-raises a Ctrl-C inside it as RuntimeError
+            raise err.__context__ from None
         refused = os_error_behind(err)
         if refused is None:
             raise

@@ -6,6 +6,7 @@ the CLI prints it on one line and exits 2. Everything else is a bug and keeps it
 
 from __future__ import annotations
 
+import io
 import tempfile
 from pathlib import Path
 
@@ -65,6 +66,8 @@ def os_error_behind(err: BaseException) -> OSError | None:
     disk, a file-size limit) as a RuntimeError whose context is the OSError. Other errors are bugs."""
     if isinstance(err, RuntimeError):
         err = err.__cause__ or err.__context__
+    if isinstance(err, io.UnsupportedOperation):  # an OSError by class, but a writer's bug (reading a write-only file)
+        return None
     return err if isinstance(err, OSError) else None
 
 

@@ -47,6 +47,8 @@ class StopRequest:
 
     requested: bool = False
     signal_number: int = signal.SIGINT
+    aborted: bool = False
+    """A second stop came and raised at once: whatever was running (a step, an evaluation, a save) did not finish."""
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -63,6 +65,7 @@ def deferred_interrupt() -> Iterator[StopRequest]:
 
     def handler(signum: int, frame: Any) -> None:
         if flag.requested:
+            flag.aborted = True
             raise KeyboardInterrupt
         flag.requested, flag.signal_number = True, signum
 

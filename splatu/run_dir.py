@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, unwritable
 
 LATEST = "latest"
 LOCK_FILE = ".training.lock"
@@ -48,12 +48,19 @@ def point_latest(run_dir: Path) -> Path:
 def training_lock(run_dir: Path) -> Iterator[None]:
     """One training per run folder at a time: a second `--resume` of a run still training (a requeued batch job,
     a second terminal) would interleave its checkpoints and log with the first's. The kernel drops the lock when
-    its process ends, however it ends, so a killed run never leaves a stale one."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with open(run_dir / LOCK_FILE, "a") as lock:
+    its process ends, however it ends, so a killed run never leaves a stale one. Where the file system has no
+    locks, training goes on without the guard."""
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock = open(run_dir / LOCK_FILE, "a")  # noqa: SIM115 (closed by the `with` below, after the training)
+    except OSError as err:
+        raise unwritable(run_dir / LOCK_FILE, err) from None
+    with lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise SplatuError("another `splatu train` is training this run now", f"in {run_dir}",
                               "let it finish, or stop it (Ctrl-C saves) and then resume") from None
+        except OSError:  # a file system without locks (some NFS mounts): train unguarded rather than not at all
+            pass
         yield

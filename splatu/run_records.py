@@ -60,21 +60,24 @@ ABANDONED_DIR = "abandoned"
 
 def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     """Resuming from a checkpoint older than the run's newest abandons what came after it. Move the later
-    checkpoints, their metrics lines, a finished run's summary.json and splat.ply, and the renders and AUSE
-    reports made of it into abandoned/<time>/: nothing trained is lost, and `--resume RUN`,
+    checkpoints, their metrics lines, a finished run's summary.json and splat.ply, the renders and AUSE
+    reports made of it, and a degree choice made at or after `step` (the resume makes it again) into
+    abandoned/<time>/: nothing trained is lost, and `--resume RUN`,
     `render-uncertainty` and `eval-ause`, which take the newest checkpoint, never pick up the abandoned
     branch. Returns that folder, or None."""
     later = [path for path in list_checkpoints(run_dir) if checkpoint_step(path) > step]
-    if not later:
+    choice = run_dir / DEGREE_CHOICE_FILE
+    stale_choice = choice.is_file() and _choice_step(choice) >= step  # made at or after `step`: made again
+    if not later and not stale_choice:
         return None
     folder = new_timestamped_dir(run_dir / ABANDONED_DIR)  # never merged with an earlier set-aside
     dropped = MetricsLog(run_dir / "metrics.jsonl").drop_after(step)
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
-    reports = [*run_dir.glob("ause_*"), run_dir / "uncertainty"]  # renders and scores of the abandoned model
-    choice = run_dir / DEGREE_CHOICE_FILE
-    if choice.is_file() and _choice_step(choice) >= step:  # made at or after `step`: the resume chooses again
-        reports.append(choice)
-    for path in [*later, run_dir / "summary.json", run_dir / "splat.ply", *reports]:
+    moved = [choice] if stale_choice else []
+    if later:  # with the model they came from: its summary, export, renders and scores
+        moved += [*later, run_dir / "summary.json", run_dir / "splat.ply", *run_dir.glob("ause_*"),
+                  run_dir / "uncertainty"]
+    for path in moved:
         if path.exists():
             path.replace(folder / path.name)
     return folder

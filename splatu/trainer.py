@@ -182,6 +182,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     step_rate = StepRate(time.perf_counter())
     on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
     plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
+    saved_step = state.step if state.step > 0 else None  # a resume starts from its step's checkpoint
     with progress_bar(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
@@ -211,15 +212,19 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
                     save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+                    saved_step = state.step
                 for hook in hooks:
                     hook(state.step, state)
                 if interrupt.requested:
                     raise KeyboardInterrupt
-            _save_once(state, config, run_dir)  # the final checkpoint, still deferring a stop until it is whole
+            if saved_step != state.step:  # the final checkpoint, still deferring a stop until it is whole
+                save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+                saved_step = state.step
             if interrupt.requested:
                 raise KeyboardInterrupt
         except KeyboardInterrupt:
-            raise _interrupted(state, config, run_dir, in_step, interrupt.signal_number) from None
+            raise _interrupted(state, config, run_dir, in_step, interrupt.aborted, saved_step == state.step,
+                               interrupt.signal_number) from None
     return state, config
 
 
@@ -279,12 +284,6 @@ def _eval_due(step: int, config: TrainConfig) -> bool:
     return bool(config.eval_every_steps) and 0 < step < config.steps and step % config.eval_every_steps == 0
 
 
-def _save_once(state: TrainState, config: TrainConfig, run_dir: Path) -> Path:
-    """The checkpoint of the current step, unless it is on disk already (a periodic one, or the one resumed)."""
-    path = checkpoint_path(run_dir, state.step)
-    return path if path.is_file() else save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
-
-
 def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog) -> dict[str, dict[str, float]]:
     results = evaluate_scene(state.model, scene, config)
     for name, metrics in results.items():
@@ -293,16 +292,21 @@ def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: Metrics
     return results
 
 
-def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool,
-                 signal_number: int) -> TrainingInterrupted:
-    """Save (only at a step boundary, where the state is consistent) and say how to resume. A second stop during
-    that save aborts it (the file is never left torn) and names the checkpoint before."""
+def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step: bool, aborted: bool,
+                 saved: bool, signal_number: int) -> TrainingInterrupted:
+    """Save (unless saved already, and only at a step boundary, where the state is consistent) and say how to
+    resume. After a second stop (`aborted`: a step, evaluation or save cut short), or one during this save, nothing
+    more is written (a cut save leaves no torn file) and the message names the checkpoint before."""
     if mid_step:
         return _stopped_outside_steps(f"aborted during step {state.step + 1}", run_dir, signal_number)
-    try:
-        path = _save_once(state, config, run_dir)
-    except KeyboardInterrupt:
-        return _stopped_outside_steps(f"aborted while saving step {state.step}", run_dir, signal_number)
+    if aborted:
+        return _stopped_outside_steps(f"aborted after step {state.step}", run_dir, signal_number)
+    path = checkpoint_path(run_dir, state.step)
+    if not saved:
+        try:
+            save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+        except KeyboardInterrupt:
+            return _stopped_outside_steps(f"aborted while saving step {state.step}", run_dir, signal_number)
     return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step, signal_number)
 
 
@@ -339,23 +343,22 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
         config = with_choice_heads(config)
     try:
         state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
-        with training_lock(run_dir):
-            return _train_locked(state, config, scene, run_dir, hooks, checkpoint, wall_start)
+        return _train_state(state, config, scene, run_dir, hooks, checkpoint, wall_start)
     except TrainingInterrupted:
         raise
     except KeyboardInterrupt as stop:  # outside the steps: before the first, or finishing the run
         raise _stopped_outside_steps("interrupted", run_dir, signal_of(stop)) from None
 
 
-def _train_locked(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
-                  checkpoint: dict[str, Any] | None, wall_start: float) -> dict:
-    """`train_run` once it holds the run folder."""
+def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
+                 checkpoint: dict[str, Any] | None, wall_start: float) -> dict:
+    """`train_run` from its fresh or restored state: record the session's start, train, finish."""
     save_config(config, run_dir / "config.yml")  # after restored_state's checks: a refused resume changes nothing
     if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
         remove_torn_checkpoints(run_dir)
         abandoned = set_aside_later_work(run_dir, state.step)
         if abandoned is not None:
-            console.print(f"resuming from step {state.step}: the run's later checkpoints and results moved to "
+            console.print(f"resuming from step {state.step}: what the run did after it moved to "
                           f"{abandoned}", soft_wrap=True)
     # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
@@ -417,7 +420,8 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
             console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
             try:
-                train_member(member, scene, member_dir, hooks)
+                with training_lock(member_dir):  # also against a `--resume` of the member folder itself
+                    train_member(member, scene, member_dir, hooks)
             except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
                                           run_dir, stop.step, stop.signal_number) from None
@@ -488,36 +492,13 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         saved_ensemble = ensemble_config(config.resume)
         if saved_ensemble is not None:
             run_dir = Path(config.resume).expanduser()
-            saved_ensemble = resumed_config(config, saved_ensemble, run_dir)
-            members = ensemble_members(run_dir, saved_ensemble)
-            if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
-                console.print(f"already finished: every member of {run_dir} is trained; nothing to resume",
-                              soft_wrap=True)
-                return run_dir
-            scene = load_scene(saved_ensemble.data)
-            refuse_unscorable_sets(scene)
-            started = [found[-1] for found in map(list_checkpoints, members) if found]
-            if started:  # members not yet started would otherwise train on whatever scene --data now names
-                require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
-                                   "resume with the scene as it was, or start a new run")
-            train_ensemble(saved_ensemble, scene, run_dir, wall_start, hooks)
-            return run_dir
+            with training_lock(run_dir):
+                return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
         path = resolve_checkpoint(config.resume)
         refuse_set_aside_checkpoint(path)
-        checkpoint = read_checkpoint(path, RESUME_KEYS)
         run_dir = run_dir_of(path)
-        saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), run_dir)
-        step = int(checkpoint["step"])
-        if step >= saved.steps and (run_dir / "summary.json").is_file():
-            console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
-                          soft_wrap=True)
-            return run_dir
-        console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
-        scene = load_scene(saved.data)
-        refuse_unscorable_sets(scene)
-        console.print(scene_line(scene), soft_wrap=True)
-        train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
-        return run_dir
+        with training_lock(run_dir):  # before reading the checkpoint, which a run still training may prune
+            return _resume_run(config, path, run_dir, wall_start, hooks)
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)
@@ -530,10 +511,46 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)
     point_latest(run_dir)
-    if config.ensemble > 1:
-        train_ensemble(config, scene, run_dir, wall_start, hooks)
-    else:
-        train_run(config, scene, run_dir, hooks, wall_start=wall_start)
+    with training_lock(run_dir):
+        if config.ensemble > 1:
+            train_ensemble(config, scene, run_dir, wall_start, hooks)
+        else:
+            train_run(config, scene, run_dir, hooks, wall_start=wall_start)
+    return run_dir
+
+
+def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wall_start: float,
+                     hooks: Sequence[StepHook]) -> Path:
+    """`--resume` of an ensemble run: finish every unfinished member."""
+    saved = resumed_config(config, saved, run_dir)
+    members = ensemble_members(run_dir, saved)
+    if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
+        console.print(f"already finished: every member of {run_dir} is trained; nothing to resume", soft_wrap=True)
+        return run_dir
+    scene = load_scene(saved.data)
+    refuse_unscorable_sets(scene)
+    started = [found[-1] for found in map(list_checkpoints, members) if found]
+    if started:  # members not yet started would otherwise train on whatever scene --data now names
+        require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
+                           "resume with the scene as it was, or start a new run")
+    train_ensemble(saved, scene, run_dir, wall_start, hooks)
+    return run_dir
+
+
+def _resume_run(config: TrainConfig, path: Path, run_dir: Path, wall_start: float, hooks: Sequence[StepHook]) -> Path:
+    """`--resume` of a single run from checkpoint `path`."""
+    checkpoint = read_checkpoint(path, RESUME_KEYS)
+    saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), run_dir)
+    step = int(checkpoint["step"])
+    if step >= saved.steps and (run_dir / "summary.json").is_file():
+        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
+                      soft_wrap=True)
+        return run_dir
+    console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
+    scene = load_scene(saved.data)
+    refuse_unscorable_sets(scene)
+    console.print(scene_line(scene), soft_wrap=True)
+    train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
     return run_dir
 
 

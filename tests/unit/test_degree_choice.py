@@ -384,14 +384,16 @@ def test_a_resume_after_an_abort_that_followed_the_choice_chooses_and_logs_it_on
     assert_same_run(resumed_dir, full_dir)
 
 
-@pytest.mark.parametrize(("choice_step", "set_aside"), [(9, True), (12, True), (6, False)])
-def test_resuming_from_a_checkpoint_before_the_choice_sets_its_record_aside(tmp_path, choice_step, set_aside):
+@pytest.mark.parametrize(("choice_step", "newest", "set_aside"),
+                         [(9, 12, True), (12, 12, True), (6, 12, False), (9, 9, True), (6, 9, False)])
+def test_resuming_from_a_checkpoint_before_the_choice_sets_its_record_aside(tmp_path, choice_step, newest, set_aside):
     """The checkpoint of the decision step holds the model before the choice, so a resume from it (or from an
-    earlier one) chooses again: the old record must not sit in the run as if it were the new one's."""
+    earlier one) chooses again: the old record must not sit in the run as if it were the new one's, even when no
+    later checkpoint exists (a second Ctrl-C right after the choice)."""
     (tmp_path / "checkpoints").mkdir()
-    for step in (9, 12):
+    for step in sorted({9, newest}):
         (tmp_path / "checkpoints" / f"step-{step:07d}.pt").write_bytes(b"")
     (tmp_path / trainer.DEGREE_CHOICE_FILE).write_text(json.dumps({"step": choice_step}))
     folder = run_records.set_aside_later_work(tmp_path, 9)
-    assert (folder / trainer.DEGREE_CHOICE_FILE).is_file() == set_aside
+    assert (folder is not None and (folder / trainer.DEGREE_CHOICE_FILE).is_file()) == set_aside
     assert (tmp_path / trainer.DEGREE_CHOICE_FILE).is_file() != set_aside

@@ -14,6 +14,7 @@ import tyro
 
 from splatu import evaluation, interrupts, run_records, train_progress, trainer, training_step
 from splatu import run_dir as run_dir_module
+from splatu.atomic import atomic_write
 from splatu.baselines.load import load_any_run
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
@@ -964,7 +965,8 @@ def test_a_deleted_ensemble_member_is_named_and_the_suggested_resume_trains_it_a
 def test_an_abort_before_any_checkpoint_does_not_advise_a_resume(tmp_path):
     """A resume of a run with no checkpoint can only fail; the advice used to be `--resume` all the same."""
     state = dataclasses.replace(trainer.fresh_state(tiny_config(tmp_path), tiny_scene()), step=0)
-    stop = trainer._interrupted(state, tiny_config(tmp_path), tmp_path, mid_step=True, signal_number=signal.SIGINT)
+    stop = trainer._interrupted(state, tiny_config(tmp_path), tmp_path, mid_step=True, aborted=True, saved=False,
+                                signal_number=signal.SIGINT)
     assert stop.message == ("aborted during step 1; no checkpoint was written; nothing to resume, so run the same "
                             "`splatu train` command again")
 
@@ -1135,7 +1137,7 @@ def test_a_restored_checkpoint_keeps_the_step_the_nonfinite_streak_and_the_train
     config = tiny_config(tmp_path)
     state = dataclasses.replace(trainer.fresh_state(config, scene), step=5, nonfinite_streak=2, train_seconds=12.5)
     run_dir = tmp_path / "run"
-    checkpoint = read_checkpoint(trainer._save_once(state, config, run_dir))
+    checkpoint = read_checkpoint(trainer.save_checkpoint(run_dir, 5, trainer._checkpoint_state(state, config)))
     restored = trainer.restored_state(checkpoint, config, scene)
     assert (restored.step, restored.nonfinite_streak, restored.train_seconds) == (5, 2, 12.5)
     started = time.perf_counter()
@@ -1202,3 +1204,66 @@ def test_scene_extent_is_1_1_times_the_largest_camera_distance_from_the_mean_cen
     K = torch.tensor([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1]])
     cameras = [Camera(K, look_at(torch.tensor([x, 0.0, 1.0])), W, H) for x in (1.0, 2.0, 6.0)]  # mean x = 3
     assert training_step.scene_extent(cameras) == pytest.approx(1.1 * 3.0)
+
+
+def test_a_ctrl_c_inside_torch_save_stays_a_ctrl_c(tmp_path):
+    """torch.save turns an exception raised by the file it writes into a RuntimeError; a second Ctrl-C arriving
+    there must still stop the command as Ctrl-C (exit 130 and the resume line), not as a traceback."""
+    class InterruptedFile:
+        def __init__(self, f):
+            self.f, self.writes = f, 0
+
+        def write(self, data):
+            self.writes += 1
+            if self.writes == 3:
+                raise KeyboardInterrupt
+            return self.f.write(data)
+
+        def flush(self):
+            self.f.flush()
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(tmp_path / "step-0000001.pt", lambda f: torch.save({"w": torch.ones(1000)}, InterruptedFile(f)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_second_stop_during_a_periodic_save_aborts_it_instead_of_saving_again(tmp_path, scene, monkeypatch):
+    real_save = trainer.save_checkpoint
+    saves = []
+
+    def two_ctrl_cs_while_saving_step_6(run_dir, step, state):
+        saves.append(step)
+        if step == 6:
+            os.kill(os.getpid(), signal.SIGINT)  # the first: finish, then stop
+            os.kill(os.getpid(), signal.SIGINT)  # the second: now
+        return real_save(run_dir, step, state)
+
+    monkeypatch.setattr(trainer, "save_checkpoint", two_ctrl_cs_while_saving_step_6)
+    with pytest.raises(interrupts.TrainingInterrupted) as stop:
+        trainer.train(tiny_config(tmp_path, checkpoint_every=3))
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert saves == [3, 6]
+    assert stop.value.message.startswith(f"aborted after step 6; the last checkpoint is {run_dir}/checkpoints/"
+                                         "step-0000003.pt; resume with")
+
+
+def test_a_new_training_into_a_folder_with_an_old_final_checkpoint_replaces_it(tmp_path, scene):
+    run_dir = tmp_path / "run"
+    trainer.train_run(tiny_config(tmp_path, seed=1, checkpoint_every=5), scene, run_dir)  # 12: the final save
+    summary = trainer.train_run(tiny_config(tmp_path, seed=2, checkpoint_every=5), scene, run_dir)  # retrained
+    final = read_checkpoint(list_checkpoints(run_dir)[-1])
+    assert final["config"]["seed"] == 2 and final["num_gaussians"] == summary["num_gaussians"]
+
+
+def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_nothing(tmp_path, scene):
+    def ctrl_c_in_member_2(step, state):
+        if state.generator.initial_seed() == 1 and step == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(interrupts.TrainingInterrupted):
+        trainer.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
+    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
+    with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError, match="another `splatu train`"):
+        trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before
