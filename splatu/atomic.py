@@ -7,6 +7,7 @@ torn one. That matters for anything read back as a record of the run: checkpoint
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 from collections.abc import Callable
@@ -36,7 +37,8 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
             raise
         raise unwritable(path, refused) from err
     finally:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # e.g. the parent is a file: the error above is the one to report
+            tmp.unlink(missing_ok=True)
 
 
 def _fsync_dir(folder: Path) -> None:

@@ -182,7 +182,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     step_rate = StepRate(time.perf_counter())
     on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
     plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
-    saved_step = state.step if state.step > 0 else None  # a resume starts from its step's checkpoint
+    resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
+    saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
     with progress_bar(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
@@ -334,7 +335,8 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
 
 def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
               checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict:
-    """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary."""
+    """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary. The caller holds the
+    folder's `training_lock` if another process might train it too (`train` does)."""
     wall_start = time.perf_counter() if wall_start is None else wall_start
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)
@@ -497,8 +499,8 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         path = resolve_checkpoint(config.resume)
         refuse_set_aside_checkpoint(path)
         run_dir = run_dir_of(path)
-        with training_lock(run_dir):  # before reading the checkpoint, which a run still training may prune
-            return _resume_run(config, path, run_dir, wall_start, hooks)
+        with training_lock(run_dir):  # then choose the newest again: a training that just ended may have pruned it
+            return _resume_run(config, resolve_checkpoint(config.resume), run_dir, wall_start, hooks)
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)

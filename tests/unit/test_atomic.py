@@ -39,3 +39,9 @@ def test_it_creates_the_folder_and_replaces_whole_files(tmp_path):
     atomic_write_text(path, "first, longer")
     atomic_write_text(path, "second")
     assert path.read_text() == "second"
+
+
+def test_a_folder_that_is_a_file_is_one_line(tmp_path):
+    (tmp_path / "run").write_text("not a folder")
+    with pytest.raises(SplatuError, match=r"could not write summary\.json"):
+        atomic_write_text(tmp_path / "run" / "summary.json", "{}")
