@@ -83,13 +83,11 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     return folder
 
 
-def remove_torn_checkpoints(run_dir: Path) -> list[Path]:
+def remove_torn_checkpoints(run_dir: Path) -> None:
     """On resume: delete the temporary files of checkpoint writes that a killed process left (each the size of a
-    checkpoint); a write that completes renames its own away. Only one process trains a run at a time."""
-    torn = sorted((run_dir / CHECKPOINT_DIR).glob(".step-*.pt.tmp-*"))
-    for path in torn:
+    checkpoint); a write that completes renames its own away. The run's lock keeps any other writer out."""
+    for path in (run_dir / CHECKPOINT_DIR).glob(".step-*.pt.tmp-*"):
         path.unlink(missing_ok=True)
-    return torn
 
 
 def _choice_step(path: Path) -> int:
