@@ -57,8 +57,8 @@ class GaussianParams:
 
 @dataclass
 class PixelAccumulators:
-    """Per-pixel Σ w·f_ext in block layout (B, num_blocks, C+2) and per-Gaussian contributions (N,); the sums
-    in float64 until the render ends."""
+    """Per-pixel Σ w·f_ext in block layout (B, num_blocks, C+2) and per-Gaussian contributions (N,); the summed
+    contributions are float64 until the render ends."""
 
     image_ext: Tensor
     contrib_sum: Tensor

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -213,8 +214,6 @@ def test_extra_heads_are_the_own_settings_with_overrides_in_their_own_channels()
 @pytest.mark.parametrize("kind", ["antipodal", "weighted"])
 def test_the_one_basis_parity_evaluation_equals_evaluating_both_directions(kind, degree):
     """u(−d) comes from the even/odd bands of u(d)'s basis; it must equal evaluating −d directly."""
-    from types import SimpleNamespace
-
     g = torch.Generator().manual_seed(degree)
     n = 300
     model = GaussianModel.empty_like_config(n, ModelConfig(u_sh_degree=degree))
