@@ -81,7 +81,7 @@ class Budget:
 
 QUICK = Budget(
     name="quick", preset="fast",
-    # splatfacto_schedule breaks down this short (refine every step), so the quick schedule keeps the
+    # the splatfacto scaling breaks down this short (refine every step), so the quick schedule keeps the
     # tiny end-to-end test's proportions: refine every 10 steps, split until 2/3 of the run.
     overrides={"steps": 60, "resolution_interval": 20,
                "model": {"sh_degree_interval": 15, "random_init_points": 2500, "u_sh_degree": 1},

@@ -225,7 +225,7 @@ def main(args: Args) -> None:
     scene, model = load_scene(data), run.models[0]
     background, degree = eval_background(run.config), run.config.model.sh_degree
     world, cameras = build_scene(), {c.name: c for c in camera_path(data.poster)}
-    coverage = view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, degree)
+    coverage = view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold)
     train_cameras = [cameras[Path(name).stem] for name in scene.train.names]  # the generator's frame, not the run's
     squared, squared_dc, squared_reprojected, depth_errors, gaps, gradients, highlights, floor = ([] for _ in range(8))
     for i, camera in enumerate(scene.eval.cameras):

@@ -14,11 +14,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
-from splatu.errors import os_error_behind, unwritable
+from splatu.errors import RESUME_AFTER_FREEING, os_error_behind, unwritable
 
 
-def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
-    """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`."""
+def atomic_write(path: Path, write: Callable[[BinaryIO], None], fix: str = RESUME_AFTER_FREEING) -> None:
+    """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`. A write the disk
+    refuses is one line, ending in `fix`."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
@@ -35,7 +36,7 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None]) -> None:
         refused = os_error_behind(err)
         if refused is None:
             raise
-        raise unwritable(path, refused) from err
+        raise unwritable(path, refused, fix) from err
     finally:
         with contextlib.suppress(OSError):  # e.g. the parent is a file: the error above is the one to report
             tmp.unlink(missing_ok=True)

@@ -29,17 +29,6 @@ class Camera:
         t = self.world_to_camera[:3, 3]
         return -R.T @ t
 
-    def ray_directions(self) -> Tensor:
-        """Unit world-space ray directions through every pixel centre, (H, W, 3)."""
-        dtype, device = self.K.dtype, self.K.device
-        ys = torch.arange(self.height, dtype=dtype, device=device) + 0.5
-        xs = torch.arange(self.width, dtype=dtype, device=device) + 0.5
-        v, u = torch.meshgrid(ys, xs, indexing="ij")
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        d_cam = torch.stack([(u - cx) / fx, (v - cy) / fy, torch.ones_like(u)], dim=-1)
-        d_world = d_cam @ self.world_to_camera[:3, :3]  # R^T d for each row vector d
-        return d_world / d_world.norm(dim=-1, keepdim=True)
-
     def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
         """Project world points (M, 3) to pixel coordinates (M, 2) and camera depth (M,)."""
         p_cam = points @ self.world_to_camera[:3, :3].T + self.world_to_camera[:3, 3]
@@ -62,3 +51,21 @@ class Camera:
             K=self.K.to(device=device, dtype=dtype),
             world_to_camera=self.world_to_camera.to(device=device, dtype=dtype),
         )
+
+
+def look_at(position: Tensor, target: Tensor, up: Tensor) -> Tensor:
+    """World-to-camera 4x4 (float64) in OpenCV axes: +z from `position` towards `target`, +x right and +y down,
+    with the world's `up` pointing up in the image."""
+    forward = unit_vector(target - position)
+    right = unit_vector(torch.linalg.cross(forward, up))
+    down = torch.linalg.cross(forward, right)
+    rotation = torch.stack([right, down, forward])
+    world_to_camera = torch.eye(4, dtype=torch.float64)
+    world_to_camera[:3, :3] = rotation
+    world_to_camera[:3, 3] = -rotation @ position
+    return world_to_camera
+
+
+def unit_vector(v: Tensor) -> Tensor:
+    """v / |v| for one vector of camera geometry, which needs no gradient (sh.safe_normalize is for those that do)."""
+    return v / v.norm().clamp_min(1e-12)

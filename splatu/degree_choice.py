@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from splatu.ause import score_image
-from splatu.data.scene import Views, on_background
+from splatu.data.scene import Views
 from splatu.errors import SplatuError
 from splatu.losses import UncertaintyHead, psnr, uncertainty_heads
 from splatu.model import GaussianModel
@@ -255,9 +255,7 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
         colours.update({d: refit_colour(normal, rhs, coeffs, d) for d in range(full)})
     models = {d: with_colour(model, colours[d]) for d in sorted(colours)}
     heads = [] if config.uncertainty.off else uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
-    targets = [held_out.images[i] if held_out.alphas is None else
-               on_background(held_out.images[i], held_out.alphas[i], held_out.alpha_background, background)
-               for i in range(len(held_out))]
+    targets = [held_out.target(i, background) for i in range(len(held_out))]
     renders: dict[int, list[torch.Tensor]] = {d: [] for d in models}
     maps: list[np.ndarray] = []
     for camera in held_out.cameras:

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from splatu.errors import require_at_least
+from splatu.errors import SplatuError, require_at_least
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.rasterizer import RasterOutput
@@ -68,9 +68,22 @@ class DensifyConfig:
     waits for the number of training images; the presets, at 2,000–4,000 steps, do not wait)."""
 
     def validate(self) -> None:
-        """Raise a one-line SplatuError for a schedule or budget below 1."""
+        """Raise a one-line SplatuError for a schedule or budget below 1, a negative or non-finite step or
+        threshold (a NaN threshold would silently turn its rule off: every comparison with it is false), or a
+        cull opacity outside (0, 1), which the opacity reset takes the logit of."""
         for name in ("refine_every", "reset_alpha_every", "n_split_samples", "max_gaussians"):
-            require_at_least(getattr(self, name), 1, f"--densify.{name.replace('_', '-')}")
+            require_at_least(getattr(self, name), 1, _flag(name))
+        for name in ("warmup_length", "stop_split_at", "stop_screen_size_at", "contribution_window",
+                     "pause_after_reset", "densify_grad_thresh", "densify_size_thresh", "cull_scale_thresh",
+                     "cull_screen_size", "split_screen_size"):
+            require_at_least(getattr(self, name), 0, _flag(name))
+        if not 0.0 < self.cull_alpha_thresh < 1.0:
+            raise SplatuError(f"--densify.cull-alpha-thresh {self.cull_alpha_thresh} is not in (0, 1)",
+                              "in the densify options", "use e.g. 0.1 (splatfacto)")
+
+
+def _flag(name: str) -> str:
+    return f"--densify.{name.replace('_', '-')}"
 
 
 class DensityController:
@@ -101,14 +114,12 @@ class DensityController:
         if self.grad_norm_sum.shape[0] != n or self.steps_without_contribution.shape[0] != n:
             raise ValueError(f"observed {n} Gaussians, but the window started with {self.grad_norm_sum.shape[0]}")
         visible = raster.radii > 0
-        absgrad = raster.means2d_absgrad
-        if absgrad is not None:
-            # pixel-space gradient → NDC-space gradient (pixel = (ndc + 1)·size/2)
-            scale = absgrad.new_tensor([width / 2.0, height / 2.0])
-            grad_norm = (absgrad.detach() * scale).norm(dim=-1)
-            if not torch.isfinite(grad_norm).all():
-                raise ValueError("non-finite 2D-mean gradients: skip this step instead of observing it")
-            self.grad_norm_sum += torch.where(visible, grad_norm, 0.0)
+        # pixel-space gradient → NDC-space gradient (pixel = (ndc + 1)·size/2)
+        scale = raster.means2d_absgrad.new_tensor([width / 2.0, height / 2.0])
+        grad_norm = (raster.means2d_absgrad.detach() * scale).norm(dim=-1)
+        if not torch.isfinite(grad_norm).all():
+            raise ValueError("non-finite 2D-mean gradients: skip this step instead of observing it")
+        self.grad_norm_sum += torch.where(visible, grad_norm, 0.0)
         self.visible_count += visible.to(self.visible_count.dtype)
         screen = raster.radii.to(torch.float32) / float(max(width, height))
         self.max_screen_size = torch.maximum(self.max_screen_size, torch.where(visible, screen, 0.0))

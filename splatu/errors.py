@@ -71,9 +71,11 @@ def os_error_behind(err: BaseException) -> OSError | None:
     return err if isinstance(err, OSError) else None
 
 
-def unwritable(path: Path, err: OSError) -> SplatuError:
+RESUME_AFTER_FREEING = ("free space on that disk or make the folder writable, then run the command again (a training "
+                        "continues from its last checkpoint with `splatu train --resume RUN`)")
+
+
+def unwritable(path: Path, err: OSError, fix: str = RESUME_AFTER_FREEING) -> SplatuError:
     """A write that the disk refused (full, read-only, over a quota or size limit) as one line."""
     reason = err.strerror or str(err) or type(err).__name__
-    return SplatuError(f"could not write {path.name} ({reason})", f"in {path.parent}",
-                       "free space on that disk or make the folder writable, then run the command again (a training "
-                       "continues from its last checkpoint with `splatu train --resume RUN`)")
+    return SplatuError(f"could not write {path.name} ({reason})", f"in {path.parent}", fix)

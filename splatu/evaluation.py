@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from splatu.data.scene import Scene, Views, on_background
+from splatu.data.scene import Scene, Views
 from splatu.errors import SplatuError
 from splatu.losses import psnr, ssim
 from splatu.model import GaussianModel
@@ -23,9 +23,7 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     psnrs, ssims, observed = [], [], []
     for i, camera in enumerate(views.cameras):
         rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
-        gt = views.images[i]
-        if views.alphas is not None:
-            gt = on_background(gt, views.alphas[i], views.alpha_background, background)
+        gt = views.target(i, background)
         if views.valid is not None:
             if not bool((views.valid[i] > 0).any()):
                 continue  # a view its mask file excludes entirely has nothing to score

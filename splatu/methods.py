@@ -46,6 +46,12 @@ METHODS: dict[str, Method] = {
 }
 
 
+def method_help() -> str:
+    """`--method`'s help: the registry's names and descriptions, so a new entry documents itself."""
+    listed = " ".join(f"{name}: {method.description}" for name, method in METHODS.items())
+    return f"Registered method; it sets defaults before the other flags. {listed}"
+
+
 def get_method(name: str) -> Method:
     if name not in METHODS:
         raise SplatuError(f"unknown method {name!r}", "in --method", f"use one of {', '.join(METHODS)}")

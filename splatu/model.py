@@ -17,9 +17,10 @@ import torch
 from torch import Tensor
 
 from splatu.camera import Camera
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, require_at_least
 from splatu.knn import mean_neighbour_distance
 from splatu.rasterizer import RasterOutput, rasterize
+from splatu.rasterizer.projection import LOW_PASS
 from splatu.rasterizer.rasterize import MIN_BLUR
 from splatu.sh import C0, MAX_SH_DEGREE, eval_sh, num_sh_bases, rgb_to_sh
 
@@ -50,7 +51,7 @@ class ModelConfig:
     random_init_extent: float = 10.0
     """Side of the random-init cube centred at the origin, in scene units (splatfacto: 10 for scenes normalised
     to [-1, 1]); scale it with the scene."""
-    screen_blur: float = 0.3
+    screen_blur: float = LOW_PASS
     """px² added to every Gaussian's 2D covariance (3DGS: 0.3, about a pixel). The presets use 0.1: on poster's
     unseen block and path frames +0.55 / +0.7 dB, on fox's held-out block +1.1 dB (mean of two seeds; docs/results.md).
     Viewers that render the exported PLY with 3DGS's 0.3 show such a model slightly blurred."""
@@ -66,6 +67,7 @@ class ModelConfig:
             if not 0 <= value <= MAX_SH_DEGREE:
                 raise SplatuError(f"{name} = {value} is out of range", f"--model.{name.replace('_', '-')}",
                                   f"use a degree from 0 to {MAX_SH_DEGREE}")
+        require_at_least(self.sh_degree_interval, 1, "--model.sh-degree-interval")
         if not 0.0 < self.init_opacity < 1.0:
             raise SplatuError(f"init_opacity = {self.init_opacity} is not in (0, 1)", "--model.init-opacity",
                               "use e.g. 0.1")
@@ -104,7 +106,7 @@ class GaussianModel(torch.nn.Module):
         super().__init__()
         cfg.validate()
         n = means.shape[0]
-        heads = max(u_sh.shape[-1], 1) if u_sh.dim() == 3 else 1  # any number of uncertainty heads, at least one
+        heads = max(u_sh.shape[-1], 1)  # any number of uncertainty heads, at least one
         expected = {
             "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh_dc": (n, 1, 3),
             "sh_rest": (n, num_sh_bases(cfg.sh_degree) - 1, 3),

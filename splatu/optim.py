@@ -94,14 +94,14 @@ class Optimizers:
         for optimizer in self.optimizers.values():
             optimizer.step()
 
-    def replace_rows(self, model: GaussianModel, keep: Tensor | None, append: dict[str, Tensor] | None) -> None:
+    def replace_rows(self, model: GaussianModel, keep: Tensor, append: dict[str, Tensor] | None) -> None:
         """Keep the rows where `keep` (N,) is true, then append new rows; Adam moments follow the same edit.
 
         `append` maps every name in PARAM_NAMES to its new rows (all with the same row count). New rows start
         with zero Adam moments, as a freshly created parameter would.
         """
         n = len(model)
-        if keep is not None and (keep.dtype != torch.bool or keep.shape != (n,)):
+        if keep.dtype != torch.bool or keep.shape != (n,):
             raise ValueError(f"keep must be a bool mask of shape ({n},), got {keep.dtype} {tuple(keep.shape)}")
         if append is not None:
             if set(append) != set(GaussianModel.PARAM_NAMES):
@@ -133,9 +133,8 @@ class Optimizers:
         setattr(model, name, new)
 
     @staticmethod
-    def _edit(rows: Tensor, keep: Tensor | None, extra: Tensor | None) -> Tensor:
-        kept = rows if keep is None else rows[keep]
-        return kept.contiguous() if extra is None else torch.cat([kept, extra], dim=0)
+    def _edit(rows: Tensor, keep: Tensor, extra: Tensor | None) -> Tensor:
+        return rows[keep].contiguous() if extra is None else torch.cat([rows[keep], extra], dim=0)
 
     def reset_state(self, name: str) -> None:
         """Zero the Adam moments of parameter `name` (every row), so its next steps follow fresh gradients."""

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from splatu.camera import Camera
+from splatu.camera import Camera, look_at, unit_vector
 from splatu.errors import SplatuError
 
 
@@ -49,10 +49,6 @@ four legs). At half the radius, the lowest camera is 0.38 radii below the centre
 0.11 m above the floor, looking up at the underside no training camera saw."""
 
 
-def _unit(v: Tensor) -> Tensor:
-    return v / v.norm().clamp_min(1e-12)
-
-
 def _vertical(rotations: Tensor) -> Tensor:
     """The unit vector most perpendicular to every camera's right axis, signed like the cameras' mean up.
 
@@ -63,7 +59,7 @@ def _vertical(rotations: Tensor) -> Tensor:
     mean_up = -rotations[:, 1, :].mean(dim=0)  # camera −y (OpenCV down is +y) in world
     values, vectors = torch.linalg.eigh(rights.T @ rights)
     if values[1] < 1e-3 * values[2]:
-        return _unit(mean_up)
+        return unit_vector(mean_up)
     up = vectors[:, 0]
     return up if float(up @ mean_up) >= 0.0 else -up
 
@@ -91,19 +87,7 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
     if horizontal.norm() < 1e-9 * max(radius, 1e-12):  # cameras all around: any horizontal axis will do
         seed = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
         horizontal = seed - (seed @ up) * up if abs(float(seed @ up)) < 0.9 else torch.tensor([0.0, 1.0, 0.0]).double()
-    return CaptureFrame(center, up, radius, _unit(horizontal))
-
-
-def look_at(position: Tensor, target: Tensor, up: Tensor) -> Tensor:
-    """World-to-camera 4x4 in OpenCV axes (+x right, +y down, +z towards `target`)."""
-    forward = _unit(target - position)
-    right = _unit(torch.linalg.cross(forward, up))
-    down = torch.linalg.cross(forward, right)
-    rotation = torch.stack([right, down, forward])
-    world_to_camera = torch.eye(4, dtype=torch.float64)
-    world_to_camera[:3, :3] = rotation
-    world_to_camera[:3, 3] = -rotation @ position
-    return world_to_camera
+    return CaptureFrame(center, up, radius, unit_vector(horizontal))
 
 
 def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float = DEFAULT_ELEVATION_DEGREES,

@@ -3,8 +3,8 @@
 `TrainConfig()` holds the full splatfacto recipe (30000 steps, REFERENCE §3). On 2 CPU cores
 that is far too long, so a *preset* (configs/<name>.yaml, or any YAML path) rescales it:
 its values replace the dataclass defaults, and command-line flags override them in turn.
-The presets scale every step-based setting by one factor s = steps / 30000 (see
-`splatfacto_schedule`), so iterations, the resolution schedule and densification move
+The presets scale every step-based setting by one factor s = steps / 30000 (tests/unit/test_trainer.py
+checks each preset against that rule), so iterations, the resolution schedule and densification move
 together instead of as scattered constants.
 """
 
@@ -27,6 +27,7 @@ from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
 from splatu.errors import SplatuError, require_at_least
 from splatu.losses import UncertaintyLossConfig
+from splatu.methods import get_method, method_help
 from splatu.model import ModelConfig
 from splatu.optim import OptimConfig
 
@@ -64,8 +65,7 @@ class TrainConfig:
     """The view-dependent uncertainty loss (`--uncertainty.off` trains plain 3DGS)."""
     degree_choice: DegreeChoiceConfig = field(default_factory=DegreeChoiceConfig)
     """Choose the colour and u-SH degrees per scene on held-out views (`--degree-choice.on`)."""
-    method: str = "splatu"
-    """Registered method (splatu, splatfacto, ensemble); it sets defaults before the other flags."""
+    method: Annotated[str, tyro.conf.arg(help=method_help())] = "splatu"
     preset: str = FULL_RECIPE
     """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none (FULL_RECIPE)
     = the full splatfacto recipe, these dataclass defaults."""
@@ -140,31 +140,6 @@ def absolute_data(data: DataConfig) -> DataConfig:
     return dataclasses.replace(data, **changes) if changes else data
 
 
-def splatfacto_schedule(steps: int) -> dict[str, Any]:
-    """The splatfacto step-based settings scaled by s = steps / 30000, as nested preset keys.
-
-    Refinements keep their cadence in refinements (reset every 30 refinements), so scaling
-    `refine_every` also scales the opacity-reset period. Nothing goes below one step.
-    """
-    s = steps / SPLATFACTO_STEPS
-
-    def scaled(value: int) -> int:
-        return max(1, round(value * s))
-
-    base = DensifyConfig()
-    return {
-        "steps": steps,
-        "resolution_interval": scaled(3000),
-        "model": {"sh_degree_interval": scaled(ModelConfig().sh_degree_interval)},
-        "densify": {
-            "warmup_length": scaled(base.warmup_length),
-            "refine_every": scaled(base.refine_every),
-            "stop_split_at": scaled(base.stop_split_at),
-            "stop_screen_size_at": scaled(base.stop_screen_size_at),
-        },
-    }
-
-
 def preset_path(preset: str) -> Path:
     """A preset name (a file in configs/) or a path to a YAML file."""
     named = CONFIGS_DIR / f"{preset}.yaml"
@@ -195,8 +170,6 @@ def load_config(path: Path) -> TrainConfig:
 
 def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu") -> TrainConfig:
     """The config a bare `splatu train --preset P --method M` starts from (the Python entry point)."""
-    from splatu.methods import get_method
-
     config = TrainConfig()
     if preset != FULL_RECIPE:
         config = apply_values(config, read_yaml(preset_path(preset)), str(preset_path(preset)))

@@ -13,7 +13,6 @@ import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -24,6 +23,7 @@ from splatu.densify import DensityController
 from splatu.losses import photometric_loss, psnr, uncertainty_loss
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
+from splatu.rasterizer import RasterOutput
 from splatu.train_config import TrainConfig
 from splatu.world_frame import WorldTransform
 
@@ -150,7 +150,7 @@ class TrainImages:
 
 # --- one step --------------------------------------------------------------------------------
 
-def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | None:
+def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: RasterOutput) -> str | None:
     """Name the first non-finite value among the loss, every parameter gradient and the absgrad.
 
     A tensor's sum is non-finite iff it holds a NaN/Inf (or is large enough to overflow float32,
@@ -159,7 +159,7 @@ def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: Any) -> str | N
     if not torch.isfinite(loss):
         return "loss"
     named = [(f"gradient of {name}", getattr(model, name).grad) for name in GaussianModel.PARAM_NAMES]
-    named.append(("screen-space gradient", getattr(raster, "means2d_absgrad", None)))
+    named.append(("screen-space gradient", raster.means2d_absgrad))
     named = [(what, t) for what, t in named if t is not None]
     sums = torch.stack([t.sum() for _, t in named])
     if bool(torch.isfinite(sums).all()):

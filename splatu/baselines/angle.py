@@ -37,13 +37,13 @@ class ViewCoverage:
     centres: Tensor  # (V, 3) training camera centres
 
 
-def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0,
+def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float,
                   masks: Tensor | None = None) -> ViewCoverage:
     """The coverage of `model` by the training `cameras` (with their mask files, if any) under the uncertainty
     loss's supervision rule (a threshold of 0 counts every Gaussian as seen by every camera, even one outside its
     image)."""
     centres = torch.stack([c.center().to(model.means) for c in cameras]) if cameras else model.means.new_zeros(0, 3)
-    return ViewCoverage(seen_in_views(model, cameras, threshold, sh_degree, masks), centres)
+    return ViewCoverage(seen_in_views(model, cameras, threshold, masks), centres)
 
 
 def view_cosines(means: Tensor, centres: Tensor, viewer: Tensor) -> Iterator[tuple[slice, Tensor]]:

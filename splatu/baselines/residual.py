@@ -32,7 +32,7 @@ from torch import Tensor
 from splatu.baselines import UncertaintyRender, or_combine
 from splatu.baselines.angle import ViewCoverage, angular_gap, view_cosines
 from splatu.camera import Camera
-from splatu.data.scene import Views, on_background
+from splatu.data.scene import Views
 from splatu.model import GaussianModel
 
 
@@ -48,9 +48,7 @@ def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: T
     """Per view of `views`, (N, 2) float32: Σ_p w_i(p)·e(p) and Σ_p w_i(p) over its valid pixels (targets on
     `background`, invalid pixels of `views.masks` ignored)."""
     for i, camera in enumerate(views.cameras):
-        target = views.images[i]
-        if views.alphas is not None:
-            target = on_background(target, views.alphas[i], views.alpha_background, background)
+        target = views.target(i, background)
         # as eval-ause scores: a pixel counts fully where the mask is non-zero (an RGBA alpha is a mask too)
         valid = torch.ones(target.shape[:2]) if views.masks is None else (views.masks[i] > 0).reshape(target.shape[:2])
         valid = valid.to(target.dtype)

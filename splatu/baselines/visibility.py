@@ -15,21 +15,22 @@ from splatu.model import GaussianModel
 
 
 @torch.no_grad()
-def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0,
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float,
                   masks: Tensor | None = None) -> Tensor:
     """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`, over the
-    pixels of its mask (V, H, W; > 0 counts) when the views have mask files, as the training loss counts them."""
+    pixels of its mask (V, H, W; > 0 counts) when the views have mask files, as the training loss counts them.
+    Weights do not depend on colour, so the views render at colour-SH degree 0."""
     background = torch.zeros(3)
-    columns = [model.render(camera, sh_degree, background,
+    columns = [model.render(camera, 0, background,
                             contribution_mask=None if masks is None else masks[v] > 0).raster.contrib_max >= threshold
                for v, camera in enumerate(cameras)]
     return torch.stack(columns, dim=1) if columns else torch.zeros(len(model), 0, dtype=torch.bool)
 
 
-def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, sh_degree: int = 0,
+def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float,
                       masks: Tensor | None = None) -> Tensor:
     """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold` (see seen_in_views)."""
-    return seen_in_views(model, cameras, threshold, sh_degree, masks).sum(dim=1).float()
+    return seen_in_views(model, cameras, threshold, masks).sum(dim=1).float()
 
 
 def visibility_feature(counts: Tensor) -> Tensor:

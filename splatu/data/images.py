@@ -328,15 +328,11 @@ class ImageCache:
             except (OSError, ValueError, EOFError):
                 entry.unlink(missing_ok=True)  # torn or emptied (a crash, a full disk): recompute it
         pixels = compute_pixels(recipe)
-        try:
-            atomic_write(entry, lambda f: np.save(f, pixels))
-        except OSError as err:
-            raise SplatuError(f"cannot write the image cache ({err.strerror or type(err).__name__})",
-                              f"in {self.directory}", "set SPLATU_CACHE to a writable folder") from None
+        atomic_write(entry, lambda f: np.save(f, pixels),
+                     fix="free space on that disk, or set SPLATU_CACHE to a writable folder with room for the images")
         return pixels
 
 
-def load_pixels(recipe: PixelRecipe, cache: ImageCache | None) -> np.ndarray:
-    """One processed array as float32; through the disk cache when one is given."""
-    stored = cache.load(recipe) if cache is not None else compute_pixels(recipe)
-    return as_float(stored)
+def load_pixels(recipe: PixelRecipe, cache: ImageCache) -> np.ndarray:
+    """One processed array as float32, through the disk cache."""
+    return as_float(cache.load(recipe))

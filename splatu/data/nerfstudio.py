@@ -22,6 +22,7 @@ import torch
 
 from splatu.camera import Camera
 from splatu.data.frames import (
+    FLOAT32_MAX,
     Frame,
     RawScene,
     checked_matrix,
@@ -41,8 +42,6 @@ DEFAULT_DEPTH_UNIT = 1e-3
 """nerfstudio's depth_unit_scale_factor when a transforms.json gives none: depth images in millimetres."""
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 """The file's explicit split lists (nerfstudio keys)."""
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-"""Cameras are used in float32 for training: a larger intrinsic (fl_x: 1e308) would become inf there."""
 
 
 def frame_name(file_path: str) -> str:

@@ -37,6 +37,13 @@ class Views:
     def __len__(self) -> int:
         return len(self.cameras)
 
+    def target(self, index: int, background: Tensor) -> Tensor:
+        """Image `index` (H, W, 3) as a render on `background` should reproduce it: recomposited there when the
+        image had its own alpha, as it is otherwise."""
+        image = self.images[index]
+        return image if self.alphas is None else on_background(image, self.alphas[index], self.alpha_background,
+                                                                background)
+
     def subset(self, indices: list[int]) -> Views:
         """The views at `indices`, in that order, with every per-image tensor sliced alike."""
         index = torch.as_tensor(indices, dtype=torch.long)

@@ -202,7 +202,7 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
 
 def forward_chunk(
     entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int, acc: PixelAccumulators,
-    log_t: Tensor, counted: Tensor | None = None, keep_state: bool = True,
+    log_t: Tensor, counted: Tensor | None, keep_state: bool,
 ) -> ChunkState | None:
     """Composite some entries into the accumulators and advance each pixel's carried log T (B, num_blocks).
 

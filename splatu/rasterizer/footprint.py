@@ -20,9 +20,6 @@ from torch import Tensor
 from splatu.rasterizer.errors import RasterInputError
 from splatu.rasterizer.kernels import kernel
 
-ALPHA_MIN = 1.0 / 255.0
-"""3DGS skips a Gaussian at a pixel where its α is below this."""
-
 FOOTPRINT_SLACK = 1e-4
 """Relative widening of the exact footprint so rounding never drops a pair; extra pairs fail the α test."""
 

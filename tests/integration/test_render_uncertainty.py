@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from splatu.camera import Camera
+from splatu.camera import Camera, look_at
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
-from splatu.orbit import capture_frame, look_at, orbit_cameras
+from splatu.orbit import capture_frame, orbit_cameras
 from splatu.render_uncertainty import RenderUncertaintyConfig, render_eval_maps
 
 

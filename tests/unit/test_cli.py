@@ -8,6 +8,7 @@ import pytest
 from splatu.cli import entrypoint
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
+from splatu.methods import METHODS
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -114,7 +115,9 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["train", "--model.screen-blur", "0"], ["train", "--model.screen-blur", "nan"],
     ["train", "--model.u-init-logit", "inf"], ["train", "--model.u-init-logit", "nan"],
     ["train", "--model.u-init-logit", "1e30"], ["render-uncertainty", "--method", "random", "--seed", "-1"],
-    ["eval-ause", "--method", "fisher", "--seed", str(2**40)],
+    ["eval-ause", "--method", "fisher", "--seed", str(2**40)], ["train", "--model.sh-degree-interval", "0"],
+    ["train", "--densify.cull-alpha-thresh", "0"], ["train", "--densify.densify-grad-thresh", "nan"],
+    ["train", "--densify.warmup-length", "-1"],
     ["render-uncertainty", "--orbit-frames", "4"], ["render-uncertainty", "--density-aware"],
     ["render-uncertainty", "--method", "random", "--fisher-probes", "4"], ["eval-ause", "--density-aware"],
 ])
@@ -178,6 +181,9 @@ def test_help_still_prints_in_full(capsys):
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert "--steps" in out and "--uncertainty.off" in out
+    flat = " ".join(out.replace("│", " ").split())  # the help box wraps and frames each option's text
+    for name, method in METHODS.items():  # the registry documents --method: a new entry needs no other edit
+        assert f"{name}: {method.description}" in flat
 
 
 def test_a_box_usage_error_does_not_know_is_left_to_tyro():

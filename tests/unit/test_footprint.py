@@ -17,7 +17,8 @@ import torch
 
 from splatu.rasterizer import footprint, rasterize
 from splatu.rasterizer.errors import RasterInputError
-from splatu.rasterizer.footprint import ALPHA_MIN, block_entries
+from splatu.rasterizer.footprint import block_entries
+from splatu.rasterizer.kernels import ALPHA_MIN
 from splatu.rasterizer.projection import project_gaussians
 from tests.reference_rasterizer import random_scene
 

@@ -15,7 +15,15 @@ import pytest
 import torch
 
 from splatu.data.config import DataConfig
-from splatu.data.images import Distortion, ImageCache, PixelRecipe, compute_pixels, load_pixels, truncated_format
+from splatu.data.images import (
+    Distortion,
+    ImageCache,
+    PixelRecipe,
+    as_float,
+    compute_pixels,
+    load_pixels,
+    truncated_format,
+)
 from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
@@ -23,6 +31,7 @@ from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
 from splatu.data.resolve import load_scene, refuse_unused_poster_options
 from splatu.errors import SplatuError
+from tests.conftest import shared_scene
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
 
 
@@ -280,7 +289,7 @@ def test_image_cache_is_faster_the_second_time_and_follows_file_changes(tmp_path
         timings["warm"].append(time.perf_counter() - start)
         assert np.array_equal(cold, warm)
     assert np.median(timings["warm"]) < 0.5 * np.median(timings["cold"]), timings
-    assert np.array_equal(load_pixels(recipe, None), cold)  # cached result equals the uncached pipeline
+    assert np.array_equal(as_float(compute_pixels(recipe)), cold)  # cached result equals the uncached pipeline
 
     write_rgb(path, noise_image(1, 960, 720))
     os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 10**9))
@@ -300,6 +309,18 @@ def test_a_cache_entry_emptied_or_torn_is_recomputed(tmp_path, damage):
     entry.write_bytes(damage)  # a full disk or a crash left this behind
     assert np.array_equal(load_pixels(recipe, cache), first)
     assert np.array_equal(np.load(entry), cache.load(recipe))
+
+
+def test_an_unwritable_image_cache_is_one_line_naming_splatu_cache(tmp_path):
+    path = tmp_path / "photo.png"
+    write_rgb(path, noise_image(0, 32, 24))
+    K = (30.0, 0.0, 16.0, 0.0, 30.0, 12.0, 0.0, 0.0, 1.0)
+    recipe = PixelRecipe(path=path, kind="color", width=32, height=24, target_width=32, target_height=24, K=K,
+                         distortion=None, K_undistorted=K)
+    (tmp_path / "not-a-folder").write_text("")  # the cache folder cannot be created under a file
+    with pytest.raises(SplatuError, match="SPLATU_CACHE") as caught:
+        load_pixels(recipe, ImageCache(tmp_path / "not-a-folder" / "cache"))
+    assert "--resume" not in str(caught.value)  # loading images is not a training to resume
 
 
 def _with_exif_thumbnail(jpeg: bytes, thumbnail: bytes) -> bytes:
@@ -323,9 +344,10 @@ def test_truncation_check_accepts_whole_jpegs_of_every_kind_and_refuses_any_cut(
     assert truncated_format(png) is None and truncated_format(png[:-12]) == "PNG"  # no IEND chunk
 
 
-@pytest.mark.skipif(not Path("/work/shared/data/fox/images").is_dir(), reason="needs the fox capture in /work/shared")
+@pytest.mark.shared_data
 def test_truncation_check_accepts_a_real_capture_quickly():
-    files = sorted(Path("/work/shared/data/fox/images").glob("*.jpg"))
+    files = sorted((shared_scene("fox") / "images").glob("*.jpg"))
+    assert len(files) > 50, "the fox capture should hold its 67 photos"
     contents = [path.read_bytes() for path in files]
     start = time.perf_counter()
     assert [truncated_format(data) for data in contents] == [None] * len(files)

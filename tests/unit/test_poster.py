@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import torch
 
-from splatu.camera import Camera
+from splatu.camera import Camera, look_at
 from splatu.data.poster import PosterConfig, build_poster_standin
 from splatu.data.poster.generate import standin_splits
 from splatu.data.poster.geometry import SEAT_BOTTOM, SEAT_TOP, TARGET, build_scene
-from splatu.data.poster.path import camera_path, look_at
-from splatu.data.poster.render import render, shade_rays
+from splatu.data.poster.path import WORLD_UP, camera_path
+from splatu.data.poster.render import pixel_rays, render, shade_rays
 from splatu.data.poster.visibility import observed_mask
 from splatu.errors import SplatuError
 
@@ -122,7 +122,7 @@ def test_depth_round_trip_through_camera(tiny, transforms):
     frame = _frame(transforms, transforms["val_filenames"][2])
     camera = _camera(transforms, frame)
     depth = torch.from_numpy(np.load(tiny[0] / frame["depth_file_path"])).double()
-    rays = camera.ray_directions()
+    rays = pixel_rays(camera).reshape(camera.height, camera.width, 3)
     forward = camera.world_to_camera[2, :3]
     points = camera.center() + rays * (depth / (rays @ forward))[..., None]
     uv, z = camera.project(points.reshape(-1, 3))
@@ -137,7 +137,7 @@ def test_depth_agrees_between_neighbouring_views(tiny, transforms):
     frames = [_frame(transforms, name) for name in transforms["train_filenames"][:2]]
     cam_a, cam_b = (_camera(transforms, f) for f in frames)
     depth_a, depth_b = (torch.from_numpy(np.load(tiny[0] / f["depth_file_path"])).double() for f in frames)
-    rays = cam_a.ray_directions()
+    rays = pixel_rays(cam_a).reshape(cam_a.height, cam_a.width, 3)
     points = cam_a.center() + rays * (depth_a / (rays @ cam_a.world_to_camera[2, :3]))[..., None]
     uv, z = cam_b.project(points.reshape(-1, 3))
     col, row = uv[:, 0].floor().long(), uv[:, 1].floor().long()
@@ -171,7 +171,7 @@ def _train_cameras(cfg: PosterConfig) -> list[Camera]:
 
 def _make_camera(eye: tuple[float, float, float], target: tuple[float, float, float]) -> Camera:
     K = torch.tensor([[60.0, 0, 40], [0, 60.0, 40], [0, 0, 1]], dtype=torch.float64)
-    w2c = look_at(torch.tensor(eye, dtype=torch.float64), torch.tensor(target, dtype=torch.float64))
+    w2c = look_at(torch.tensor(eye, dtype=torch.float64), torch.tensor(target, dtype=torch.float64), WORLD_UP)
     return Camera(K=K, world_to_camera=w2c, width=80, height=80)
 
 

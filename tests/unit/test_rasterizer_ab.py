@@ -15,9 +15,9 @@ import torch
 
 import splatu.data.resolve
 from splatu import checkpoint
-from splatu.camera import Camera
+from splatu.camera import Camera, look_at
 from splatu.config_values import to_dict
-from splatu.data.poster.path import look_at
+from splatu.data.poster.path import WORLD_UP
 from splatu.model import GaussianModel
 from splatu.rasterizer import rasterize
 from splatu.train_config import ModelConfig, TrainConfig
@@ -73,7 +73,7 @@ def test_a_trained_run_is_timed_at_each_training_view_as_training_renders_it(ab,
                                              "num_gaussians": len(model)})
     K = torch.tensor([[40.0, 0.0, 24.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
     eyes = [torch.tensor([3 * math.cos(a), 3 * math.sin(a), 0.5], dtype=torch.float64) for a in (0.0, 2.0, 4.0)]
-    cameras = [Camera(K, look_at(eye, torch.zeros(3, dtype=torch.float64)).float(), 48, 32) for eye in eyes]
+    cameras = [Camera(K, look_at(eye, torch.zeros(3, dtype=torch.float64), WORLD_UP).float(), 48, 32) for eye in eyes]
     monkeypatch.setattr(splatu.data.resolve, "load_scene",
                         lambda data: types.SimpleNamespace(train=types.SimpleNamespace(cameras=cameras)))
     name, views = ab.trained_views(tmp_path)

@@ -7,6 +7,7 @@ import shutil
 import signal
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -33,13 +34,13 @@ from splatu.ply import load_ply
 from splatu.run_dir import new_timestamped_dir
 from splatu.train_config import (
     MAX_SEED,
+    SPLATFACTO_STEPS,
     TrainConfig,
     default_config,
     from_dict,
     load_config,
     preset_config,
     preset_path,
-    splatfacto_schedule,
 )
 from tests.synthetic_scenes import noise_image, write_rgb
 
@@ -326,6 +327,31 @@ def test_schedules_are_pure_functions_of_the_step():
     assert all(sorted(o) == list(range(5)) for o in orders) and orders[0] != orders[1]
     assert [training_step.resolution_level(s, 2, 300) for s in (0, 299, 300, 600, 5000)] == [2, 2, 1, 0, 0]
     assert [training_step.active_sh_degree(s, 3, 100) for s in (0, 100, 250, 1000)] == [0, 1, 2, 3]
+
+
+def splatfacto_schedule(steps: int) -> dict[str, Any]:
+    """The splatfacto step-based settings scaled by s = steps / 30000, as nested preset keys.
+
+    Refinements keep their cadence in refinements (reset every 30 refinements), so scaling
+    `refine_every` also scales the opacity-reset period. Nothing goes below one step.
+    """
+    s = steps / SPLATFACTO_STEPS
+
+    def scaled(value: int) -> int:
+        return max(1, round(value * s))
+
+    base = DensifyConfig()
+    return {
+        "steps": steps,
+        "resolution_interval": scaled(3000),
+        "model": {"sh_degree_interval": scaled(ModelConfig().sh_degree_interval)},
+        "densify": {
+            "warmup_length": scaled(base.warmup_length),
+            "refine_every": scaled(base.refine_every),
+            "stop_split_at": scaled(base.stop_split_at),
+            "stop_screen_size_at": scaled(base.stop_screen_size_at),
+        },
+    }
 
 
 def test_presets_scale_the_splatfacto_schedule_consistently():

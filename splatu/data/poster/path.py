@@ -14,7 +14,7 @@ import random
 import torch
 from torch import Tensor
 
-from splatu.camera import Camera
+from splatu.camera import Camera, look_at
 from splatu.data.poster.config import PosterConfig
 from splatu.data.poster.geometry import TARGET
 
@@ -24,6 +24,8 @@ MEAN_HEIGHT, HEIGHT_SWING = 1.15, 0.25
 MEAN_RADIUS, RADIUS_SWING = 1.4, 0.12
 JITTER = 0.03
 """Amplitude (metres) of the smooth hand-held jitter of each coordinate of position and aim."""
+WORLD_UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+"""The cameras are held upright: world +z is up in every image."""
 
 
 def intrinsics(cfg: PosterConfig) -> Tensor:
@@ -32,18 +34,6 @@ def intrinsics(cfg: PosterConfig) -> Tensor:
     return torch.tensor(
         [[focal, 0.0, cfg.width / 2], [0.0, focal, cfg.height / 2], [0.0, 0.0, 1.0]], dtype=torch.float64
     )
-
-
-def look_at(eye: Tensor, target: Tensor) -> Tensor:
-    """World-to-camera 4x4 (OpenCV: +x right, +y down, +z forward) for a camera kept upright (world +z up)."""
-    forward = (target - eye) / (target - eye).norm()
-    right = torch.linalg.cross(forward, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
-    right = right / right.norm()
-    down = torch.linalg.cross(forward, right)
-    world_to_camera = torch.eye(4, dtype=torch.float64)
-    world_to_camera[:3, :3] = torch.stack([right, down, forward])
-    world_to_camera[:3, 3] = -world_to_camera[:3, :3] @ eye
-    return world_to_camera
 
 
 def _smooth_jitter(s: float, phases: list[float]) -> float:
@@ -70,6 +60,6 @@ def camera_path(cfg: PosterConfig) -> list[Camera]:
             dtype=torch.float64,
         )
         target = target0 + torch.tensor(jitter[3:], dtype=torch.float64)
-        cameras.append(Camera(K=K.clone(), world_to_camera=look_at(eye, target), width=cfg.width,
+        cameras.append(Camera(K=K.clone(), world_to_camera=look_at(eye, target, WORLD_UP), width=cfg.width,
                               height=cfg.height, name=f"frame_{i:05d}"))
     return cameras
