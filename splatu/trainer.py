@@ -312,11 +312,26 @@ def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step
 
 
 def _stopped_outside_steps(what: str, run_dir: Path, signal_number: int) -> TrainingInterrupted:
-    """A stop where no consistent state could be saved: name the checkpoint a resume would continue from."""
+    """A stop where no consistent state could be saved: name what a resume would continue from."""
     found = list_checkpoints(run_dir)
-    where = f"the last checkpoint is {found[-1]}" if found else "no checkpoint was written"
+    if found:
+        where, resumable = f"the last checkpoint is {found[-1]}", True
+    elif restartable(run_dir):
+        where, resumable = f"no checkpoint was written, so a resume starts at step 0 from {run_dir}/config.yml", True
+    else:
+        where, resumable = "no checkpoint was written", False
     return TrainingInterrupted(f"{what}; {where}", run_dir, checkpoint_step(found[-1]) if found else 0,
-                               signal_number, resumable=bool(found))
+                               signal_number, resumable=resumable)
+
+
+def restartable(run_dir: Path) -> bool:
+    """Whether `run_dir` is a run stopped before its first checkpoint, which a resume starts at step 0 rather than
+    leave it unresumable with `latest` pointing at it: its config.yml, written first, holds all its first state is
+    made of (options, seed), so a step-0 checkpoint would add nothing, and none can be written during a stop while
+    that state is built or after a second Ctrl-C. Not a finished run whose checkpoints were deleted, nor one whose
+    config.yml the degree choice rewrote (it writes degree_choice.json first)."""
+    return ((run_dir / "config.yml").is_file() and not list_checkpoints(run_dir)
+            and not (run_dir / "summary.json").exists() and not (run_dir / DEGREE_CHOICE_FILE).exists())
 
 
 def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
@@ -341,8 +356,9 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)
     keep_freed_memory()  # likewise: without it the first training of a process page-faults ~20% of its time away
-    if checkpoint is None and config.degree_choice.on:
-        config = with_choice_heads(config)
+    if checkpoint is None:
+        config = with_choice_heads(config) if config.degree_choice.on else config
+        save_config(config, run_dir / "config.yml")  # first: a stop from here on leaves a run that `restartable` takes
     try:
         state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
         return _train_state(state, config, scene, run_dir, hooks, checkpoint, wall_start)
@@ -355,8 +371,8 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
 def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
                  checkpoint: dict[str, Any] | None, wall_start: float) -> dict:
     """`train_run` from its fresh or restored state: record the session's start, train, finish."""
-    save_config(config, run_dir / "config.yml")  # after restored_state's checks: a refused resume changes nothing
     if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
+        save_config(config, run_dir / "config.yml")
         remove_torn_checkpoints(run_dir)
         abandoned = set_aside_later_work(run_dir, state.step)
         if abandoned is not None:
@@ -496,11 +512,10 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
             run_dir = Path(config.resume).expanduser()
             with training_lock(run_dir):
                 return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
-        path = resolve_checkpoint(config.resume)
-        refuse_set_aside_checkpoint(path)
-        run_dir = run_dir_of(path)
-        with training_lock(run_dir):  # then choose the newest again: a training that just ended may have pruned it
-            return _resume_run(config, resolve_checkpoint(config.resume), run_dir, wall_start, hooks)
+        path = _resume_point(config.resume)
+        run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
+        with training_lock(run_dir):  # then choose again: a training that just ended may have pruned it or saved one
+            return _resume_run(config, _resume_point(config.resume), run_dir, wall_start, hooks)
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)
@@ -539,11 +554,23 @@ def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wal
     return run_dir
 
 
-def _resume_run(config: TrainConfig, path: Path, run_dir: Path, wall_start: float, hooks: Sequence[StepHook]) -> Path:
-    """`--resume` of a single run from checkpoint `path`."""
-    checkpoint = read_checkpoint(path, RESUME_KEYS)
-    saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), run_dir)
-    step = int(checkpoint["step"])
+def _resume_point(resume: Path) -> Path | None:
+    """The checkpoint a `--resume` continues from, or None for a run folder that restarts at step 0."""
+    target = Path(resume).expanduser()
+    if target.is_dir() and restartable(target):
+        return None
+    path = resolve_checkpoint(target)
+    refuse_set_aside_checkpoint(path)
+    return path
+
+
+def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_start: float,
+                hooks: Sequence[StepHook]) -> Path:
+    """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None."""
+    checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
+    saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
+                           else from_dict(checkpoint["config"], str(path)), run_dir)
+    step = 0 if checkpoint is None else int(checkpoint["step"])
     if step >= saved.steps and (run_dir / "summary.json").is_file():
         console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
                       soft_wrap=True)

@@ -989,7 +989,8 @@ def test_a_deleted_ensemble_member_is_named_and_the_suggested_resume_trains_it_a
 
 
 def test_an_abort_before_any_checkpoint_does_not_advise_a_resume(tmp_path):
-    """A resume of a run with no checkpoint can only fail; the advice used to be `--resume` all the same."""
+    """A resume of a run with neither a checkpoint nor a config.yml can only fail; the advice used to be `--resume`
+    all the same."""
     state = dataclasses.replace(trainer.fresh_state(tiny_config(tmp_path), tiny_scene()), step=0)
     stop = trainer._interrupted(state, tiny_config(tmp_path), tmp_path, mid_step=True, aborted=True, saved=False,
                                 signal_number=signal.SIGINT)
@@ -1293,3 +1294,21 @@ def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_no
     with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError, match="another `splatu train`"):
         trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize(("stopped", "what"), [("fresh_state", "interrupted"),  # while its first state is built
+                                               ("train_step", "aborted during step 1")])  # a second Ctrl-C
+def test_a_stop_before_the_first_checkpoint_leaves_a_run_that_resumes_at_step_0(
+        tmp_path, scene, monkeypatch, stopped, what):
+    """No step could be saved, and `latest` already points at the new run: it must not be left unresumable."""
+    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    monkeypatch.setattr(trainer, stopped, ctrl_c_on_the_first_call(getattr(trainer, stopped)))
+    with pytest.raises(interrupts.TrainingInterrupted) as stop:
+        trainer.train(tiny_config(tmp_path / "b"))
+    latest = tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest"
+    run_dir = latest.resolve()
+    assert stop.value.message == (f"{what}; no checkpoint was written, so a resume starts at step 0 from "
+                                  f"{run_dir}/config.yml; resume with `splatu train --resume {run_dir}`")
+    assert trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=latest)) == run_dir
+    assert logged_events(run_dir) == logged_events(full_dir)
+
