@@ -42,6 +42,16 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None], fix: str = RESUM
             tmp.unlink(missing_ok=True)
 
 
+def sync_appended(path: Path) -> None:
+    """fsync a file written in place (appended to, not replaced), and its folder, which holds its name if it is new."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    _fsync_dir(path.parent)
+
+
 def _fsync_dir(folder: Path) -> None:
     """Make the rename itself durable before anything that relies on it (pruning older checkpoints): some
     file systems may otherwise persist a later deletion but not the rename."""

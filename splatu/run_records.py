@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from splatu.atomic import atomic_write_text
+from splatu.atomic import atomic_write_text, sync_appended
 from splatu.checkpoint import (
     CHECKPOINT_DIR,
     checkpoint_step,
@@ -24,7 +24,7 @@ DEGREE_CHOICE_FILE = "degree_choice.json"
 
 
 class MetricsLog:
-    """metrics.jsonl: one JSON object per line, appended and flushed as training goes."""
+    """metrics.jsonl: one JSON object per line, appended and flushed as training goes, and fsynced by `sync`."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -33,6 +33,16 @@ class MetricsLog:
         try:
             with self.path.open("a") as f:
                 f.write(json.dumps(record) + "\n")
+        except OSError as err:
+            raise unwritable(self.path, err) from None
+
+    def sync(self) -> None:
+        """Make the lines written so far survive a machine crash; called before each checkpoint, not per line,
+        as an fsync costs milliseconds."""
+        try:
+            sync_appended(self.path)
+        except FileNotFoundError:
+            return  # nothing logged yet
         except OSError as err:
             raise unwritable(self.path, err) from None
 

@@ -212,14 +212,14 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 if _eval_due(state.step, config) and not interrupt.requested:  # a stop must not wait for it
                     _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
-                    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+                    _save(state, config, run_dir, log)
                     saved_step = state.step
                 for hook in hooks:
                     hook(state.step, state)
                 if interrupt.requested:
                     raise KeyboardInterrupt
             if saved_step != state.step:  # the final checkpoint, still deferring a stop until it is whole
-                save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+                _save(state, config, run_dir, log)
                 saved_step = state.step
             if interrupt.requested:
                 raise KeyboardInterrupt
@@ -227,6 +227,13 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
             raise _interrupted(state, config, run_dir, in_step, interrupt.aborted, saved_step == state.step,
                                interrupt.signal_number) from None
     return state, config
+
+
+def _save(state: TrainState, config: TrainConfig, run_dir: Path, log: MetricsLog) -> None:
+    """Write the checkpoint of `state.step`, the log's lines up to it made durable first: after a machine crash a
+    resume from that checkpoint still finds every line of the steps it covers."""
+    log.sync()
+    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
 
 
 def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog,
@@ -305,7 +312,7 @@ def _interrupted(state: TrainState, config: TrainConfig, run_dir: Path, mid_step
     path = checkpoint_path(run_dir, state.step)
     if not saved:
         try:
-            save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+            _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
         except KeyboardInterrupt:
             return _stopped_outside_steps(f"aborted while saving step {state.step}", run_dir, signal_number)
     return TrainingInterrupted(f"interrupted at step {state.step}, saved {path}", run_dir, state.step, signal_number)
@@ -336,7 +343,8 @@ def restartable(run_dir: Path) -> bool:
 
 def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
     """Final evaluation, PLY export and summary.json (the final checkpoint is `run_loop`'s)."""
-    results = _log_eval(state, config, scene, MetricsLog(run_dir / "metrics.jsonl"))
+    log = MetricsLog(run_dir / "metrics.jsonl")
+    results = _log_eval(state, config, scene, log)
     save_ply(state.model, run_dir / "splat.ply", state.to_world)
     summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
                "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
@@ -344,6 +352,7 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
                "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():
         summary["degree_choice"] = read_json(run_dir / DEGREE_CHOICE_FILE)
+    log.sync()  # as before a checkpoint: a resume of a finished run changes nothing, so lost lines would stay lost
     atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 

@@ -1312,3 +1312,35 @@ def test_a_stop_before_the_first_checkpoint_leaves_a_run_that_resumes_at_step_0(
     assert trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=latest)) == run_dir
     assert logged_events(run_dir) == logged_events(full_dir)
 
+
+def test_the_metrics_log_is_fsynced_before_each_checkpoint_and_the_summary(tmp_path, scene, monkeypatch):
+    """A checkpoint is fsynced; unless the log lines it covers are too, a machine crash can leave a checkpoint whose
+    steps the log has lost (a resume keeps the log up to the checkpoint). Once per checkpoint, not per line."""
+    metrics = tmp_path / "outputs" / "tiny" / "splatu" / "latest" / "metrics.jsonl"
+    events: list[tuple[str, int]] = []
+    real_fsync, real_save, real_write = os.fsync, trainer.save_checkpoint, trainer.atomic_write_text
+
+    def recording_fsync(fd):
+        real_fsync(fd)
+        if metrics.exists() and os.path.samestat(os.fstat(fd), metrics.stat()):
+            events.append(("synced", metrics.stat().st_size))
+
+    def recording_save(run_dir, step, state):
+        events.append(("checkpoint", metrics.stat().st_size))
+        return real_save(run_dir, step, state)
+
+    def recording_write(path, text):
+        if path.name == "summary.json":
+            events.append(("summary", metrics.stat().st_size))
+        return real_write(path, text)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
+    monkeypatch.setattr(trainer, "save_checkpoint", recording_save)
+    monkeypatch.setattr(trainer, "atomic_write_text", recording_write)
+    trainer.train(tiny_config(tmp_path, checkpoint_every=5))  # checkpoints at 5, 10 and the final 12
+    assert [kind for kind, _ in events] == ["synced", "checkpoint"] * 3 + ["synced", "summary"]
+    for (_, synced), (_, written) in zip(events[::2], events[1::2], strict=True):
+        assert synced == written  # nothing logged between the fsync and what relies on it
+    assert len(metrics.read_text().splitlines()) > 12  # a line per step and more: far fewer fsyncs than lines
+    run_records.MetricsLog(tmp_path / "metrics.jsonl").sync()  # before the first line: nothing to make durable
+
