@@ -433,21 +433,24 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
 
     Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one
     continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest
-    across sessions: every call (session) adds its own wall time, from `wall_start` (the start of
-    `train`, so scene loading counts) until it finishes, is interrupted or fails, to
-    ensemble_sessions.json, and `wall_seconds` is their sum. A session killed outright (SIGKILL, power
-    loss) cannot record itself and is missing from the sum.
+    across sessions: every call (session) that trains a member adds its own wall time, from `wall_start`
+    (the start of `train`, so scene loading counts) until it finishes, is interrupted or fails, to
+    ensemble_sessions.json, and `wall_seconds` is their sum. A session refused before it trains one (a
+    member's lock held by another `splatu train`) did no work and adds nothing. A session killed outright
+    (SIGKILL, power loss) cannot record itself and is missing from the sum.
     """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     members = ensemble_members(run_dir, config)
     sessions = recorded_sessions(run_dir)
+    trained = False
     try:
         for k, member_dir in enumerate(members):
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
             console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
             try:
                 with training_lock(member_dir):  # also against a `--resume` of the member folder itself
+                    trained = trained or not (member_dir / "summary.json").is_file()  # train_member works on it
                     train_member(member, scene, member_dir, hooks)
             except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
@@ -456,8 +459,9 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
                 raise TrainingInterrupted(f"interrupted at ensemble member {k + 1}/{config.ensemble}", run_dir, 0,
                                           signal_of(stop)) from None
     finally:
-        sessions.append(time.perf_counter() - wall_start)
-        atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
+        if trained:
+            sessions.append(time.perf_counter() - wall_start)
+            atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
     record = {"members": [str(m.relative_to(run_dir)) for m in members],
               "seeds": [config.seed + k for k in range(config.ensemble)],
               "wall_seconds": sum(sessions), "session_seconds": sessions}

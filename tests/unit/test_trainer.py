@@ -1344,3 +1344,20 @@ def test_the_metrics_log_is_fsynced_before_each_checkpoint_and_the_summary(tmp_p
     assert len(metrics.read_text().splitlines()) > 12  # a line per step and more: far fewer fsyncs than lines
     run_records.MetricsLog(tmp_path / "metrics.jsonl").sync()  # before the first line: nothing to make durable
 
+
+def test_an_ensemble_resume_refused_by_a_members_lock_records_no_session(tmp_path, scene):
+    """A `--resume` of member 2's own folder may be training it: the ensemble's resume, refused there before it
+    trained anything, adds no session (no wall time) to ensemble_sessions.json."""
+    def ctrl_c_in_member_2(step, state):
+        if state.generator.initial_seed() == 1 and step == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(interrupts.TrainingInterrupted):
+        trainer.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
+    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
+    with run_dir_module.training_lock(run_dir / "members" / "1"), pytest.raises(SplatuError) as caught:
+        trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert caught.value.what == "another `splatu train` is training this run now"
+    assert caught.value.where == f"in {run_dir / 'members' / '1'}"
+    assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before  # ensemble_sessions.json too
