@@ -21,8 +21,7 @@ import torch
 from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
-from splatu.model import GaussianModel
-from splatu.sh import num_sh_bases
+from splatu.model import GaussianModel, head_coefficients
 from splatu.train_config import TrainConfig, from_dict
 from splatu.world_frame import WorldTransform
 
@@ -206,7 +205,7 @@ def select_head(config: TrainConfig, model: GaussianModel, head: str, run_dir: P
                           else "drop --head: this run trained no extra heads") from None
     chosen = heads[channel]
     model_cfg = dataclasses.replace(config.model, u_sh_degree=chosen.degree)
-    u_sh = model.u_sh.detach()[:, :num_sh_bases(chosen.degree), channel:channel + 1]
+    u_sh = head_coefficients(model.u_sh.detach(), channel, chosen.degree)
     selected = GaussianModel(model.means.detach(), model.quats.detach(), model.log_scales.detach(),
                              model.opacity_logits.detach(), model.sh_dc.detach(), model.sh_rest.detach(), u_sh,
                              model_cfg)

@@ -28,12 +28,13 @@ import numpy as np
 import torch
 
 from splatu.ause import score_image
+from splatu.camera import Camera
 from splatu.data.scene import Views
 from splatu.errors import SplatuError
 from splatu.losses import UncertaintyHead, psnr, uncertainty_heads
-from splatu.model import GaussianModel
+from splatu.model import GaussianModel, head_coefficients
 from splatu.optim import Optimizers
-from splatu.sh import eval_sh, num_sh_bases, safe_normalize, sh_basis, sh_degree_of
+from splatu.sh import num_sh_bases, safe_normalize, sh_basis, sh_degree_of
 
 if TYPE_CHECKING:
     from splatu.train_config import TrainConfig
@@ -208,11 +209,10 @@ class DegreeScores(NamedTuple):
     """(N, K, 3) colour SH of the chosen degree: refitted, or the model's own at its full degree."""
 
 
-def head_maps(model: GaussianModel, heads: list[UncertaintyHead], camera: Any) -> torch.Tensor:
+def head_maps(model: GaussianModel, heads: list[UncertaintyHead], camera: Camera) -> torch.Tensor:
     """(N, heads) u of every uncertainty head along this camera's view directions."""
     dirs = model.view_dirs(camera)
-    return torch.stack([torch.sigmoid(eval_sh(model.u_sh[:, :num_sh_bases(h.degree), c:c + 1], dirs, h.degree))
-                        .squeeze(-1) for c, h in enumerate(heads)], dim=-1)
+    return torch.stack([model.uncertainty(dirs, c, h.degree) for c, h in enumerate(heads)], dim=-1)
 
 
 def _nothing_to_score() -> SplatuError:
@@ -298,7 +298,7 @@ def apply_choice(model: GaussianModel, optimizers: Optimizers, generators: list[
         channel = next(c for c, h in enumerate(heads) if h.degree == u_degree)
 
         def cut(t: torch.Tensor) -> torch.Tensor:
-            return t[:, :num_sh_bases(u_degree), channel:channel + 1]
+            return head_coefficients(t, channel, u_degree)
 
         optimizers.edit_parameter(model, "u_sh", cut, cut)
         model_cfg = dataclasses.replace(model_cfg, u_sh_degree=u_degree)

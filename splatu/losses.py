@@ -18,7 +18,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from splatu.errors import SplatuError
-from splatu.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases, safe_normalize, sh_basis
+from splatu.model import head_coefficients
+from splatu.sh import MAX_SH_DEGREE, eval_sh, safe_normalize, sh_basis
 
 if TYPE_CHECKING:
     from splatu.model import GaussianModel
@@ -235,7 +236,7 @@ def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: Raster
                          f" and {'no' if generators is None else len(generators)} generators were given")
     total = model.u_sh.sum() * 0.0
     for channel, head in enumerate(heads):
-        u_sh = model.u_sh[:, :num_sh_bases(head.degree), channel:channel + 1]
+        u_sh = head_coefficients(model.u_sh, channel, head.degree)
         generator = None if generators is None else generators[channel]
         total = total + _head_loss(u_sh, head, model.means.detach(), camera_center, raster, generator)
     return total

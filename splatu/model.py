@@ -168,9 +168,11 @@ class GaussianModel(torch.nn.Module):
         """(N, 3) mean − camera centre, unnormalised (eval_sh normalises; zero stays safe)."""
         return self.means - camera.center().to(self.means)
 
-    def uncertainty(self, dirs: Tensor) -> Tensor:
-        """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length (channel 0)."""
-        return torch.sigmoid(eval_sh(self.u_sh[..., :1], dirs, self.cfg.u_sh_degree)).squeeze(-1)
+    def uncertainty(self, dirs: Tensor, channel: int = 0, degree: int | None = None) -> Tensor:
+        """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length, from uncertainty head
+        `channel` at its own `degree` (the run's u-SH degree when None; channel 0 is the run's own head)."""
+        degree = self.cfg.u_sh_degree if degree is None else degree
+        return torch.sigmoid(eval_sh(head_coefficients(self.u_sh, channel, degree), dirs, degree)).squeeze(-1)
 
     def colors(self, dirs: Tensor, sh_degree: int) -> Tensor:
         """(N, 3) colour seen along `dirs`: max(SH(d) + 0.5, 0), the 3DGS convention."""
@@ -206,6 +208,12 @@ class GaussianModel(torch.nn.Module):
         uncertainty = image[..., 3] if with_uncertainty else None
         extra = image[..., 3 + int(with_uncertainty):] if extra_features is not None else None
         return ModelRender(image[..., :3], raster.alpha, raster.depth, uncertainty, extra, raster)
+
+
+def head_coefficients(u_sh: Tensor, channel: int, degree: int) -> Tensor:
+    """(N, K_degree, 1): the SH of uncertainty head `channel`. The heads share one (N, K, heads) `u_sh` at the
+    largest degree; a head trained at a lower degree owns only the leading coefficients of its channel."""
+    return u_sh[:, :num_sh_bases(degree), channel:channel + 1]
 
 
 def initial_u_sh(n: int, cfg: ModelConfig, heads: int = 1) -> Tensor:

@@ -14,6 +14,7 @@ from splatu.checkpoint import (
     list_checkpoints,
 )
 from splatu.errors import SplatuError, unwritable
+from splatu.json_files import is_finite_number
 from splatu.run_dir import new_timestamped_dir
 
 REDONE_AT_RESUME = ("eval", "degree_choice")
@@ -58,6 +59,8 @@ class MetricsLog:
                 record = json.loads(line)
             except json.JSONDecodeError:
                 continue  # empty, or half a line: the process died while appending it
+            if not (isinstance(record, dict) and is_finite_number(record.get("step", 0))):
+                continue  # not a record this log writes (a hand edit): nothing a resume could place
             later = record.get("step", 0) > step or (record.get("step") == step and
                                                      record.get("event") in REDONE_AT_RESUME)
             (dropped if later else kept).append(line)

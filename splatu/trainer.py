@@ -341,7 +341,7 @@ def restartable(run_dir: Path) -> bool:
             and not (run_dir / "summary.json").exists() and not (run_dir / DEGREE_CHOICE_FILE).exists())
 
 
-def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict:
+def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path) -> dict[str, Any]:
     """Final evaluation, PLY export and summary.json (the final checkpoint is `run_loop`'s)."""
     log = MetricsLog(run_dir / "metrics.jsonl")
     results = _log_eval(state, config, scene, log)
@@ -358,7 +358,7 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
 
 
 def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
-              checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict:
+              checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict[str, Any]:
     """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary. The caller holds the
     folder's `training_lock` if another process might train it too (`train` does)."""
     wall_start = time.perf_counter() if wall_start is None else wall_start
@@ -378,7 +378,7 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
 
 
 def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
-                 checkpoint: dict[str, Any] | None, wall_start: float) -> dict:
+                 checkpoint: dict[str, Any] | None, wall_start: float) -> dict[str, Any]:
     """`train_run` from its fresh or restored state: record the session's start, train, finish."""
     if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
         save_config(config, run_dir / "config.yml")
@@ -428,7 +428,7 @@ def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
 
 
 def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
-                   hooks: Sequence[StepHook] = ()) -> dict:
+                   hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
     """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
 
     Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one

@@ -16,7 +16,7 @@ from torch import Tensor
 from splatu.baselines import UncertaintyRender
 from splatu.camera import Camera
 from splatu.errors import SplatuError
-from splatu.json_files import read_json
+from splatu.json_files import is_finite_number, read_json
 from splatu.model import GaussianModel
 
 ENSEMBLE_FILE = "ensemble.json"
@@ -46,7 +46,9 @@ def read_ensemble(run_dir: Path) -> EnsembleRecord:
         raise SplatuError(f"an ensemble needs at least 2 members, ensemble.json lists {len(members)}", f"in {path}",
                           "train with --ensemble 2 or more")
     wall = record.get("wall_seconds")
-    return EnsembleRecord(members, float(wall) if wall is not None else None)
+    if wall is not None and not is_finite_number(wall):
+        raise SplatuError(f"wall_seconds is {wall!r}, not a number", f"in {path}", "fix or regenerate the file")
+    return EnsembleRecord(members, wall)
 
 
 @dataclass

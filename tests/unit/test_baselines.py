@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from splatu.baselines.ensemble import EnsembleSource
+from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.visibility import visibility_feature
+from splatu.errors import SplatuError
 from splatu.sh import rgb_to_sh
 from tests.small_models import overlapping_gaussians, two_cameras
 
@@ -27,3 +29,12 @@ def test_ensemble_uncertainty_is_the_population_std_of_the_members():
 def test_visibility_feature_is_one_over_one_plus_the_count():
     """1 for a Gaussian no training view saw, 1/2 for one view, 1/4 for three."""
     torch.testing.assert_close(visibility_feature(torch.tensor([0.0, 1.0, 3.0])), torch.tensor([1.0, 0.5, 0.25]))
+
+
+@pytest.mark.parametrize("wall", ['"12 s"', "NaN", "true"])
+def test_an_ensemble_record_whose_wall_time_is_not_a_number_is_one_line(tmp_path, wall):
+    (tmp_path / "ensemble.json").write_text(f'{{"members": ["members/0", "members/1"], "wall_seconds": {wall}}}')
+    with pytest.raises(SplatuError, match=r"wall_seconds is .*, not a number"):
+        read_ensemble(tmp_path)
+    (tmp_path / "ensemble.json").write_text('{"members": ["members/0", "members/1"], "wall_seconds": 12.5}')
+    assert read_ensemble(tmp_path).wall_seconds == 12.5

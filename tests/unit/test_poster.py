@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -14,7 +15,7 @@ import pytest
 import torch
 
 from splatu.camera import Camera, look_at
-from splatu.data.poster import PosterConfig, build_poster_standin
+from splatu.data.poster import PosterConfig, build_poster_standin, generate
 from splatu.data.poster.generate import standin_splits
 from splatu.data.poster.geometry import SEAT_BOTTOM, SEAT_TOP, TARGET, build_scene
 from splatu.data.poster.path import WORLD_UP, camera_path
@@ -244,6 +245,18 @@ def test_eval_block_error_names_the_poster_flag(tmp_path):
         build_poster_standin(PosterConfig(**{**TINY.__dict__, "eval_block": 30}), tmp_path)
     assert err.value.what.startswith("--poster.eval-block 30 is out of range")
     assert err.value.fix == f"pass --poster.eval-block between 1 and {TINY.frames - 1}"
+
+
+def test_a_full_disk_while_generating_is_one_line_and_leaves_no_half_scene(tmp_path, monkeypatch):
+    def full_disk(cfg, out):
+        (out / "images").mkdir(parents=True)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(generate, "_generate", full_disk)
+    with pytest.raises(SplatuError, match=r"could not write the built-in scene \(No space left on device\)") as err:
+        build_poster_standin(TINY, tmp_path)
+    assert "SPLATU_CACHE" in err.value.fix
+    assert not any(tmp_path.iterdir())  # the staging folder is gone, and no stand-in claims to be whole
 
 
 def test_without_specular_only_the_highlights_go():

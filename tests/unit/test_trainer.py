@@ -753,6 +753,14 @@ def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene
     assert sorted(r["step"] for r in records if r["event"] == "train") == list(range(1, 13))
 
 
+def test_metrics_lines_that_are_not_records_are_dropped_on_resume_not_a_traceback(tmp_path):
+    path = tmp_path / "metrics.jsonl"
+    path.write_text('{"event": "train", "step": 3}\n5\n{"event": "train", "step": "x"}\n'
+                    '{"event": "train", "step": 9}\n')
+    assert run_records.MetricsLog(path).drop_after(5) == ['{"event": "train", "step": 9}']
+    assert path.read_text() == '{"event": "train", "step": 3}\n'
+
+
 def test_resuming_a_finished_run_changes_nothing(tmp_path, scene, capsys):
     run_dir = trainer.train(tiny_config(tmp_path))
     files = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}

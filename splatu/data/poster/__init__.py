@@ -5,6 +5,6 @@ what no capture has: true depth and, per pixel, whether any training camera saw 
 """
 
 from splatu.data.poster.config import PosterConfig
-from splatu.data.poster.generate import GENERATOR_VERSION, build_poster_standin
+from splatu.data.poster.generate import build_poster_standin
 
-__all__ = ["GENERATOR_VERSION", "PosterConfig", "build_poster_standin"]
+__all__ = ["PosterConfig", "build_poster_standin"]

@@ -170,9 +170,11 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
         with _single_thread():
             _generate(cfg, staging)
         os.rename(staging, final)
-    except OSError:
-        if not (final / "transforms.json").is_file():
-            raise
+    except OSError as err:
+        if not (final / "transforms.json").is_file():  # else another process finished it first: use that one
+            raise SplatuError(f"could not write the built-in scene ({err.strerror or err})", f"in {final.parent}",
+                              "free space on that disk (it takes about 32 MB), or pass --cache-dir or set "
+                              "SPLATU_CACHE to a writable folder") from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return final
