@@ -36,6 +36,7 @@ import torch
 from torch import Tensor
 
 from splatu.allocator import keep_freed_memory
+from splatu.provenance import measured_on
 
 REPO = Path(__file__).resolve().parents[1]
 TILE = 16
@@ -260,7 +261,7 @@ def main() -> None:
             "first_call_seconds": round(ours["seconds_total"] - (runs * ours_total) / 1e3, 1),
         })
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"cases": results}, indent=2) + "\n")
+    args.json.write_text(json.dumps({"cases": results, "measured_on": measured_on()}, indent=2) + "\n")
     keys = ["ms_forward", "ms_footprint", "ms_backward", "contributing_pairs", "ns_per_pair", "speedup_vs_reference",
             "peak_rss_mb"]
     print(f"{'case':<28}" + "".join(f"{k:>22}" for k in keys))

@@ -3,10 +3,15 @@ ratio compares the same work, and it counts the candidate pairs it evaluates."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import pytest
+import torch
 
 from splatu.rasterizer import rasterize
-from tests.benchmark_scripts import benchmark_script
+from tests.benchmark_scripts import BENCHMARKS, benchmark_script
 
 
 @pytest.fixture(scope="module")
@@ -26,3 +31,20 @@ def test_the_baseline_renders_our_image_and_counts_whole_tiles_of_candidates(ras
     assert float((alpha - ours.alpha).abs().max()) < 0.01
     assert candidates % (rasterizer_benchmark.TILE ** 2) == 0
     assert candidates >= ours.num_contributing_pairs > 0
+
+
+def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
+    output = tmp_path / "quick.json"
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "rasterizer.py"), "--quick", "--json", str(output)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    written = json.loads(output.read_text())
+    [case] = written["cases"]
+    for key in ("name", "gaussians", "width", "height", "ms_forward", "ms_backward", "contributing_pairs",
+                "ns_per_pair", "speedup_vs_reference", "peak_rss_mb"):
+        assert key in case, key
+    total = case["ms_forward"] + case["ms_backward"]
+    assert case["contributing_pairs"] > 0 and case["speedup_vs_reference"] > 0
+    assert case["ns_per_pair"] == pytest.approx(1e6 * total / case["contributing_pairs"], rel=0.01)
+    assert written["measured_on"]["torch"] == torch.__version__
+    assert case["name"] in run.stdout and "ns_per_pair" in run.stdout  # the same figures as a table
