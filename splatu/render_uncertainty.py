@@ -2,8 +2,8 @@
 
 For the chosen views (eval, train, or an orbit that also looks from below) and method, it
 writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any option that changes its
-maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new views are
-rendered, see `previous_render`):
+maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new render is
+written in full, see `previous_render` and `swap_in`):
 
     npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
@@ -17,7 +17,9 @@ rendered, see `previous_render`):
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +46,7 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
+from splatu.interrupts import Terminated, deferred_interrupt, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 from splatu.train_config import MAX_SEED
@@ -211,8 +214,8 @@ def previous_render(out: Path, default_folder: bool) -> list[Path]:
     """The `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
 
     A folder is ours when it is the default <run>/uncertainty/<label>-<views> or holds our render.json. Checked
-    before the scene loads, so a refusal costs nothing; removed only once the new views are rendered, so a
-    command that fails (a moved scene, a corrupt image, Ctrl-C) leaves the earlier render whole.
+    before the scene loads, so a refusal costs nothing; removed only once the new render is written in full (see
+    `swap_in`), so a command that fails (a moved scene, a corrupt image, Ctrl-C) leaves the earlier render whole.
     """
     present = [out / name for name in OWNED if (out / name).exists()]
     if present and not default_folder and not (out / "render.json").is_file():
@@ -228,6 +231,19 @@ def remove(paths: list[Path]) -> None:
             shutil.rmtree(path)
         else:
             path.unlink()
+
+
+def swap_in(staging: Path, out: Path, previous: list[Path]) -> None:
+    """Put the whole render written in `staging` in place of the earlier one in `out`. A Ctrl-C or SIGTERM waits
+    for the renames (a second one aborts), and render.json goes first and comes back last, so even a kill leaves no
+    earlier render.json beside files it does not list."""
+    with deferred_interrupt() as stop:
+        (out / "render.json").unlink(missing_ok=True)
+        remove(previous)
+        for entry in sorted(staging.iterdir(), key=lambda path: path.name == "render.json"):
+            os.replace(entry, out / entry.name)
+    if stop.requested:
+        raise Terminated if stop.signal_number == signal.SIGTERM else KeyboardInterrupt
 
 
 def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -> dict[str, ColourScale]:
@@ -363,17 +379,29 @@ def run(config: RenderUncertaintyConfig) -> None:
                           config.seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
-    remove(previous)
+    staging = out / f".render.tmp-{os.getpid()}"  # written whole before it replaces anything: see swap_in
+    try:
+        with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
+            record = write_render(staging, views, config, run_info.train_seconds, built.setup_seconds, seconds)
+            swap_in(staging, out, previous)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
+                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
+
+
+def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig, train_seconds: float | None,
+                 setup_seconds: float, seconds: list[float]) -> dict:
+    """Every file of a render, render.json last; returns what render.json holds."""
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         "method": config.method, "head": config.head, "views": config.views, "density_aware": config.density_aware,
         "fisher_probes": config.fisher_probes, "seed": config.seed, "data": config.data,
-        "train_seconds": run_info.train_seconds, "setup_seconds": built.setup_seconds,
+        "train_seconds": train_seconds, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
         "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
                       "elevation_degrees": v.elevation_degrees} for v in views],
     }
     atomic_write_text(out / "render.json", json.dumps(record, indent=2))
-    Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
-                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
+    return record

@@ -281,6 +281,29 @@ def test_a_second_render_with_fewer_views_leaves_no_stale_files(tiny_run, tmp_pa
     assert (foreign / "png" / "mine.png").read_bytes() == b"x"
 
 
+def test_a_render_stopped_while_writing_its_files_leaves_the_earlier_one_whole(tiny_run, tmp_path, monkeypatch):
+    """A Ctrl-C or SIGTERM after the views are rendered, while their files are written: the earlier render used
+    to be deleted first, leaving some of the new files beside the earlier render.json, which lists views whose
+    files are gone."""
+    import splatu.render_uncertainty as render_uncertainty
+
+    out = tmp_path / "stopped"
+    _render(tiny_run, "--output", str(out))
+    kept = {name: (out / name).read_bytes() for name in _folder_names(out)}
+    save_panel = render_uncertainty.save_panel
+
+    def stopped_after_one_panel(path, *args):
+        if list(path.parent.iterdir()):
+            raise KeyboardInterrupt
+        save_panel(path, *args)
+
+    monkeypatch.setattr(render_uncertainty, "save_panel", stopped_after_one_panel)
+    with pytest.raises(SystemExit) as exc:
+        _render(tiny_run, "--max-views", "2", "--output", str(out))
+    assert exc.value.code == 130
+    assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept  # nothing left half-written
+
+
 def _one_line(capsys, argv: list[str]) -> str:
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
