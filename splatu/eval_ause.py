@@ -106,6 +106,9 @@ def checked_output(output: Path) -> Path:
     if output.suffix != ".json":
         raise SplatuError("--output must name a .json file (the curve plot is written beside it as .png)",
                           f"in {output}", f"pass a path such as {output.with_suffix('.json')}")
+    if output.with_suffix(".png").is_dir():
+        raise SplatuError("the curve plot's path is a folder (eval-ause writes the plot beside the JSON, as .png)",
+                          f"in {output.with_suffix('.png')}", "move that folder, or pass another --output")
     writable_dir(output.parent, "--output (a .json path in a writable folder)")
     return output
 

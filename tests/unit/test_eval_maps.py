@@ -186,6 +186,14 @@ def test_an_output_that_is_not_json_is_refused_before_the_plot_could_overwrite_i
     assert not (tmp_path / "scores.png").exists()
 
 
+def test_an_output_whose_plot_path_is_a_folder_is_refused_before_anything_is_written(tmp_path, capsys):
+    """The JSON used to be written, then the plot raised IsADirectoryError with a traceback."""
+    _tiny_maps(tmp_path / "maps", n=1)
+    (tmp_path / "scores.png").mkdir()
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "maps"), "--output", str(tmp_path / "scores.json"))
+    assert "is a folder" in line and "scores.png" in line
+    assert not (tmp_path / "scores.json").exists()
+
 def test_an_rgba_mask_is_read_by_its_colour_or_by_its_alpha_when_the_colour_is_uniform(tmp_path):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
