@@ -324,13 +324,25 @@ class ImageCache:
         entry = self.directory / "pixels" / f"{self.key(recipe)}.npy"
         if entry.is_file():
             try:
-                return np.load(entry)
+                stored = np.load(entry)
             except (OSError, ValueError, EOFError):
-                entry.unlink(missing_ok=True)  # torn or emptied (a crash, a full disk): recompute it
+                stored = None
+            if stored is not None and _is_stored_form(stored, recipe):
+                return stored
+            entry.unlink(missing_ok=True)  # torn, emptied (a crash, a full disk) or not this array: recompute it
         pixels = compute_pixels(recipe)
         atomic_write(entry, lambda f: np.save(f, pixels),
                      fix="free space on that disk, or set SPLATU_CACHE to a writable folder with room for the images")
         return pixels
+
+
+def _is_stored_form(stored: np.ndarray, recipe: PixelRecipe) -> bool:
+    """Whether a cached array is what `compute_pixels` makes of `recipe`: its target size, channels (colour only)
+    and a dtype `as_float` reads."""
+    dtypes = (np.float32,) if recipe.kind == "depth" else (np.uint8, np.uint16)
+    return (isinstance(stored, np.ndarray) and stored.dtype in dtypes
+            and stored.shape[:2] == (recipe.target_height, recipe.target_width)
+            and stored.ndim == (3 if recipe.kind == "color" else 2))
 
 
 def load_pixels(recipe: PixelRecipe, cache: ImageCache) -> np.ndarray:

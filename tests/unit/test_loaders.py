@@ -323,6 +323,22 @@ def test_an_unwritable_image_cache_is_one_line_naming_splatu_cache(tmp_path):
     assert "--resume" not in str(caught.value)  # loading images is not a training to resume
 
 
+@pytest.mark.parametrize("stored", [np.zeros((5, 5, 3), np.uint8), np.zeros((24, 32), np.uint8),
+                                    np.zeros((24, 32, 3), np.float64)])
+def test_a_cache_entry_of_another_shape_or_dtype_is_recomputed(tmp_path, stored):
+    """A whole .npy that is not this recipe's array (another size, no channels, a dtype `as_float` cannot read)
+    used to be returned as it was, and loading the scene raised a traceback."""
+    path = tmp_path / "photo.png"
+    write_rgb(path, noise_image(0, 32, 24))
+    recipe = PixelRecipe(path=path, kind="color", width=32, height=24, target_width=32, target_height=24)
+    cache = ImageCache(tmp_path / "cache")
+    first = load_pixels(recipe, cache)
+    [entry] = (tmp_path / "cache").glob("pixels/*.npy")
+    np.save(entry, stored)
+    assert np.array_equal(load_pixels(recipe, cache), first)
+    assert np.array_equal(np.load(entry), cache.load(recipe))
+
+
 def _with_exif_thumbnail(jpeg: bytes, thumbnail: bytes) -> bytes:
     """`jpeg` with an APP1 (EXIF) segment holding a whole JPEG thumbnail, end-of-image marker and all."""
     payload = b"Exif\x00\x00" + thumbnail
