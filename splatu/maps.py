@@ -127,8 +127,9 @@ def entry_names(root: Path) -> list[str]:
     stems = {}
     for folder, suffix in (("rgb", ".png"), ("gt", ".png"), ("uncertainty", ".npy")):
         if not (root / folder).is_dir():
-            raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}",
-                              "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy")
+            fix = (f"pass --maps {root / 'maps'}, the maps of this render" if (root / "maps" / folder).is_dir()
+                   else "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy")
+            raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}", fix)
         stems[folder] = {p.stem for p in (root / folder).glob(f"*{suffix}")}
     if not stems["uncertainty"]:
         raise SplatuError("maps directory has no uncertainty maps", f"in {root / 'uncertainty'}",

@@ -115,6 +115,13 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     assert "exactly one" in _one_line_error(capsys)
 
 
+def test_maps_pointed_at_a_render_folder_names_its_maps_folder(tmp_path, capsys):
+    """render-uncertainty writes the maps layout in <render>/maps; --maps <render> said only how to lay out a maps
+    directory, not that the render holds one."""
+    _tiny_maps(tmp_path / "render" / "maps", n=1)
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "render"))
+    assert "has no rgb/ folder" in line and f"pass --maps {tmp_path / 'render' / 'maps'}" in line
+
 def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, capsys):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
