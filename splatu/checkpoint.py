@@ -10,6 +10,7 @@ Adam moments is tens of MB.
 from __future__ import annotations
 
 import dataclasses
+import math
 import random
 import re
 from pathlib import Path
@@ -118,6 +119,10 @@ def read_checkpoint(path: Path, required: tuple[str, ...] = ("step",)) -> dict[s
     missing = [key for key in required if key not in state]
     if missing:
         raise SplatuError(f"incomplete checkpoint (missing {', '.join(missing)})", f"in {path}", OLDER_CHECKPOINT)
+    damaged = [key for key in ("config", "model", "world_transform") if not isinstance(state.get(key, {}), dict)]
+    if damaged:
+        raise SplatuError(f"damaged checkpoint ({', '.join(damaged)} is not a mapping)", f"in {path}",
+                          OLDER_CHECKPOINT)
     for name, value in state.get("model", {}).items():
         if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(value.isfinite().all()):
             count = int((~value.isfinite()).sum())
@@ -161,9 +166,21 @@ def model_from_state(state: dict[str, Any], config: TrainConfig) -> GaussianMode
 
 
 def saved_frame(state: dict[str, Any]) -> WorldTransform | None:
-    """The frame the model was trained in (the scene's normalisation), or None in checkpoints older than it."""
+    """The frame the model was trained in (the scene's normalisation), or None in checkpoints older than it; a
+    damaged one (NaN, a zero scale, a missing part) is a one-line error naming the file."""
     saved = state.get("world_transform")
-    return None if saved is None else WorldTransform.from_state(saved)
+    if saved is None:
+        return None
+    try:
+        frame = WorldTransform.from_state(saved)
+        whole = (frame.rotation.shape == (3, 3) and frame.translation.shape == (3,) and math.isfinite(frame.scale)
+                 and bool(frame.rotation.isfinite().all()) and bool(frame.translation.isfinite().all()))
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError):
+        whole = False
+    if not whole:
+        raise SplatuError("checkpoint's world_transform (the scene's normalisation) is damaged",
+                          f"in {state.get('read_from', 'the run checkpoint')}", OLDER_CHECKPOINT)
+    return frame
 
 
 class TrainedRun(NamedTuple):

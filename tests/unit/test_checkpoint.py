@@ -141,3 +141,28 @@ def test_checkpoint_missing_keys_is_a_one_line_error(tmp_path):
         ckpt.load_run(tmp_path)
     with pytest.raises(SplatuError, match="incomplete checkpoint"):
         ckpt.read_checkpoint(path, ckpt.RESUME_KEYS)
+
+
+@pytest.mark.parametrize("damage", [
+    lambda state: state.update(config=None),
+    lambda state: state.update(model=[1, 2]),
+    lambda state: state.update(world_transform=3.0),
+    lambda state: state["world_transform"].update(scale=float("nan")),
+    lambda state: state["world_transform"].update(scale=0.0),
+    lambda state: state["world_transform"].update(translation=torch.tensor([0.0, float("inf"), 0.0])),
+    lambda state: state["world_transform"].pop("rotation"),
+])
+def test_a_checkpoint_with_a_damaged_config_model_or_frame_names_the_file(tmp_path, damage):
+    """Each of these was a traceback (AttributeError, ValueError, KeyError), or a NaN frame that then read as
+    "the scene's normalisation differs"."""
+    from splatu.world_frame import WorldTransform
+
+    state = _state(TrainConfig(), 0)
+    state["world_transform"] = WorldTransform.from_normalization(torch.zeros(3), 2.0).state_dict()
+    path = ckpt.save_checkpoint(tmp_path, 5, state)
+    ckpt.load_run(tmp_path)  # whole, it loads
+    damage(state)
+    path = ckpt.save_checkpoint(tmp_path, 6, state)
+    with pytest.raises(SplatuError) as caught:
+        ckpt.load_run(tmp_path)
+    assert "damaged" in caught.value.what and caught.value.where == f"in {path}"
