@@ -241,7 +241,10 @@ def swap_in(staging: Path, out: Path, previous: list[Path]) -> None:
         (out / "render.json").unlink(missing_ok=True)
         remove(previous)
         for entry in sorted(staging.iterdir(), key=lambda path: path.name == "render.json"):
-            os.replace(entry, out / entry.name)
+            target = out / entry.name
+            if target.is_dir() and not target.is_symlink():  # written since `previous` was listed: eval-ause's maps/
+                shutil.rmtree(target)
+            os.replace(entry, target)
     if stop.requested:
         raise Terminated if stop.signal_number == signal.SIGTERM else KeyboardInterrupt
 

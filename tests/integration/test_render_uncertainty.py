@@ -304,6 +304,21 @@ def test_a_render_stopped_while_writing_its_files_leaves_the_earlier_one_whole(t
     assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept  # nothing left half-written
 
 
+def test_a_render_replaces_a_maps_folder_written_after_it_listed_the_earlier_render(tmp_path):
+    """`eval-ause --load` writes <run>/uncertainty/<label>-eval/maps too, and may do so while a render of that folder
+    is running: the render's own maps/ still goes in, where a rename onto a full folder would fail."""
+    from splatu.render_uncertainty import swap_in
+
+    out, staging = tmp_path / "out", tmp_path / "out" / ".render.tmp"
+    (staging / "maps" / "rgb").mkdir(parents=True)
+    (staging / "maps" / "rgb" / "new.png").write_bytes(b"new")
+    (staging / "render.json").write_text("{}")
+    (out / "maps" / "rgb").mkdir(parents=True)
+    (out / "maps" / "rgb" / "other.png").write_bytes(b"other")  # not among the earlier render's entries
+    swap_in(staging, out, previous=[])
+    assert _folder_names(out) == {"maps/rgb/new.png", "render.json"}
+
+
 def _one_line(capsys, argv: list[str]) -> str:
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
