@@ -71,11 +71,19 @@ def os_error_behind(err: BaseException) -> OSError | None:
     return err if isinstance(err, OSError) else None
 
 
-RESUME_AFTER_FREEING = ("free space on that disk or make the folder writable, then run the command again (a training "
-                        "continues from its last checkpoint with `splatu train --resume RUN`)")
+FREE_AND_RERUN = "free space on that disk or make the folder writable, then run the command again"
+RESUME_AFTER_FREEING = (f"{FREE_AND_RERUN} (a training continues from its last checkpoint with "
+                        "`splatu train --resume RUN`)")
 
 
 def unwritable(path: Path, err: OSError, fix: str = RESUME_AFTER_FREEING) -> SplatuError:
     """A write that the disk refused (full, read-only, over a quota or size limit) as one line."""
     reason = err.strerror or str(err) or type(err).__name__
     return SplatuError(f"could not write {path.name} ({reason})", f"in {path.parent}", fix)
+
+
+def unwritable_folder(folder: Path, err: OSError) -> SplatuError:
+    """Files the disk refused to take (full, read-only, over a quota) while a folder of them was written, as one
+    line: np.save reports a short write with no file name, so the folder is what can be named."""
+    reason = err.strerror or str(err) or type(err).__name__
+    return SplatuError(f"could not write the files ({reason})", f"in {folder}", FREE_AND_RERUN)

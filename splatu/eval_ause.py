@@ -20,7 +20,7 @@ from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.baselines import UncertaintyMethod
 from splatu.checkpoint import run_folder
-from splatu.errors import SplatuError, require_at_least, writable_dir
+from splatu.errors import SplatuError, os_error_behind, require_at_least, unwritable, writable_dir
 from splatu.figures import plot_sparsification
 from splatu.maps import MapEntry, entry_names, read_entry
 
@@ -93,7 +93,12 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     output = checked_output(output or maps_dir / "ause.json")
     atomic_write_text(output, json.dumps(report, indent=2))
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
-    plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
+    try:
+        plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
+    except OSError as err:  # a full disk: matplotlib raises it as it is
+        if os_error_behind(err) is None:
+            raise
+        raise unwritable(output.with_suffix(".png"), err) from None
     return report
 
 

@@ -21,7 +21,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
-from splatu.errors import SplatuError, load_number_array, require_file
+from splatu.errors import SplatuError, load_number_array, os_error_behind, require_file, unwritable_folder
 
 FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
 
@@ -188,6 +188,10 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
             (staging / name).write_text(text, encoding="utf-8")
         stored = [read_entry(staging, name) for name in entry_names(staging)]
         _swap_in(staging, root)
+    except OSError as err:
+        if os_error_behind(err) is None:
+            raise
+        raise unwritable_folder(root, err) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return stored

@@ -35,7 +35,7 @@ from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRe
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
 from splatu.data.scene import Views, on_background
-from splatu.errors import SplatuError, require_at_least, writable_dir
+from splatu.errors import SplatuError, os_error_behind, require_at_least, unwritable_folder, writable_dir
 from splatu.figures import (
     DEPTH_CMAP,
     ERROR_CMAP,
@@ -387,6 +387,10 @@ def run(config: RenderUncertaintyConfig) -> None:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
             record = write_render(staging, views, config, run_info.train_seconds, built.setup_seconds, seconds)
             swap_in(staging, out, previous)
+    except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
+        if os_error_behind(err) is None:
+            raise
+        raise unwritable_folder(out, err) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     Console().print(f"rendered {len(views)} {config.views} views with {config.method} "

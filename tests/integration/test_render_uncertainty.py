@@ -1,6 +1,7 @@
 """render-uncertainty and eval-ause --load on a tiny trained stand-in, every method, and the orbit."""
 
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -317,6 +318,30 @@ def test_a_render_replaces_a_maps_folder_written_after_it_listed_the_earlier_ren
     (out / "maps" / "rgb" / "other.png").write_bytes(b"other")  # not among the earlier render's entries
     swap_in(staging, out, previous=[])
     assert _folder_names(out) == {"maps/rgb/new.png", "render.json"}
+
+
+def test_a_full_disk_while_files_are_written_is_one_line_and_keeps_the_earlier_render(tiny_run, tmp_path,
+                                                                                       monkeypatch, capsys):
+    """np.save and matplotlib raise the disk's OSError as it is: both commands ended in a traceback."""
+    out = tmp_path / "full"
+    _render(tiny_run, "--output", str(out))
+    kept = {name: (out / name).read_bytes() for name in _folder_names(out)}
+
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "save", disk_full)
+    for command in (["render-uncertainty", "--load", str(tiny_run), "--output", str(out)],
+                    ["eval-ause", "--load", str(tiny_run), "--output", str(tmp_path / "scores.json")]):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exc:
+            entrypoint(command)
+        err = capsys.readouterr().err
+        errors = [line for line in err.splitlines() if line.startswith("error")]  # after the stand-in's line
+        assert exc.value.code == 2 and len(errors) == 1 and "Traceback" not in err, err
+        assert "No space left on device" in errors[0] and "free space" in errors[0]
+    assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept
+    assert not (tmp_path / "scores.json").exists()
 
 
 def _one_line(capsys, argv: list[str]) -> str:

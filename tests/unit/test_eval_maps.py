@@ -201,6 +201,19 @@ def test_an_output_whose_plot_path_is_a_folder_is_refused_before_anything_is_wri
     assert "is a folder" in line and "scores.png" in line
     assert not (tmp_path / "scores.json").exists()
 
+def test_a_full_disk_while_the_plot_is_written_is_one_line(tmp_path, capsys, monkeypatch):
+    """matplotlib raises the disk's OSError as it is: it was a traceback after the JSON was written."""
+    from matplotlib.figure import Figure
+
+    _tiny_maps(tmp_path / "maps", n=1)
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", disk_full)
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "maps"))
+    assert "could not write ause.png (No space left on device)" in line and "free space" in line
+
 def test_an_rgba_mask_is_read_by_its_colour_or_by_its_alpha_when_the_colour_is_uniform(tmp_path):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
@@ -284,7 +297,7 @@ def test_a_maps_directory_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch)
         write_entry(where, entry)
 
     monkeypatch.setattr(maps, "write_entry", fail_on_the_second)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(SplatuError, match="disk full"):  # one line, naming the folder
         maps.write_maps_dir(root, fresh)
     assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["maps"]  # no staging folder left behind
