@@ -20,7 +20,7 @@ from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.baselines import UncertaintyMethod
 from splatu.checkpoint import run_folder
-from splatu.errors import SplatuError, os_error_behind, require_at_least, unwritable, writable_dir
+from splatu.errors import FREE_AND_RERUN, SplatuError, os_error_behind, require_at_least, unwritable, writable_dir
 from splatu.figures import plot_sparsification
 from splatu.maps import MapEntry, entry_names, read_entry
 
@@ -91,7 +91,7 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     report["method"] = label
     report["options"] = options or {"maps": str(maps_dir)}
     output = checked_output(output or maps_dir / "ause.json")
-    atomic_write_text(output, json.dumps(report, indent=2))
+    atomic_write_text(output, json.dumps(report, indent=2), FREE_AND_RERUN)
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
     try:
         plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)

@@ -34,8 +34,15 @@ from splatu.atomic import atomic_write_text
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRender, UncertaintySource, method_list
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
-from splatu.data.scene import Views, on_background
-from splatu.errors import SplatuError, os_error_behind, require_at_least, unwritable_folder, writable_dir
+from splatu.data.scene import Views
+from splatu.errors import (
+    FREE_AND_RERUN,
+    SplatuError,
+    os_error_behind,
+    require_at_least,
+    unwritable_folder,
+    writable_dir,
+)
 from splatu.figures import (
     DEPTH_CMAP,
     ERROR_CMAP,
@@ -163,10 +170,7 @@ def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[Render
         view = RenderedView(name, maps)
         if spec.views is not None and spec.indices is not None:
             i = spec.indices[k]
-            gt = spec.views.images[i]
-            if spec.views.alphas is not None:
-                gt = on_background(gt, spec.views.alphas[i], spec.views.alpha_background, source.background)
-            view.gt = gt.double().numpy()
+            view.gt = spec.views.target(i, source.background).double().numpy()
             if spec.views.masks is not None:
                 view.mask = spec.views.masks[i].bool().numpy().reshape(view.gt.shape[:2])
             if spec.views.observed is not None:
@@ -410,5 +414,5 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
                       "elevation_degrees": v.elevation_degrees} for v in views],
     }
-    atomic_write_text(out / "render.json", json.dumps(record, indent=2))
+    atomic_write_text(out / "render.json", json.dumps(record, indent=2), FREE_AND_RERUN)
     return record
