@@ -98,7 +98,7 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     except OSError as err:  # a full disk: matplotlib raises it as it is
         if os_error_behind(err) is None:
             raise
-        raise unwritable(output.with_suffix(".png"), err) from None
+        raise unwritable(output.with_suffix(".png"), err, FREE_AND_RERUN) from None
     return report
 
 

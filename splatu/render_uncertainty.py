@@ -23,7 +23,7 @@ import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -402,7 +402,7 @@ def run(config: RenderUncertaintyConfig) -> None:
 
 
 def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig, train_seconds: float | None,
-                 setup_seconds: float, seconds: list[float]) -> dict:
+                 setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
     """Every file of a render, render.json last; returns what render.json holds."""
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
