@@ -28,7 +28,7 @@ from pathlib import Path
 
 import tyro
 
-from splatu import trainer
+from splatu import train_command
 from splatu.data.config import DataConfig
 from splatu.provenance import measured_on
 from splatu.train_config import preset_config
@@ -75,7 +75,7 @@ def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: Dat
     if degree_choice:
         config = dataclasses.replace(config, degree_choice=dataclasses.replace(config.degree_choice, on=True))
     started = time.perf_counter()
-    run_dir = trainer.train(config)
+    run_dir = train_command.train(config)
     wall = time.perf_counter() - started
     summary = json.loads((run_dir / "summary.json").read_text())
     uncertainty = "off" if config.uncertainty.off else f"{config.uncertainty.kind}, u-SH {summary['u_sh_degree']}"

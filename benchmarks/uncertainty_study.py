@@ -7,8 +7,8 @@
 
 Scenes: the built-in poster stand-in (contiguous eval block) and fox (../shared/data/fox,
 contiguous eval block; skipped with a message when absent). Every training goes through the
-trainer's Python API (`splatu.trainer.train_run` / `train_ensemble`) on one loaded scene, with
-one budget for all (a preset, or tiny overrides of `fast` with --quick), so wall times compare.
+trainer's Python API (`splatu.trainer.train_run` / `splatu.ensemble_training.train_ensemble`) on one
+loaded scene, with one budget for all (a preset, or tiny overrides of `fast` with --quick), so wall times compare.
 
 Rows: ours (antipodal, mean, weighted losses), ensemble-N (plain 3DGS members differing only
 in seed), visibility count, Fisher diagonal, colour spread, training residual, angular gap and random, all on
@@ -44,7 +44,7 @@ import torch
 import tyro
 
 from splatu import ause as A
-from splatu import trainer
+from splatu import ensemble_training, trainer
 from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod
 from splatu.baselines.load import build_method, load_any_run
 from splatu.config_values import apply_values
@@ -199,7 +199,7 @@ def train_variant(variant: Variant, config: TrainConfig, scene: Scene, run_dir: 
     (run_dir / "study_wall_repeats.json").unlink(missing_ok=True)  # timings of an earlier training of it
     started = time.perf_counter()
     if variant.ensemble:
-        trainer.train_ensemble(config, scene, run_dir, started)
+        ensemble_training.train_ensemble(config, scene, run_dir, started)
     else:
         trainer.train_run(config, scene, run_dir)
     wall = time.perf_counter() - started

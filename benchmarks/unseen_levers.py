@@ -51,8 +51,10 @@ from torch import Tensor
 import splatu.model
 from splatu import trainer, training_step
 from splatu.camera import Camera
+from splatu.data.resolve import load_scene
 from splatu.model import GaussianModel
 from splatu.provenance import measured_on
+from splatu.run_dir import new_run_dir
 from splatu.train_config import preset_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -209,12 +211,12 @@ def train_with(args: Args) -> dict:
     """One training of `args.preset` on poster with the lever on; returns its results row."""
     config = dataclasses.replace(preset_config(args.preset), output_dir=args.output_dir, progress=False,
                                  seed=args.seed)
-    scene = trainer.load_scene(config.data)
+    scene = load_scene(config.data)
     if scene.eval.observed is None or scene.train.depths is None:
         raise SystemExit("error: this study needs the built-in poster stand-in (its observed masks and true depth), "
                          "and the poster found lacks them (the real capture?); move the real capture out of "
                          "data/nerfstudio/poster and $SPLATU_DATA/poster while it runs")
-    run_dir = trainer.new_run_dir(config.output_dir, scene.name, config.method)
+    run_dir = new_run_dir(config.output_dir, scene.name, config.method)
     started = time.perf_counter()
     with applied(args.lever, args.weight, scene.train.cameras):
         summary = trainer.train_run(config, scene, run_dir, wall_start=started)

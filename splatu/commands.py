@@ -11,8 +11,8 @@ from splatu.eval_ause import EvalAuseConfig
 from splatu.eval_ause import run as run_eval_ause
 from splatu.render_uncertainty import RenderUncertaintyConfig
 from splatu.render_uncertainty import run as run_render_uncertainty
+from splatu.train_command import run_command as run_train
 from splatu.train_config import default_config as train_default_config
-from splatu.trainer import run_command as run_train
 
 COMMANDS: dict[str, Command] = {
     "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),

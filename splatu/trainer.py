@@ -4,9 +4,9 @@ It drives `train_step` (splatu.training_step) from a fresh or restored state to 
 evaluation, checkpoints, the mid-run choice of SH degrees, and a clean stop on Ctrl-C or SIGTERM, then
 finishes the run (final checkpoint, evaluation, PLY, summary.json).
 
-Entry points: `train(config)` (the CLI and the Python API; handles --resume, of a single run or of a
-whole ensemble, and --ensemble) and `train_run(config, scene, run_dir)` for callers that already hold a
-scene.
+`train_run(config, scene, run_dir)` trains one run on a loaded scene, fresh or from a checkpoint; the
+`splatu train` command around it (options, the scene, the run folder, --resume) is splatu.train_command, and
+ensembles are splatu.ensemble_training.
 """
 
 from __future__ import annotations
@@ -27,63 +27,48 @@ import torch
 from splatu.allocator import keep_freed_memory
 from splatu.atomic import atomic_write_text
 from splatu.checkpoint import (
-    RESUME_KEYS,
     capture_rng,
     checkpoint_path,
     checkpoint_step,
     list_checkpoints,
     model_from_state,
-    read_checkpoint,
-    resolve_checkpoint,
     restore_rng,
-    run_dir_of,
     save_checkpoint,
     saved_frame,
 )
-from splatu.config_values import changed_options, to_dict
-from splatu.data.assemble import refuse_split_flags_the_scene_overrides
-from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
+from splatu.config_values import to_dict
 from splatu.data.scene import Scene
 from splatu.degree_choice import (
     apply_choice,
     decision_step,
-    held_out_block,
     score_degrees,
     split_for_choice,
     training_views,
     with_choice_heads,
 )
 from splatu.densify import DensityController
-from splatu.errors import SplatuError, writable_dir
-from splatu.evaluation import evaluate_scene, refuse_unscorable_sets
+from splatu.errors import SplatuError
+from splatu.evaluation import evaluate_scene
 from splatu.interrupts import (
     TrainingInterrupted,
     deferred_interrupt,
-    exit_code,
     signal_of,
-    sigterm_as_ctrl_c,
 )
-from splatu.json_files import is_finite_number, read_json
+from splatu.json_files import read_json
 from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
-from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import (
     DEGREE_CHOICE_FILE,
     MetricsLog,
-    refuse_set_aside_checkpoint,
     remove_torn_checkpoints,
     set_aside_later_work,
 )
 from splatu.train_config import (
-    DEFAULT_PRESET,
     TrainConfig,
     eval_background,
-    from_dict,
-    load_config,
-    preset_config,
     save_config,
 )
 from splatu.train_progress import (
@@ -93,7 +78,6 @@ from splatu.train_progress import (
     eval_line,
     progress_bar,
     progress_line,
-    scene_line,
 )
 from splatu.training_step import StepHook, StepOutcome, TrainImages, TrainState, scene_extent, train_step
 from splatu.world_frame import require_same_frame, scene_frame
@@ -391,218 +375,3 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
     state, config = run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir)
-
-
-ENSEMBLE_SESSIONS = "ensemble_sessions.json"
-
-
-def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
-    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it."""
-    if (member_dir / "summary.json").is_file():
-        console.print(f"already trained: {member_dir}", soft_wrap=True)
-        return
-    found = list_checkpoints(member_dir)
-    if not found:
-        train_run(member, scene, member_dir, hooks)
-        return
-    checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
-    train_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
-
-
-def recorded_sessions(run_dir: Path) -> list[float]:
-    """The wall times of an ensemble run's earlier sessions (ensemble_sessions.json), read before any training so
-    that a damaged file is a one-line error then, not one that hides how the session ended."""
-    path = run_dir / ENSEMBLE_SESSIONS
-    if not path.is_file():
-        return []
-    sessions = read_json(path).get("session_seconds")
-    if not isinstance(sessions, list) or not all(map(is_finite_number, sessions)):
-        raise SplatuError("session_seconds is not a list of numbers", f"in {path}",
-                          "fix the file, or delete it (the ensemble's wall time then counts from this session)")
-    return [float(s) for s in sessions]
-
-
-def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
-    """Each member's run folder inside an ensemble run."""
-    return [run_dir / "members" / str(k) for k in range(config.ensemble)]
-
-
-def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
-                   hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
-    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
-
-    Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one
-    continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest
-    across sessions: every call (session) that trains a member adds its own wall time, from `wall_start`
-    (the start of `train`, so scene loading counts) until it finishes, is interrupted or fails, to
-    ensemble_sessions.json, and `wall_seconds` is their sum. A session refused before it trains one (a
-    member's lock held by another `splatu train`) did no work and adds nothing. A session killed outright
-    (SIGKILL, power loss) cannot record itself and is missing from the sum.
-    """
-    run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, run_dir / "config.yml")
-    members = ensemble_members(run_dir, config)
-    sessions = recorded_sessions(run_dir)
-    trained = False
-    try:
-        for k, member_dir in enumerate(members):
-            member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
-            console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
-            try:
-                with training_lock(member_dir):  # also against a `--resume` of the member folder itself
-                    trained = trained or not (member_dir / "summary.json").is_file()  # train_member works on it
-                    train_member(member, scene, member_dir, hooks)
-            except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
-                raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
-                                          run_dir, stop.step, stop.signal_number) from None
-            except KeyboardInterrupt as stop:  # between members: a resume finishes every unfinished one
-                raise TrainingInterrupted(f"interrupted at ensemble member {k + 1}/{config.ensemble}", run_dir, 0,
-                                          signal_of(stop)) from None
-    finally:
-        if trained:
-            sessions.append(time.perf_counter() - wall_start)
-            atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
-    record = {"members": [str(m.relative_to(run_dir)) for m in members],
-              "seeds": [config.seed + k for k in range(config.ensemble)],
-              "wall_seconds": sum(sessions), "session_seconds": sessions}
-    atomic_write_text(run_dir / "ensemble.json", json.dumps(record, indent=2))
-    return record
-
-
-def ensemble_config(run_dir: Path) -> TrainConfig | None:
-    """The saved config when `run_dir` is an ensemble run directory, else None."""
-    path = Path(run_dir).expanduser() / "config.yml"
-    if not path.is_file():
-        return None
-    config = load_config(path)
-    return config if config.ensemble > 1 else None
-
-
-def check_options(config: TrainConfig) -> None:
-    """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
-    may build the stand-in) and before a run folder is made and `latest` pointed at it."""
-    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
-        part.validate()
-    config.data.refuse_unused_flags()
-    refuse_unused_poster_options(config.data)
-    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
-
-
-def _flag(config: TrainConfig, name: str) -> str:
-    """How dotted option `name` was spelt on the command line: `--no-progress` for a boolean turned off."""
-    value: Any = config
-    for part in name.split("."):
-        value = getattr(value, part)
-    *parents, last = name.removeprefix("data.").split(".")
-    return "--" + ".".join([*parents, ("no-" if value is False else "") + last]).replace("_", "-")
-
-
-def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
-    """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
-    scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
-    chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
-              if getattr(given, name) != default]  # the base of the comparison below, so never in it
-    ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
-                        if name not in ("resume", "data.data")]
-    if ignored:
-        flags = " ".join(_flag(given, name) for name in ignored)
-        console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
-    if given.data.data != POSTER:
-        return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
-    if saved.data.data != POSTER and not Path(saved.data.data).exists():
-        raise SplatuError(f"the scene this run was trained on no longer exists ({saved.data.data})", f"in {run_dir}",
-                          "pass --data PATH with the scene's new location beside --resume (the run's split and "
-                          "downscale still apply)")
-    return saved
-
-
-def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
-    """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
-    wall_start = time.perf_counter()
-    if config.resume is not None:
-        saved_ensemble = ensemble_config(config.resume)
-        if saved_ensemble is not None:
-            run_dir = Path(config.resume).expanduser()
-            with training_lock(run_dir):
-                return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
-        path = _resume_point(config.resume)
-        run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
-        with training_lock(run_dir):  # then choose again: a training that just ended may have pruned it or saved one
-            return _resume_run(config, _resume_point(config.resume), run_dir, wall_start, hooks)
-    if config.degree_choice.on:
-        config = with_choice_heads(config)
-    check_options(config)
-    writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
-    scene = load_scene(config.data)
-    refuse_split_flags_the_scene_overrides(config.data, scene)
-    refuse_unscorable_sets(scene)
-    console.print(scene_line(scene), soft_wrap=True)
-    if config.degree_choice.on:
-        held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
-    run_dir = new_run_dir(config.output_dir, scene.name, config.method)
-    point_latest(run_dir)
-    with training_lock(run_dir):
-        if config.ensemble > 1:
-            train_ensemble(config, scene, run_dir, wall_start, hooks)
-        else:
-            train_run(config, scene, run_dir, hooks, wall_start=wall_start)
-    return run_dir
-
-
-def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wall_start: float,
-                     hooks: Sequence[StepHook]) -> Path:
-    """`--resume` of an ensemble run: finish every unfinished member."""
-    saved = resumed_config(config, saved, run_dir)
-    members = ensemble_members(run_dir, saved)
-    if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
-        console.print(f"already finished: every member of {run_dir} is trained; nothing to resume", soft_wrap=True)
-        return run_dir
-    scene = load_scene(saved.data)
-    refuse_unscorable_sets(scene)
-    started = [found[-1] for found in map(list_checkpoints, members) if found]
-    if started:  # members not yet started would otherwise train on whatever scene --data now names
-        require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
-                           "resume with the scene as it was, or start a new run")
-    train_ensemble(saved, scene, run_dir, wall_start, hooks)
-    return run_dir
-
-
-def _resume_point(resume: Path) -> Path | None:
-    """The checkpoint a `--resume` continues from, or None for a run folder that restarts at step 0."""
-    target = Path(resume).expanduser()
-    if target.is_dir() and restartable(target):
-        return None
-    path = resolve_checkpoint(target)
-    refuse_set_aside_checkpoint(path)
-    return path
-
-
-def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_start: float,
-                hooks: Sequence[StepHook]) -> Path:
-    """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None."""
-    checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
-    saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
-                           else from_dict(checkpoint["config"], str(path)), run_dir)
-    step = 0 if checkpoint is None else int(checkpoint["step"])
-    if step >= saved.steps and (run_dir / "summary.json").is_file():
-        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
-                      soft_wrap=True)
-        return run_dir
-    console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
-    scene = load_scene(saved.data)
-    refuse_unscorable_sets(scene)
-    console.print(scene_line(scene), soft_wrap=True)
-    train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
-    return run_dir
-
-
-def run_command(config: TrainConfig) -> None:
-    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130 or
-    143 (128 + the signal, as the shell reports a process the signal ended)."""
-    try:
-        with sigterm_as_ctrl_c():
-            run_dir = train(config)
-    except TrainingInterrupted as stop:
-        print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
-        raise SystemExit(exit_code(stop)) from None
-    print(f"run saved to {run_dir}")  # on stdout, the one line a script reads

@@ -84,7 +84,7 @@ EXTRA_HEAD = "kind=antipodal,degree=0"
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """One short training of the paper's method on a tiny stand-in, shared by this module's tests."""
-    from splatu import trainer
+    from splatu import train_command
     from splatu.data.config import DataConfig
     from splatu.data.poster import PosterConfig
     from splatu.densify import DensifyConfig
@@ -103,7 +103,7 @@ def tiny_run(tmp_path_factory):
                               max_gaussians=2500),
         uncertainty=dataclasses.replace(base.uncertainty, extra_heads=(EXTRA_HEAD,)),
     )
-    run_dir = trainer.train(config)
+    run_dir = train_command.train(config)
     yield run_dir
     monkeypatch.undo()
 

@@ -4,7 +4,7 @@ import dataclasses
 import json
 import time
 
-from splatu import trainer
+from splatu import train_command
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
 from splatu.data.poster import PosterConfig
@@ -26,7 +26,7 @@ def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
                               max_gaussians=2000),
     )
     started = time.perf_counter()
-    run_dir = trainer.train(config)
+    run_dir = train_command.train(config)
     seconds = time.perf_counter() - started
 
     evals = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from splatu import interrupts, run_records, trainer, training_step
+from splatu import interrupts, run_records, train_command, trainer, training_step
 from splatu.checkpoint import load_run
 from splatu.data.scene import Views
 from splatu.degree_choice import (
@@ -44,7 +44,7 @@ def choice_config(tmp_path, **changes):
 @pytest.fixture
 def scene(monkeypatch):
     scene = tiny_scene(n_train=8)
-    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: scene)
     return scene
 
 
@@ -69,11 +69,11 @@ def test_choice_settings_are_validated_before_the_scene_loads(tmp_path, monkeypa
     def no_scene(data_config):
         raise AssertionError("the scene was loaded before the settings were checked")
 
-    monkeypatch.setattr(trainer, "load_scene", no_scene)
+    monkeypatch.setattr(train_command, "load_scene", no_scene)
     for changes, message in (({"ensemble": 2}, "members must differ only in seed"),
                              ({"steps": 8}, "before colour SH reaches degree 2")):
         with pytest.raises(SplatuError, match=message):
-            trainer.train(choice_config(tmp_path, **changes))
+            train_command.train(choice_config(tmp_path, **changes))
 
 
 def test_bad_choice_settings_are_one_line_errors(tmp_path):
@@ -263,7 +263,7 @@ def test_a_run_chooses_mid_way_records_why_and_loads_with_the_chosen_degrees(tmp
         return camera, target
 
     monkeypatch.setattr(training_step.TrainImages, "get", record)
-    run_dir = trainer.train(choice_config(tmp_path))
+    run_dir = train_command.train(choice_config(tmp_path))
     record_file = json.loads((run_dir / trainer.DEGREE_CHOICE_FILE).read_text())
     assert record_file["step"] == 9 and record_file["held_out_views"] == ["t3", "t4"]
     assert set(record_file["colour_psnr"]) == {"0", "1", "2"} and set(record_file["u_ause_mae"]) == {"0", "1", "2"}
@@ -299,28 +299,28 @@ def assert_same_run(run_dir, reference_dir) -> None:
 @pytest.mark.parametrize("stop_at", [5, 9, 12])
 def test_resume_before_at_or_after_the_choice_equals_an_uninterrupted_run(tmp_path, scene, stop_at):
     """Stopped at step 9, the checkpoint holds the model before the choice, and the resumed run makes it."""
-    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
+    full_dir = train_command.train(mean_loss_choice(tmp_path / "a"))
 
     def ctrl_c(step, state):
         if step == stop_at:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
-        trainer.train(mean_loss_choice(tmp_path / "b"), hooks=[ctrl_c])
+        train_command.train(mean_loss_choice(tmp_path / "b"), hooks=[ctrl_c])
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert (interrupted / trainer.DEGREE_CHOICE_FILE).is_file() == (stop_at > 9)
-    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    resumed_dir = train_command.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
     assert_same_run(resumed_dir, full_dir)
 
 
 def test_ctrl_c_during_the_choice_resumes_by_choosing_again(tmp_path, scene, monkeypatch):
-    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
+    full_dir = train_command.train(mean_loss_choice(tmp_path / "a"))
     score_degrees = ctrl_c_on_the_first_call(trainer.score_degrees)
     monkeypatch.setattr(trainer, "score_degrees", score_degrees)
     with pytest.raises(interrupts.TrainingInterrupted, match="aborted during step 10; the last checkpoint is"):
-        trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
+        train_command.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
-    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    resumed_dir = train_command.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
     assert score_degrees.calls == 2
     assert_same_run(resumed_dir, full_dir)
 
@@ -366,7 +366,7 @@ def test_the_colour_scores_leave_out_what_the_mask_files_exclude(tmp_path):
 
 
 def test_a_resume_after_an_abort_that_followed_the_choice_chooses_and_logs_it_once(tmp_path, scene, monkeypatch):
-    full_dir = trainer.train(mean_loss_choice(tmp_path / "a"))
+    full_dir = train_command.train(mean_loss_choice(tmp_path / "a"))
     step_once = trainer.train_step
 
     def abort_step_10_once(state, config, images):
@@ -378,9 +378,9 @@ def test_a_resume_after_an_abort_that_followed_the_choice_chooses_and_logs_it_on
     aborted: list[int] = []
     monkeypatch.setattr(trainer, "train_step", abort_step_10_once)
     with pytest.raises(interrupts.TrainingInterrupted, match="aborted during step 10"):
-        trainer.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
+        train_command.train(mean_loss_choice(tmp_path / "b", checkpoint_every=3))
     interrupted = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
-    resumed_dir = trainer.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
+    resumed_dir = train_command.train(dataclasses.replace(mean_loss_choice(tmp_path / "c"), resume=interrupted))
     assert_same_run(resumed_dir, full_dir)
 
 

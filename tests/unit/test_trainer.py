@@ -13,7 +13,7 @@ import pytest
 import torch
 import tyro
 
-from splatu import evaluation, interrupts, run_records, train_progress, trainer, training_step
+from splatu import evaluation, interrupts, run_records, train_command, train_progress, trainer, training_step
 from splatu import run_dir as run_dir_module
 from splatu.atomic import atomic_write
 from splatu.baselines.load import load_any_run
@@ -92,7 +92,7 @@ def tiny_config(tmp_path, **changes) -> TrainConfig:
 @pytest.fixture
 def scene(monkeypatch):
     scene = tiny_scene()
-    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: scene)
     return scene
 
 
@@ -124,18 +124,19 @@ def _mean_loss(config: TrainConfig) -> TrainConfig:
 
 
 def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path, scene):
-    full_dir = trainer.train(_mean_loss(tiny_config(tmp_path / "a")))
+    full_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "a")))
 
     def ctrl_c_at_7(step, state):
         if step == 7:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted, match="resume with"):
-        trainer.train(_mean_loss(tiny_config(tmp_path / "b", checkpoint_every=0)), hooks=[ctrl_c_at_7])
+        train_command.train(_mean_loss(tiny_config(tmp_path / "b", checkpoint_every=0)), hooks=[ctrl_c_at_7])
     interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000007.pt"]
 
-    resumed_dir = trainer.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=interrupted_dir))
+    resumed_dir = train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")),
+                                                          resume=interrupted_dir))
     assert resumed_dir == interrupted_dir
     full, resumed = losses_of(full_dir), losses_of(resumed_dir)
     assert sorted(resumed) == list(range(1, 13))
@@ -148,7 +149,7 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
 
 def test_a_run_writes_its_layout_and_its_config_loads_back(tmp_path, scene):
     config = tiny_config(tmp_path, steps=4, checkpoint_every=0)
-    run_dir = trainer.train(config)
+    run_dir = train_command.train(config)
     assert run_dir.parent == tmp_path / "outputs" / "tiny" / "splatu"
     assert (run_dir.parent / "latest").resolve() == run_dir.resolve()
     for name in ("config.yml", "metrics.jsonl", "splat.ply", "summary.json"):
@@ -176,7 +177,7 @@ def test_nonfinite_gradients_skip_the_step_and_leave_the_model_untouched(tmp_pat
         snapshots[step] = {n: getattr(state.model, n).detach().clone() for n in GaussianModel.PARAM_NAMES}
 
     monkeypatch.setattr(GaussianModel, "render", render_with_nan_grad)
-    run_dir = trainer.train(tiny_config(tmp_path, steps=8, densify=DensifyConfig(warmup_length=100)), [snapshot])
+    run_dir = train_command.train(tiny_config(tmp_path, steps=8, densify=DensifyConfig(warmup_length=100)), [snapshot])
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in records if r["event"] == "nonfinite_skipped"] == [4, 5]
     for name in GaussianModel.PARAM_NAMES:
@@ -224,7 +225,7 @@ def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(
     monkeypatch.setattr(GaussianModel, "render", render_poisoned_after_5)
     config = tiny_config(tmp_path, checkpoint_every=5, max_nonfinite_steps=3)
     with pytest.raises(SplatuError, match="3 steps in a row") as err:
-        trainer.train(config, [lambda step, state: snapshot_steps.append(step)])
+        train_command.train(config, [lambda step, state: snapshot_steps.append(step)])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert "step-0000005.pt" in str(err.value)
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000005.pt"]
@@ -269,7 +270,7 @@ def test_the_uncertainty_loss_never_changes_the_geometry(tmp_path, scene):
         config = tiny_config(tmp_path / kind, checkpoint_every=0)
         config = dataclasses.replace(config, uncertainty=dataclasses.replace(
             config.uncertainty, off=kind == "off", kind="antipodal" if kind == "off" else kind))
-        models[kind] = load_run(trainer.train(config)).model
+        models[kind] = load_run(train_command.train(config)).model
     reference = models.pop("off")
     assert len(reference) != len(scene.points)  # densification ran, so its random draws were compared too
     for kind, model in models.items():
@@ -286,7 +287,7 @@ def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path
     base = tiny_config(tmp_path / "heads", checkpoint_every=0)
     base = dataclasses.replace(base, model=dataclasses.replace(base.model, u_sh_degree=2),
                                uncertainty=dataclasses.replace(base.uncertainty, extra_heads=heads))
-    run_dir = trainer.train(base)
+    run_dir = train_command.train(base)
     own = load_run(run_dir).model
     assert own.u_sh.shape[1:] == (9, 5)
     for head in (None, *heads):
@@ -295,7 +296,7 @@ def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path
         alone = dataclasses.replace(tiny_config(tmp_path / f"alone-{head}", checkpoint_every=0),
                                     model=head_config.model, uncertainty=dataclasses.replace(
                                         head_config.uncertainty, extra_heads=()))
-        separate = load_run(trainer.train(alone)).model
+        separate = load_run(train_command.train(alone)).model
         # equal up to float32 rounding: fused Adam rounds the few elements in its scalar tail differently from its
         # vector lanes, and where an element falls depends on the tensor's size (measured: one element, 4.7e-10)
         torch.testing.assert_close(u_sh, separate.u_sh, rtol=1e-6, atol=1e-8, msg=str(head))
@@ -311,7 +312,7 @@ def test_extra_uncertainty_heads_learn_exactly_what_separate_runs_learn(tmp_path
 def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
     config = get_method("ensemble").configure(tiny_config(tmp_path, steps=3, checkpoint_every=0, ensemble=2,
                                                           method="ensemble"))
-    run_dir = trainer.train(config)
+    run_dir = train_command.train(config)
     record = json.loads((run_dir / "ensemble.json").read_text())
     assert record["members"] == ["members/0", "members/1"] and record["wall_seconds"] > 0
     (config_0, model_0, _), (config_1, model_1, _) = (load_run(run_dir / m) for m in record["members"])
@@ -459,7 +460,7 @@ def test_a_real_sigint_or_sigterm_finishes_the_step_then_saves(tmp_path, scene, 
 
     before = signal.getsignal(signum)  # the handler there now (SIGINT: SIG_IGN in a background job)
     with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
-        trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[signal_at_2])
+        train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0), hooks=[signal_at_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
     assert signal.getsignal(signum) is before  # the handler that was there is restored
@@ -476,7 +477,7 @@ def test_a_stop_requested_during_a_step_skips_that_steps_evaluation(tmp_path, sc
 
     monkeypatch.setattr(trainer, "train_step", sigterm_during_step_2)
     with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
-        trainer.train(tiny_config(tmp_path, steps=6, eval_every_steps=2, checkpoint_every=0))
+        train_command.train(tiny_config(tmp_path, steps=6, eval_every_steps=2, checkpoint_every=0))
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     events = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     assert [e["step"] for e in events if e["event"] == "train"] == [1, 2]
@@ -492,7 +493,7 @@ def test_sigterm_is_ctrl_c_for_the_whole_train_command(monkeypatch, tmp_path, ca
         os.kill(os.getpid(), signal.SIGTERM)
         raise AssertionError("SIGTERM did not interrupt")
 
-    monkeypatch.setattr(trainer, "load_scene", killed_while_loading)
+    monkeypatch.setattr(train_command, "load_scene", killed_while_loading)
     with pytest.raises(SystemExit) as exc:
         entrypoint(["train", "--data", str(tmp_path), "--output-dir", str(tmp_path / "out")])
     assert exc.value.code == 128 + signal.SIGTERM and "interrupted" in capsys.readouterr().err  # 143, as a shell
@@ -510,7 +511,7 @@ def test_a_stopped_training_exits_with_128_plus_the_signal(tmp_path, scene, caps
 
     monkeypatch.setattr(trainer, "train_step", signal_during_step_2)
     with pytest.raises(SystemExit) as exc:
-        trainer.run_command(tiny_config(tmp_path, steps=4, checkpoint_every=0))
+        train_command.run_command(tiny_config(tmp_path, steps=4, checkpoint_every=0))
     assert exc.value.code == 128 + signum
     assert "interrupted at step 2" in capsys.readouterr().err
 
@@ -539,7 +540,7 @@ def _ensemble_config(root, **changes) -> TrainConfig:
 
 
 def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_sessions(tmp_path, scene):
-    full_dir = trainer.train(_ensemble_config(tmp_path / "a"))
+    full_dir = train_command.train(_ensemble_config(tmp_path / "a"))
     calls: list[int] = []
 
     def ctrl_c_in_member_1(step, state):
@@ -548,7 +549,7 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted, match="ensemble member 2/3: interrupted at step 2") as stop:
-        trainer.train(_ensemble_config(tmp_path / "b"), hooks=[ctrl_c_in_member_1])
+        train_command.train(_ensemble_config(tmp_path / "b"), hooks=[ctrl_c_in_member_1])
     run_dir = (tmp_path / "b" / "outputs" / "tiny" / "ensemble" / "latest").resolve()
     assert stop.value.message.endswith(f"`splatu train --resume {run_dir}`")  # the ensemble, not the member
     assert not (run_dir / "ensemble.json").exists() and not (run_dir / "members" / "2").exists()
@@ -566,10 +567,10 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
     for damaged in ('{"session_sec', '{"session_seconds": "long"}'):  # refused before any member trains
         sessions_file.write_text(damaged)
         with pytest.raises(SplatuError, match=r"ensemble_sessions\.json"):
-            trainer.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)])
+            train_command.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)])
         assert resumed_steps == [] and sessions_file.read_text() == damaged
     sessions_file.write_text(good)
-    assert trainer.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)]) == run_dir
+    assert train_command.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)]) == run_dir
     assert resumed_steps == [3, 4, 1, 2, 3, 4]  # member 0 skipped, member 1 from step 2, member 2 from scratch
     assert (run_dir / "members" / "0" / "summary.json").read_text() == member_0
     record = json.loads((run_dir / "ensemble.json").read_text())
@@ -585,7 +586,7 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
 
 def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation(tmp_path, scene):
     scene.center, scene.scale = torch.tensor([5.0, -1.0, 2.0]), 0.25
-    run_dir = trainer.train(tiny_config(tmp_path, steps=3, checkpoint_every=0))
+    run_dir = train_command.train(tiny_config(tmp_path, steps=3, checkpoint_every=0))
     checkpoint = read_checkpoint(list_checkpoints(run_dir)[-1])
     saved = checkpoint["world_transform"]
     assert saved["scale"] == 4.0 and torch.equal(saved["translation"].float(), scene.center)
@@ -597,7 +598,7 @@ def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation
     scene.center = torch.tensor([5.0, -1.0, 3.0])  # the data changed under the run
     (run_dir / "summary.json").unlink()  # as if killed during its final evaluation: resume would finish it
     with pytest.raises(SplatuError, match="normalisation"):
-        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
 
 
 def _write_rgba_blender(root) -> None:
@@ -667,7 +668,8 @@ def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluatio
         monkeypatch.delenv("FORCE_COLOR", raising=False)
     else:
         monkeypatch.setenv("FORCE_COLOR", force_color)
-    run_dir = trainer.train(tiny_config(tmp_path, steps=30, checkpoint_every=0, progress=True, eval_every_steps=10))
+    run_dir = train_command.train(tiny_config(tmp_path, steps=30, checkpoint_every=0, progress=True,
+                                              eval_every_steps=10))
     err = capsys.readouterr().err.splitlines()
     progress = [int(m.group(1)) for line in err if (m := PROGRESS_LINE.match(line))]
     assert progress == list(range(2, 31, 2))  # every ceil(30 / 20) steps, and no live bar
@@ -680,7 +682,7 @@ def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluatio
 
 
 def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
-    trainer.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=False))
+    train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=False))
     assert not [line for line in capsys.readouterr().err.splitlines() if PROGRESS_LINE.match(line)]
 
 
@@ -697,8 +699,8 @@ def test_progress_and_eval_lines_read_plainly():
 
 
 def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_from_it(tmp_path, scene):
-    full_dir = trainer.train(tiny_config(tmp_path / "a"))
-    run_dir = trainer.train(tiny_config(tmp_path / "b"))  # checkpoints at steps 6 and 12, summary, PLY
+    full_dir = train_command.train(tiny_config(tmp_path / "a"))
+    run_dir = train_command.train(tiny_config(tmp_path / "b"))  # checkpoints at steps 6 and 12, summary, PLY
     old, newest = list_checkpoints(run_dir)
     abandoned_losses = losses_of(run_dir)
 
@@ -707,7 +709,7 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 9"):
-        trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=old), hooks=[ctrl_c_at_9])
+        train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=old), hooks=[ctrl_c_at_9])
     # the abandoned step-12 checkpoint must not be what resume, render or eval pick up
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000006.pt", "step-0000009.pt"]
     assert not (run_dir / "summary.json").exists() and not (run_dir / "splat.ply").exists()
@@ -721,13 +723,13 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
 
     # the set-aside checkpoint is not resumed into abandoned/, and a second set-aside gets its own folder
     with pytest.raises(SplatuError, match="set aside by an earlier resume"):
-        trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
+        train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
     assert new_timestamped_dir(aside.parent) != new_timestamped_dir(aside.parent)
     for extra in aside.parent.iterdir():
         if extra != aside:
             extra.rmdir()
 
-    trainer.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=run_dir))
     assert losses_of(run_dir) == losses_of(full_dir)  # the log reads as one run from step 1 to 12
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000009.pt", "step-0000012.pt"]
     assert (run_dir / "summary.json").is_file()
@@ -740,7 +742,7 @@ def _stopped_at_step_7(tmp_path) -> Path:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
-        trainer.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
+        train_command.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
     return (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
 
 
@@ -748,7 +750,7 @@ def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene
     run_dir = _stopped_at_step_7(tmp_path)
     with (run_dir / "metrics.jsonl").open("a") as log:
         log.write('{"event": "train", "step": 8, "lo')  # SIGKILL in the middle of an append
-    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     assert sorted(r["step"] for r in records if r["event"] == "train") == list(range(1, 13))
 
@@ -762,9 +764,9 @@ def test_metrics_lines_that_are_not_records_are_dropped_on_resume_not_a_tracebac
 
 
 def test_resuming_a_finished_run_changes_nothing(tmp_path, scene, capsys):
-    run_dir = trainer.train(tiny_config(tmp_path))
+    run_dir = train_command.train(tiny_config(tmp_path))
     files = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
-    assert trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir)) == run_dir
+    assert train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir)) == run_dir
     assert "already finished" in capsys.readouterr().err
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == files
 
@@ -774,7 +776,7 @@ def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
     first_session = read_checkpoint(list_checkpoints(run_dir)[-1])["wall_seconds"]
     assert first_session > 0
     started = time.perf_counter()
-    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     second_session = time.perf_counter() - started
     summary = json.loads((run_dir / "summary.json").read_text())
     assert first_session < summary["wall_seconds"] <= first_session + second_session
@@ -787,7 +789,7 @@ def test_a_bad_option_fails_before_the_scene_loads_and_makes_no_run_folder(tmp_p
     def no_scene(data_config):
         raise AssertionError("the scene was loaded before the options were checked")
 
-    monkeypatch.setattr(trainer, "load_scene", no_scene)
+    monkeypatch.setattr(train_command, "load_scene", no_scene)
     output = tmp_path / "outputs"
     with pytest.raises(SystemExit) as stop:
         entrypoint(["train", "--data", "poster", "--output-dir", str(output), *flag])
@@ -814,9 +816,9 @@ def test_pixels_a_mask_file_excludes_never_reach_the_loss(tmp_path, monkeypatch)
     models = {}
     for seed, masked in ((1, True), (2, True), (1, False), (2, False)):
         scene = _with_masked_right_side(base, seed, masked)
-        monkeypatch.setattr(trainer, "load_scene", lambda data_config, scene=scene: scene)
+        monkeypatch.setattr(train_command, "load_scene", lambda data_config, scene=scene: scene)
         config = tiny_config(tmp_path / f"{seed}-{masked}")  # half resolution until step 6, then full
-        models[seed, masked] = load_run(trainer.train(config)).model
+        models[seed, masked] = load_run(train_command.train(config)).model
 
     def same(a, b) -> bool:
         return len(a) == len(b) and all(torch.equal(getattr(a, n), getattr(b, n)) for n in GaussianModel.PARAM_NAMES)
@@ -829,7 +831,7 @@ def test_what_a_gaussian_shows_only_on_masked_pixels_does_not_count_as_seen(tmp_
     """The uncertainty loss and the never-contributing pruning read the render's contributions: with mask files,
     they count the kept pixels only, as the photometric loss does."""
     scene = _with_masked_right_side(tiny_scene(), 1, masked=True)
-    monkeypatch.setattr(trainer, "load_scene", lambda data_config: scene)
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: scene)
     counted: list[torch.Tensor | None] = []
     render = GaussianModel.render
 
@@ -838,7 +840,7 @@ def test_what_a_gaussian_shows_only_on_masked_pixels_does_not_count_as_seen(tmp_
         return render(self, camera, *args, contribution_mask=contribution_mask, **kwargs)
 
     monkeypatch.setattr(GaussianModel, "render", recording_render)
-    trainer.train(tiny_config(tmp_path, steps=8, checkpoint_every=0, eval_every_steps=0))
+    train_command.train(tiny_config(tmp_path, steps=8, checkpoint_every=0, eval_every_steps=0))
     training = counted[:8]
     assert all(mask is not None and mask.any() and not mask.all() for mask in training)
     for mask in training[6:]:  # full resolution from step 6: exactly the mask file's kept pixels
@@ -880,17 +882,17 @@ def test_resume_keeps_the_runs_options_says_which_it_ignores_and_takes_a_moved_s
     saved = dataclasses.replace(preset_config(), data=DataConfig(data=str(tmp_path / "old"), eval_split="every-n"))
     given = dataclasses.replace(preset_config(), steps=60, seed=3, resume=tmp_path)
     with pytest.raises(SplatuError, match=r"no longer exists .*pass --data PATH"):
-        trainer.resumed_config(given, saved, tmp_path)
+        train_command.resumed_config(given, saved, tmp_path)
     assert "ignoring --steps --seed" in capsys.readouterr().err
     moved = dataclasses.replace(given, data=DataConfig(data=str(tmp_path / "new")), steps=preset_config().steps)
-    resumed = trainer.resumed_config(moved, saved, tmp_path)
+    resumed = train_command.resumed_config(moved, saved, tmp_path)
     assert resumed.data.data == str(tmp_path / "new") and resumed.data.eval_split == "every-n"  # only the path moves
     assert resumed.steps == saved.steps and resumed.seed == saved.seed
     assert "ignoring --seed" in capsys.readouterr().err
 
 
 def test_the_run_starts_by_saying_what_it_trains_on_and_ends_with_its_folder_on_stdout(tmp_path, scene, capsys):
-    trainer.run_command(tiny_config(tmp_path, steps=2, checkpoint_every=0))
+    train_command.run_command(tiny_config(tmp_path, steps=2, checkpoint_every=0))
     out, err = capsys.readouterr()
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert out == f"run saved to {run_dir}\n"
@@ -910,27 +912,27 @@ def test_any_junk_in_a_checkpoint_file_is_one_line(tmp_path, junk):
 
 
 def test_a_resume_that_fails_to_load_leaves_the_run_whole(tmp_path, scene, monkeypatch):
-    run_dir = trainer.train(tiny_config(tmp_path))  # checkpoints at steps 6 and 12, summary, PLY
+    run_dir = train_command.train(tiny_config(tmp_path))  # checkpoints at steps 6 and 12, summary, PLY
     before = sorted(p.relative_to(run_dir) for p in run_dir.rglob("*"))
 
     def moved_away(data_config):
         raise SplatuError("scene not found", "in /nowhere", "pass --data")
 
-    monkeypatch.setattr(trainer, "load_scene", moved_away)
+    monkeypatch.setattr(train_command, "load_scene", moved_away)
     with pytest.raises(SplatuError, match="scene not found"):
-        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(run_dir)[0]))
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(run_dir)[0]))
     assert sorted(p.relative_to(run_dir) for p in run_dir.rglob("*")) == before  # nothing set aside
 
 
 def test_resume_names_a_preset_or_method_it_ignores(tmp_path, capsys):
     saved = preset_config()
     for flag, given in (("--preset", preset_config("quality")), ("--method", preset_config(method="splatfacto"))):
-        trainer.resumed_config(dataclasses.replace(given, resume=tmp_path), saved, tmp_path)
+        train_command.resumed_config(dataclasses.replace(given, resume=tmp_path), saved, tmp_path)
         assert f"ignoring {flag}" in capsys.readouterr().err
     # options named as they were typed: a boolean turned off is --no-<name>, nested ones keep their group
     given = dataclasses.replace(saved, resume=tmp_path, progress=False, compile_kernels=False, steps=7,
                                 densify=dataclasses.replace(saved.densify, refine_every=3))
-    trainer.resumed_config(given, saved, tmp_path)
+    train_command.resumed_config(given, saved, tmp_path)
     assert "ignoring --densify.refine-every --steps --no-progress --no-compile-kernels" in capsys.readouterr().err
 
 
@@ -941,19 +943,19 @@ def test_an_ensembles_seeds_must_all_fit():
 
 
 def test_resuming_a_finished_ensemble_changes_nothing(tmp_path, scene, capsys):
-    run_dir = trainer.train(_ensemble_config(tmp_path))
+    run_dir = train_command.train(_ensemble_config(tmp_path))
     files = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
-    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert "already finished" in capsys.readouterr().err
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == files
 
 
 def test_a_new_runs_eval_block_must_shape_its_split(tmp_path, monkeypatch):
     own = dataclasses.replace(tiny_scene(), own_split=True)
-    monkeypatch.setattr(trainer, "load_scene", lambda data_config: own)
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: own)
     config = tiny_config(tmp_path, data=DataConfig(data="poster", eval_block=3))
     with pytest.raises(SplatuError, match="--eval-block is not used"):
-        trainer.train(config)
+        train_command.train(config)
     assert not (tmp_path / "outputs" / "tiny").exists()
 
 
@@ -961,38 +963,38 @@ def test_an_eval_set_its_masks_exclude_entirely_is_refused_before_training(tmp_p
     base = tiny_scene()
     masked_out = dataclasses.replace(base.eval, valid=torch.zeros(base.eval.images.shape[:3]))
     blank = dataclasses.replace(base, eval=masked_out)
-    monkeypatch.setattr(trainer, "load_scene", lambda data_config: blank)
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: blank)
     with pytest.raises(SplatuError, match="exclude every pixel of the eval set"):
-        trainer.train(tiny_config(tmp_path))
+        train_command.train(tiny_config(tmp_path))
     assert not (tmp_path / "outputs" / "tiny").exists()  # not after the training, at its final evaluation
 
 
 def test_a_resume_refused_for_a_moved_normalisation_leaves_the_config_alone(tmp_path, scene):
-    run_dir = trainer.train(tiny_config(tmp_path, steps=8, checkpoint_every=4))
+    run_dir = train_command.train(tiny_config(tmp_path, steps=8, checkpoint_every=4))
     (run_dir / "summary.json").unlink()
     saved = (run_dir / "config.yml").read_bytes()
     scene.center = torch.tensor([0.0, 0.0, 1.0])  # the scene --data now names is normalised differently
     given = dataclasses.replace(tiny_config(tmp_path), resume=run_dir, data=DataConfig(data=str(tmp_path / "other")))
     with pytest.raises(SplatuError, match="normalisation"):
-        trainer.train(given)
+        train_command.train(given)
     assert (run_dir / "config.yml").read_bytes() == saved
 
 
 def test_an_ensemble_whose_record_was_never_written_is_finished_by_a_resume(tmp_path, scene):
-    run_dir = trainer.train(_ensemble_config(tmp_path))
+    run_dir = train_command.train(_ensemble_config(tmp_path))
     (run_dir / "ensemble.json").unlink()  # stopped after the last member, before the record
-    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert json.loads((run_dir / "ensemble.json").read_text())["members"] == ["members/0", "members/1", "members/2"]
 
 
 def test_a_deleted_ensemble_member_is_named_and_the_suggested_resume_trains_it_again(tmp_path, scene):
-    run_dir = trainer.train(_ensemble_config(tmp_path))
+    run_dir = train_command.train(_ensemble_config(tmp_path))
     shutil.rmtree(run_dir / "members" / "1")
     with pytest.raises(SplatuError) as caught:
         load_any_run(run_dir)
     assert caught.value.what == "an ensemble member that ensemble.json lists is missing"
     assert caught.value.where == f"at {run_dir / 'members' / '1'}" and f"--resume {run_dir}" in caught.value.fix
-    trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert len(load_any_run(run_dir).models) == 3
 
 
@@ -1034,7 +1036,7 @@ def ctrl_c_on_the_first_call(real):
 
 
 def test_a_resume_logs_the_evaluation_that_a_stop_skipped_as_an_uninterrupted_run_does(tmp_path, scene, monkeypatch):
-    full_dir = trainer.train(tiny_config(tmp_path / "a", steps=6, eval_every_steps=2, checkpoint_every=0))
+    full_dir = train_command.train(tiny_config(tmp_path / "a", steps=6, eval_every_steps=2, checkpoint_every=0))
     step_once = training_step.train_step
 
     def sigterm_during_step_2(state, config, images):
@@ -1045,10 +1047,10 @@ def test_a_resume_logs_the_evaluation_that_a_stop_skipped_as_an_uninterrupted_ru
 
     monkeypatch.setattr(trainer, "train_step", sigterm_during_step_2)
     with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 2"):
-        trainer.train(tiny_config(tmp_path / "b", steps=6, eval_every_steps=2, checkpoint_every=0))
+        train_command.train(tiny_config(tmp_path / "b", steps=6, eval_every_steps=2, checkpoint_every=0))
     run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     monkeypatch.setattr(trainer, "train_step", step_once)
-    trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
     assert [e["step"] for e in logged_events(run_dir) if e["event"] == "eval"] == [2, 4, 6]
     assert logged_events(run_dir) == logged_events(full_dir)
 
@@ -1063,11 +1065,11 @@ def test_a_stop_during_the_final_checkpoint_lets_it_finish_and_a_resume_finishes
 
     monkeypatch.setattr(trainer, "save_checkpoint", sigint_during_the_last_save)
     with pytest.raises(interrupts.TrainingInterrupted, match=r"interrupted at step 12, saved .*step-0000012\.pt"):
-        trainer.train(tiny_config(tmp_path, checkpoint_every=5))  # 12 is no multiple: the final save is its own
+        train_command.train(tiny_config(tmp_path, checkpoint_every=5))  # 12 is no multiple: the final save is its own
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000010.pt", "step-0000012.pt"]
     assert not (run_dir / "summary.json").exists()
-    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     assert json.loads((run_dir / "summary.json").read_text())["steps"] == 12
 
 
@@ -1085,7 +1087,7 @@ def test_a_second_stop_during_the_save_names_the_checkpoint_before(tmp_path, sce
 
     monkeypatch.setattr(trainer, "save_checkpoint", second_ctrl_c_while_saving_step_7)
     with pytest.raises(interrupts.TrainingInterrupted) as stop:
-        trainer.train(tiny_config(tmp_path), hooks=[ctrl_c_at_7])
+        train_command.train(tiny_config(tmp_path), hooks=[ctrl_c_at_7])
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert stop.value.message == (f"aborted while saving step 7; the last checkpoint is {run_dir}/checkpoints/"
                                   f"step-0000006.pt; resume with `splatu train --resume {run_dir}`")
@@ -1094,13 +1096,13 @@ def test_a_second_stop_during_the_save_names_the_checkpoint_before(tmp_path, sce
 @pytest.mark.parametrize("stage", ["evaluate_scene", "save_ply"])
 def test_a_stop_while_finishing_names_the_final_checkpoint_and_the_resume_logs_the_end_once(
         tmp_path, scene, monkeypatch, stage):
-    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    full_dir = train_command.train(tiny_config(tmp_path / "a"))
     monkeypatch.setattr(trainer, stage, ctrl_c_on_the_first_call(getattr(trainer, stage)))
     with pytest.raises(SystemExit) as exit_:
-        trainer.run_command(tiny_config(tmp_path / "b"))
+        train_command.run_command(tiny_config(tmp_path / "b"))
     run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert exit_.value.code == 130
-    trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
     assert logged_events(run_dir) == logged_events(full_dir)  # the final evaluation once per set
 
 
@@ -1110,7 +1112,7 @@ def test_the_stop_message_while_finishing_says_where_to_resume_from(tmp_path, sc
 
     monkeypatch.setattr(trainer, "save_ply", ctrl_c)
     with pytest.raises(SystemExit):
-        trainer.run_command(tiny_config(tmp_path))
+        train_command.run_command(tiny_config(tmp_path))
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"interrupted; the last checkpoint is {run_dir}/checkpoints/step-0000012.pt; resume with "
@@ -1133,7 +1135,7 @@ def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_earlier_check
 
     monkeypatch.setattr(trainer, "save_checkpoint", full_disk_at_step_12)
     with pytest.raises(SplatuError) as caught:
-        trainer.train(tiny_config(tmp_path))
+        train_command.train(tiny_config(tmp_path))
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert caught.value.what == "could not write step-0000012.pt (File too large)"
     assert caught.value.where == f"in {run_dir / 'checkpoints'}" and "--resume" in caught.value.fix
@@ -1153,7 +1155,7 @@ def test_a_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, scene):
     torn.write_bytes(b"half a checkpoint")
     (run_dir / "checkpoints" / "step-0000009.pt").mkdir()  # a folder by a checkpoint's name is not one
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000007.pt"]
-    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     assert not torn.exists()
 
 
@@ -1161,10 +1163,10 @@ def test_a_second_training_of_the_same_run_is_refused_while_the_first_runs(tmp_p
     run_dir = _stopped_at_step_7(tmp_path)
     log_before = (run_dir / "metrics.jsonl").read_text()
     with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError) as caught:  # the first still runs
-        trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     assert caught.value.what == "another `splatu train` is training this run now"
     assert (run_dir / "metrics.jsonl").read_text() == log_before
-    trainer.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))  # the lock ends with its holder
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))  # the lock ends with its holder
     assert (run_dir / "summary.json").is_file()
 
 
@@ -1275,7 +1277,7 @@ def test_a_second_stop_during_a_periodic_save_aborts_it_instead_of_saving_again(
 
     monkeypatch.setattr(trainer, "save_checkpoint", two_ctrl_cs_while_saving_step_6)
     with pytest.raises(interrupts.TrainingInterrupted) as stop:
-        trainer.train(tiny_config(tmp_path, checkpoint_every=3))
+        train_command.train(tiny_config(tmp_path, checkpoint_every=3))
     run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert saves == [3, 6]
     assert stop.value.message.startswith(f"aborted after step 6; the last checkpoint is {run_dir}/checkpoints/"
@@ -1296,11 +1298,11 @@ def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_no
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
-        trainer.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
+        train_command.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
     before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
     with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError, match="another `splatu train`"):
-        trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+        train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before
 
 
@@ -1309,15 +1311,15 @@ def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_no
 def test_a_stop_before_the_first_checkpoint_leaves_a_run_that_resumes_at_step_0(
         tmp_path, scene, monkeypatch, stopped, what):
     """No step could be saved, and `latest` already points at the new run: it must not be left unresumable."""
-    full_dir = trainer.train(tiny_config(tmp_path / "a"))
+    full_dir = train_command.train(tiny_config(tmp_path / "a"))
     monkeypatch.setattr(trainer, stopped, ctrl_c_on_the_first_call(getattr(trainer, stopped)))
     with pytest.raises(interrupts.TrainingInterrupted) as stop:
-        trainer.train(tiny_config(tmp_path / "b"))
+        train_command.train(tiny_config(tmp_path / "b"))
     latest = tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest"
     run_dir = latest.resolve()
     assert stop.value.message == (f"{what}; no checkpoint was written, so a resume starts at step 0 from "
                                   f"{run_dir}/config.yml; resume with `splatu train --resume {run_dir}`")
-    assert trainer.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=latest)) == run_dir
+    assert train_command.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=latest)) == run_dir
     assert logged_events(run_dir) == logged_events(full_dir)
 
 
@@ -1345,7 +1347,7 @@ def test_the_metrics_log_is_fsynced_before_each_checkpoint_and_the_summary(tmp_p
     monkeypatch.setattr(os, "fsync", recording_fsync)
     monkeypatch.setattr(trainer, "save_checkpoint", recording_save)
     monkeypatch.setattr(trainer, "atomic_write_text", recording_write)
-    trainer.train(tiny_config(tmp_path, checkpoint_every=5))  # checkpoints at 5, 10 and the final 12
+    train_command.train(tiny_config(tmp_path, checkpoint_every=5))  # checkpoints at 5, 10 and the final 12
     assert [kind for kind, _ in events] == ["synced", "checkpoint"] * 3 + ["synced", "summary"]
     for (_, synced), (_, written) in zip(events[::2], events[1::2], strict=True):
         assert synced == written  # nothing logged between the fsync and what relies on it
@@ -1361,11 +1363,11 @@ def test_an_ensemble_resume_refused_by_a_members_lock_records_no_session(tmp_pat
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
-        trainer.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
+        train_command.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
     run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
     before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
     with run_dir_module.training_lock(run_dir / "members" / "1"), pytest.raises(SplatuError) as caught:
-        trainer.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+        train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
     assert caught.value.what == "another `splatu train` is training this run now"
     assert caught.value.where == f"in {run_dir / 'members' / '1'}"
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before  # ensemble_sessions.json too

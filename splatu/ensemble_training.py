@@ -1,0 +1,110 @@
+"""Ensembles: N plain 3DGS members that differ only in seed, trained one after another into one run folder.
+
+The paper's baseline (REFERENCE §5): their per-pixel spread is the uncertainty that splatu's single model is
+compared with, so its cost (every member's wall time, over every session) is recorded honestly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from splatu.atomic import atomic_write_text
+from splatu.checkpoint import RESUME_KEYS, list_checkpoints, read_checkpoint
+from splatu.data.scene import Scene
+from splatu.errors import SplatuError
+from splatu.interrupts import TrainingInterrupted, signal_of
+from splatu.json_files import is_finite_number, read_json
+from splatu.run_dir import training_lock
+from splatu.train_config import TrainConfig, from_dict, load_config, save_config
+from splatu.train_progress import console
+from splatu.trainer import train_run
+from splatu.training_step import StepHook
+
+ENSEMBLE_SESSIONS = "ensemble_sessions.json"
+
+
+def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
+    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it."""
+    if (member_dir / "summary.json").is_file():
+        console.print(f"already trained: {member_dir}", soft_wrap=True)
+        return
+    found = list_checkpoints(member_dir)
+    if not found:
+        train_run(member, scene, member_dir, hooks)
+        return
+    checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
+    train_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
+
+
+def recorded_sessions(run_dir: Path) -> list[float]:
+    """The wall times of an ensemble run's earlier sessions (ensemble_sessions.json), read before any training so
+    that a damaged file is a one-line error then, not one that hides how the session ended."""
+    path = run_dir / ENSEMBLE_SESSIONS
+    if not path.is_file():
+        return []
+    sessions = read_json(path).get("session_seconds")
+    if not isinstance(sessions, list) or not all(map(is_finite_number, sessions)):
+        raise SplatuError("session_seconds is not a list of numbers", f"in {path}",
+                          "fix the file, or delete it (the ensemble's wall time then counts from this session)")
+    return [float(s) for s in sessions]
+
+
+def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
+    """Each member's run folder inside an ensemble run."""
+    return [run_dir / "members" / str(k) for k in range(config.ensemble)]
+
+
+def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
+                   hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
+    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
+
+    Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one
+    continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest
+    across sessions: every call (session) that trains a member adds its own wall time, from `wall_start`
+    (the start of `train`, so scene loading counts) until it finishes, is interrupted or fails, to
+    ensemble_sessions.json, and `wall_seconds` is their sum. A session refused before it trains one (a
+    member's lock held by another `splatu train`) did no work and adds nothing. A session killed outright
+    (SIGKILL, power loss) cannot record itself and is missing from the sum.
+    """
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(config, run_dir / "config.yml")
+    members = ensemble_members(run_dir, config)
+    sessions = recorded_sessions(run_dir)
+    trained = False
+    try:
+        for k, member_dir in enumerate(members):
+            member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
+            console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
+            try:
+                with training_lock(member_dir):  # also against a `--resume` of the member folder itself
+                    trained = trained or not (member_dir / "summary.json").is_file()  # train_member works on it
+                    train_member(member, scene, member_dir, hooks)
+            except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
+                raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
+                                          run_dir, stop.step, stop.signal_number) from None
+            except KeyboardInterrupt as stop:  # between members: a resume finishes every unfinished one
+                raise TrainingInterrupted(f"interrupted at ensemble member {k + 1}/{config.ensemble}", run_dir, 0,
+                                          signal_of(stop)) from None
+    finally:
+        if trained:
+            sessions.append(time.perf_counter() - wall_start)
+            atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
+    record = {"members": [str(m.relative_to(run_dir)) for m in members],
+              "seeds": [config.seed + k for k in range(config.ensemble)],
+              "wall_seconds": sum(sessions), "session_seconds": sessions}
+    atomic_write_text(run_dir / "ensemble.json", json.dumps(record, indent=2))
+    return record
+
+
+def ensemble_config(run_dir: Path) -> TrainConfig | None:
+    """The saved config when `run_dir` is an ensemble run directory, else None."""
+    path = Path(run_dir).expanduser() / "config.yml"
+    if not path.is_file():
+        return None
+    config = load_config(path)
+    return config if config.ensemble > 1 else None

@@ -1,0 +1,170 @@
+"""`splatu train`: a new run, or `--resume` of a single run or of a whole ensemble.
+
+It checks every option before the scene loads, loads the scene, makes the run folder (or finds the one to
+resume, and the options it continues with), holds the run's lock, and hands over to `splatu.trainer` (one
+run) or `splatu.ensemble_training`. `train(config)` is also the Python entry point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from splatu.checkpoint import (
+    RESUME_KEYS,
+    list_checkpoints,
+    read_checkpoint,
+    resolve_checkpoint,
+    run_dir_of,
+    saved_frame,
+)
+from splatu.config_values import changed_options
+from splatu.data.assemble import refuse_split_flags_the_scene_overrides
+from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
+from splatu.degree_choice import held_out_block, with_choice_heads
+from splatu.ensemble_training import ensemble_config, ensemble_members, train_ensemble
+from splatu.errors import SplatuError, writable_dir
+from splatu.evaluation import refuse_unscorable_sets
+from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
+from splatu.losses import uncertainty_heads
+from splatu.run_dir import new_run_dir, point_latest, training_lock
+from splatu.run_records import refuse_set_aside_checkpoint
+from splatu.train_config import DEFAULT_PRESET, TrainConfig, from_dict, load_config, preset_config
+from splatu.train_progress import console, scene_line
+from splatu.trainer import restartable, train_run
+from splatu.training_step import StepHook
+from splatu.world_frame import require_same_frame, scene_frame
+
+
+def check_options(config: TrainConfig) -> None:
+    """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
+    may build the stand-in) and before a run folder is made and `latest` pointed at it."""
+    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
+        part.validate()
+    config.data.refuse_unused_flags()
+    refuse_unused_poster_options(config.data)
+    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+
+
+def _flag(config: TrainConfig, name: str) -> str:
+    """How dotted option `name` was spelt on the command line: `--no-progress` for a boolean turned off."""
+    value: Any = config
+    for part in name.split("."):
+        value = getattr(value, part)
+    *parents, last = name.removeprefix("data.").split(".")
+    return "--" + ".".join([*parents, ("no-" if value is False else "") + last]).replace("_", "-")
+
+
+def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
+    """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
+    scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
+    chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
+              if getattr(given, name) != default]  # the base of the comparison below, so never in it
+    ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
+                        if name not in ("resume", "data.data")]
+    if ignored:
+        flags = " ".join(_flag(given, name) for name in ignored)
+        console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
+    if given.data.data != POSTER:
+        return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
+    if saved.data.data != POSTER and not Path(saved.data.data).exists():
+        raise SplatuError(f"the scene this run was trained on no longer exists ({saved.data.data})", f"in {run_dir}",
+                          "pass --data PATH with the scene's new location beside --resume (the run's split and "
+                          "downscale still apply)")
+    return saved
+
+
+def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
+    """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
+    wall_start = time.perf_counter()
+    if config.resume is not None:
+        saved_ensemble = ensemble_config(config.resume)
+        if saved_ensemble is not None:
+            run_dir = Path(config.resume).expanduser()
+            with training_lock(run_dir):
+                return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
+        path = _resume_point(config.resume)
+        run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
+        with training_lock(run_dir):  # then choose again: a training that just ended may have pruned it or saved one
+            return _resume_run(config, _resume_point(config.resume), run_dir, wall_start, hooks)
+    if config.degree_choice.on:
+        config = with_choice_heads(config)
+    check_options(config)
+    writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
+    scene = load_scene(config.data)
+    refuse_split_flags_the_scene_overrides(config.data, scene)
+    refuse_unscorable_sets(scene)
+    console.print(scene_line(scene), soft_wrap=True)
+    if config.degree_choice.on:
+        held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
+    run_dir = new_run_dir(config.output_dir, scene.name, config.method)
+    point_latest(run_dir)
+    with training_lock(run_dir):
+        if config.ensemble > 1:
+            train_ensemble(config, scene, run_dir, wall_start, hooks)
+        else:
+            train_run(config, scene, run_dir, hooks, wall_start=wall_start)
+    return run_dir
+
+
+def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wall_start: float,
+                     hooks: Sequence[StepHook]) -> Path:
+    """`--resume` of an ensemble run: finish every unfinished member."""
+    saved = resumed_config(config, saved, run_dir)
+    members = ensemble_members(run_dir, saved)
+    if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
+        console.print(f"already finished: every member of {run_dir} is trained; nothing to resume", soft_wrap=True)
+        return run_dir
+    scene = load_scene(saved.data)
+    refuse_unscorable_sets(scene)
+    started = [found[-1] for found in map(list_checkpoints, members) if found]
+    if started:  # members not yet started would otherwise train on whatever scene --data now names
+        require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
+                           "resume with the scene as it was, or start a new run")
+    train_ensemble(saved, scene, run_dir, wall_start, hooks)
+    return run_dir
+
+
+def _resume_point(resume: Path) -> Path | None:
+    """The checkpoint a `--resume` continues from, or None for a run folder that restarts at step 0."""
+    target = Path(resume).expanduser()
+    if target.is_dir() and restartable(target):
+        return None
+    path = resolve_checkpoint(target)
+    refuse_set_aside_checkpoint(path)
+    return path
+
+
+def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_start: float,
+                hooks: Sequence[StepHook]) -> Path:
+    """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None."""
+    checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
+    saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
+                           else from_dict(checkpoint["config"], str(path)), run_dir)
+    step = 0 if checkpoint is None else int(checkpoint["step"])
+    if step >= saved.steps and (run_dir / "summary.json").is_file():
+        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
+                      soft_wrap=True)
+        return run_dir
+    console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
+    scene = load_scene(saved.data)
+    refuse_unscorable_sets(scene)
+    console.print(scene_line(scene), soft_wrap=True)
+    train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
+    return run_dir
+
+
+def run_command(config: TrainConfig) -> None:
+    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130 or
+    143 (128 + the signal, as the shell reports a process the signal ended)."""
+    try:
+        with sigterm_as_ctrl_c():
+            run_dir = train(config)
+    except TrainingInterrupted as stop:
+        print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
+        raise SystemExit(exit_code(stop)) from None
+    print(f"run saved to {run_dir}")  # on stdout, the one line a script reads
