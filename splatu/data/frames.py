@@ -61,6 +61,8 @@ def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
         raise SplatuError("pose has non-finite values (NaN or Inf)", where, fix)
     if (largest := float(np.abs(matrix).max())) > FLOAT32_MAX:
         raise SplatuError(f"pose has a value beyond float32's range ({largest:.3g})", where, fix)
+    if np.abs(matrix[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:  # it would be ignored: a rigid pose is read as 3x4
+        raise SplatuError(f"pose's last row is {matrix[3].tolist()}, not [0, 0, 0, 1]", where, fix)
     rotation = matrix[:3, :3]
     if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) <= 0:
         raise SplatuError("pose rotation is not a rotation matrix", where, fix)

@@ -219,6 +219,19 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     assert "non-finite" in error.what and cameras[1].name in error.where
 
 
+def test_a_pose_whose_last_row_is_not_0_0_0_1_names_the_frame(tmp_path):
+    """It was accepted, and its last row silently ignored: not a rigid pose, whatever the file meant by it."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+
+    def projective(content):
+        next(f for f in content["frames"] if f["file_path"] == cameras[2].name)["transform_matrix"][3] = [1.0] * 4
+
+    edit_transforms(root, projective)
+    error = load_error(root, tmp_path)
+    assert "last row is [1.0, 1.0, 1.0, 1.0], not [0, 0, 0, 1]" in error.what and cameras[2].name in error.where
+
+
 @pytest.mark.parametrize("far", [1e20, 3e38])
 def test_a_camera_absurdly_far_from_the_others_names_the_frame(tmp_path, far):
     """Within float32's range it loaded, and normalisation squeezed every other camera to within 1e-17 of a point."""

@@ -109,6 +109,9 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     assert "not a valid .npy array of numbers" in _one_line_error(capsys, "--maps", str(root))
     np.save(root / "uncertainty" / "view_0.npy", np.zeros((24, 32), bool))
     assert "not a valid .npy array of numbers" in _one_line_error(capsys, "--maps", str(root))
+    (root / "unobserved" / "view_1.png").unlink()  # AUROC-unobserved used to average over view_0 alone
+    assert "1 views have no unobserved/ map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
+    (root / "unobserved" / "view_0.png").unlink()  # none at all is fine (AUROC-unobserved is not reported)
     (root / "uncertainty" / "view_1.npy").unlink()  # it used to score view_0 alone, without a word
     assert "1 renders have no uncertainty map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
