@@ -169,7 +169,7 @@ def seen_normal_equations(model: GaussianModel, views: Views, background: torch.
     rhs = torch.zeros_like(coeffs)
     total = coeffs.new_zeros(len(model))
     for v, camera in enumerate(views.cameras):
-        counted = None if views.valid is None else views.valid[v] > 0  # what training saw of it
+        counted = None if views.mask_files is None else views.mask_files[v] > 0  # what training saw of it
         weight = model.render(camera, 0, background, contribution_mask=counted).raster.contrib_sum.double()
         dirs = safe_normalize(model.view_dirs(camera).double())
         m, r = normal_equations(dirs.unsqueeze(1), weight.unsqueeze(1), coeffs)
@@ -265,7 +265,7 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
             renders[degree].append(render.rgb.clamp(0, 1))
             if render.extra is not None:
                 maps.append(render.extra.numpy())
-    kept = [None if held_out.valid is None else held_out.valid[i] > 0 for i in range(len(held_out))]
+    kept = [None if held_out.mask_files is None else held_out.mask_files[i] > 0 for i in range(len(held_out))]
     scored = [i for i, k in enumerate(kept) if k is None or bool(k.any())]  # as evaluation: mask files leave out
     if not scored:
         raise _nothing_to_score()
@@ -273,7 +273,7 @@ def score_degrees(model: GaussianModel, held_out: Views, fitted_on: Views, confi
     chosen = smallest_within(colour, config.degree_choice.psnr_tolerance, higher_is_better=True)
     record: dict[str, Any] = {"held_out_views": held_out.names, "colour_psnr": colour, "sh_degree": chosen}
     if heads:
-        ause, random = head_ause(renders[chosen], targets, maps, heads, held_out.masks)
+        ause, random = head_ause(renders[chosen], targets, maps, heads, held_out.object_masks)
         record.update(u_ause_mae=ause, random_ause_mae=random,
                       u_sh_degree=smallest_within(ause, config.degree_choice.ause_tolerance, higher_is_better=False))
     return DegreeScores(record, colours[chosen])

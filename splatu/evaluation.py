@@ -24,11 +24,11 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     for i, camera in enumerate(views.cameras):
         rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
         gt = views.target(i, background)
-        if views.valid is not None:
-            if not bool((views.valid[i] > 0).any()):
+        if views.mask_files is not None:
+            if not bool((views.mask_files[i] > 0).any()):
                 continue  # a view its mask file excludes entirely has nothing to score
-            rgb, gt = rgb * views.valid[i][..., None], gt * views.valid[i][..., None]
-        kept = None if views.valid is None else views.valid[i] > 0
+            rgb, gt = rgb * views.mask_files[i][..., None], gt * views.mask_files[i][..., None]
+        kept = None if views.mask_files is None else views.mask_files[i] > 0
         psnrs.append(psnr(rgb, gt, mask=kept))
         ssims.append(float(ssim(rgb, gt)))
         if views.observed is not None:
@@ -55,6 +55,6 @@ def refuse_unscorable_sets(scene: Scene) -> None:
     """A held-out set whose mask files exclude every pixel could never be scored: refused when the scene loads,
     not by the final evaluation after the whole training (which every resume would then repeat)."""
     for name, views in {"eval": scene.eval, **scene.extra_eval}.items():
-        if views.valid is not None and not bool((views.valid > 0).any()):
+        if views.mask_files is not None and not bool((views.mask_files > 0).any()):
             raise SplatuError(f"the mask files exclude every pixel of the {name} set's views", f"in {scene.source}",
                               "fix the masks, or hold out other views (--eval-split)")

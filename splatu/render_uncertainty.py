@@ -171,8 +171,8 @@ def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[Render
         if spec.views is not None and spec.indices is not None:
             i = spec.indices[k]
             view.gt = spec.views.target(i, source.background).double().numpy()
-            if spec.views.masks is not None:
-                view.mask = spec.views.masks[i].bool().numpy().reshape(view.gt.shape[:2])
+            if spec.views.object_masks is not None:
+                view.mask = spec.views.object_masks[i].bool().numpy().reshape(view.gt.shape[:2])
             if spec.views.observed is not None:
                 view.unobserved = ~spec.views.observed[i].bool().numpy().reshape(view.gt.shape[:2])
         if spec.elevations is not None:

@@ -101,7 +101,7 @@ class TrainImages:
 
     Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
     so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
-    downsampled with the colour, which keeps that exact. The scene's mask files (`Views.valid`)
+    downsampled with the colour, which keeps that exact. The scene's mask files (`Views.mask_files`)
     are downsampled alike and weight the loss (`weight`).
     """
 
@@ -119,7 +119,7 @@ class TrainImages:
         the downsampled mask), so what a mask excludes never reaches the loss, at any level.
         """
         if level not in self._levels:
-            colour, valid = self.views.images, self.views.valid
+            colour, valid = self.views.images, self.views.mask_files
             if valid is not None:
                 colour = colour * valid.unsqueeze(-1)
             extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
@@ -145,7 +145,7 @@ class TrainImages:
 
     def weight(self, index: int, level: int) -> torch.Tensor | None:
         """(h, w) weight in [0, 1] of each pixel in the loss, from the scene's mask files; None without them."""
-        return None if self.views.valid is None else self._level(level)[index, ..., -1]
+        return None if self.views.mask_files is None else self._level(level)[index, ..., -1]
 
 
 # --- one step --------------------------------------------------------------------------------

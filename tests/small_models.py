@@ -37,4 +37,5 @@ def two_cameras() -> list[Camera]:
 def noise_views(masks: torch.Tensor | None = None) -> Views:
     g = torch.Generator().manual_seed(1)
     cameras = two_cameras()
-    return Views(cameras, torch.rand(len(cameras), SIZE, SIZE, 3, generator=g), [c.name for c in cameras], masks=masks)
+    return Views(cameras, torch.rand(len(cameras), SIZE, SIZE, 3, generator=g), [c.name for c in cameras],
+                 object_masks=masks)

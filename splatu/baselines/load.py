@@ -129,7 +129,7 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
     elif method == "ensemble":
         source = EnsembleSource(run.models, degree, background, density_aware)
     elif method == "visibility":
-        counts = visibility_counts(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.valid)
+        counts = visibility_counts(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.mask_files)
         source = FeatureSource(model, degree, background, visibility_feature(counts))
     elif method == "fisher":
         generator = torch.Generator().manual_seed(seed)
@@ -142,13 +142,13 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, densit
     elif method == "angle":
         source = AngleSource(model, degree, background,
                              view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold,
-                                           scene.train.valid))
+                                           scene.train.mask_files))
     elif method in ("residual", "ours-residual", "ours-residual-angle", "ours-view-residual-angle"):
         directional = (view_residual_sums(model, scene.train, degree, background)
                        if method == "ours-view-residual-angle" else None)
         residuals = (training_residuals(model, scene.train, degree, background) if directional is None
                      else mean_residuals(directional))
-        coverage = (view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.valid)
+        coverage = (view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.mask_files)
                     if method.endswith("-angle") else None)
         source = ResidualSource(model, degree, background, residuals, with_ours=method != "residual",
                                 coverage=coverage, directional=directional)

@@ -46,12 +46,12 @@ class ViewResiduals:
 
 def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> Iterator[Tensor]:
     """Per view of `views`, (N, 2) float32: Σ_p w_i(p)·e(p) and Σ_p w_i(p) over its valid pixels (targets on
-    `background`, invalid pixels of `views.masks` ignored)."""
+    `background`, invalid pixels of `views.object_masks` ignored)."""
     for i, camera in enumerate(views.cameras):
         target = views.target(i, background)
         # as eval-ause scores: a pixel counts fully where the mask is non-zero (an RGBA alpha is a mask too)
-        valid = torch.ones(target.shape[:2]) if views.masks is None else (views.masks[i] > 0).reshape(target.shape[:2])
-        valid = valid.to(target.dtype)
+        valid = (torch.ones(target.shape[:2]) if views.object_masks is None
+                 else (views.object_masks[i] > 0).reshape(target.shape[:2])).to(target.dtype)
         probe = torch.zeros(len(model), 2, requires_grad=True)
         with torch.enable_grad():
             out = model.render(camera, sh_degree, background, extra_features=probe)

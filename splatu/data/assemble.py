@@ -86,9 +86,9 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
                 keep_observed: bool) -> Views:
     """Decode one split's frames (all one size, else a one-line error naming the odd file).
 
-    masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
+    object_masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
     alphas: float32 (N, H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
-    valid: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one;
+    mask_files: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one;
     depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
@@ -105,20 +105,20 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     file_masks = _stack([f.mask for f in frames], cache)
     size = images.shape[1:3]
     alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
-    valid = torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
-    masks = alpha if valid is None else valid if alpha is None else alpha * valid
+    mask_files = torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
+    object_masks = alpha if mask_files is None else mask_files if alpha is None else alpha * mask_files
     depths = _stack([f.depth for f in frames], cache)
     observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
     return Views(
         cameras=[normalize_camera(f.camera, center, scale).to(dtype=torch.float32) for f in frames],
         images=torch.from_numpy(images),
         names=[f.name for f in frames],
-        masks=masks,
+        object_masks=object_masks,
         depths=torch.from_numpy(np.stack(depths) * np.float32(scale)) if all(d is not None for d in depths) else None,
         observed=(torch.from_numpy(np.stack(observed) > 0.5) if all(o is not None for o in observed) else None),
         alphas=alpha,
         alpha_background=frames[0].image.background,
-        valid=valid,
+        mask_files=mask_files,
     )
 
 

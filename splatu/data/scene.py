@@ -15,7 +15,8 @@ class Views:
     """One split: cameras with their images, all of one size.
 
     images are float32 in [0, 1], (N, H, W, 3). The optional tensors are per image:
-    `masks` marks valid pixels (e.g. a blender alpha); `alphas` is the images' own alpha when
+    `object_masks` marks the pixels that show the object, which AUSE scores (the images' alpha times the
+    scene's mask files, `mask_files`, which training and PSNR use); `alphas` is the images' own alpha when
     they had one (RGBA files; 1 for the split's opaque images), with `images` composited on
     `alpha_background`, so `on_background` can put them on any other colour; `depths` and
     `observed` exist only where ground truth is known (the built-in scene): `observed` marks
@@ -25,14 +26,14 @@ class Views:
     cameras: list[Camera]
     images: Tensor
     names: list[str]
-    masks: Tensor | None = None
+    object_masks: Tensor | None = None
     depths: Tensor | None = None
     observed: Tensor | None = None
     alphas: Tensor | None = None
     alpha_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    valid: Tensor | None = None
+    mask_files: Tensor | None = None
     """The scene's mask files alone (nerfstudio `mask_path`), (N, H, W) in [0, 1]: 0 marks a pixel that
-    training and scoring ignore. `masks` is this times the images' alpha."""
+    training and scoring ignore. `object_masks` is this times the images' alpha."""
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -52,8 +53,8 @@ class Views:
             return None if t is None else t[index]
 
         return Views([self.cameras[i] for i in indices], self.images[index], [self.names[i] for i in indices],
-                     pick(self.masks), pick(self.depths), pick(self.observed), pick(self.alphas),
-                     self.alpha_background, pick(self.valid))
+                     pick(self.object_masks), pick(self.depths), pick(self.observed), pick(self.alphas),
+                     self.alpha_background, pick(self.mask_files))
 
 
 def on_background(images: Tensor, alphas: Tensor, composited_on: tuple[float, float, float] | Tensor,

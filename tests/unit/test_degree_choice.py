@@ -158,11 +158,12 @@ def test_applying_a_choice_cuts_coefficients_heads_and_adam_moments_alike(tmp_pa
 def test_a_subset_of_views_slices_every_per_image_tensor_alike():
     views = tiny_scene(n_train=5).train
     n, h, w = len(views), views.images.shape[1], views.images.shape[2]
-    views = dataclasses.replace(views, masks=torch.rand(n, h, w), depths=torch.rand(n, h, w),
-                                observed=torch.rand(n, h, w) > 0.5, alphas=torch.rand(n, h, w))
+    views = dataclasses.replace(views, object_masks=torch.rand(n, h, w), depths=torch.rand(n, h, w),
+                                observed=torch.rand(n, h, w) > 0.5, alphas=torch.rand(n, h, w),
+                                mask_files=torch.rand(n, h, w))
     part = views.subset([3, 1])
     assert part.names == ["t3", "t1"] and part.cameras == [views.cameras[3], views.cameras[1]]
-    for name in ("images", "masks", "depths", "observed", "alphas"):
+    for name in ("images", "object_masks", "depths", "observed", "alphas", "mask_files"):
         assert torch.equal(getattr(part, name), getattr(views, name)[[3, 1]]), name
 
 
@@ -172,7 +173,7 @@ def _views_rendered_by(model: GaussianModel, views: Views, degree: int) -> Views
     with torch.no_grad():
         renders = [model.render(c, degree, torch.zeros(3)) for c in views.cameras]
     return dataclasses.replace(views, images=torch.stack([r.rgb.clamp(0, 1) for r in renders]),
-                               masks=torch.stack([(r.alpha > 0.5).float() for r in renders]))
+                               object_masks=torch.stack([(r.alpha > 0.5).float() for r in renders]))
 
 
 def test_refitting_recovers_a_lower_degree_colour_exactly_and_is_weighted_least_squares():
@@ -220,7 +221,7 @@ def test_normal_equations_summed_view_by_view_weigh_views_by_what_they_see(tmp_p
     height, width = views.images.shape[1:3]
     valid = torch.ones(len(views), height, width)
     valid[1] = 0.0
-    masked, _ = seen_normal_equations(model, dataclasses.replace(views, valid=valid), torch.zeros(3))
+    masked, _ = seen_normal_equations(model, dataclasses.replace(views, mask_files=valid), torch.zeros(3))
     without, _ = seen_normal_equations(model, views.subset([0, 2]), torch.zeros(3))
     torch.testing.assert_close(masked, without, rtol=1e-6, atol=1e-9)
 
@@ -355,12 +356,12 @@ def test_the_colour_scores_leave_out_what_the_mask_files_exclude(tmp_path):
 
     def scores_with_junk_where_masked() -> dict[int, float]:
         junk = torch.where(valid[..., None] > 0, targets.images, torch.rand(targets.images.shape, generator=g))
-        held_out = dataclasses.replace(targets, images=junk, valid=valid)
+        held_out = dataclasses.replace(targets, images=junk, mask_files=valid)
         return score_degrees(model, held_out, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3)).record[
             "colour_psnr"]
 
     assert scores_with_junk_where_masked() == scores_with_junk_where_masked()
-    nothing_kept = dataclasses.replace(targets, valid=torch.zeros_like(valid))
+    nothing_kept = dataclasses.replace(targets, mask_files=torch.zeros_like(valid))
     with pytest.raises(SplatuError, match="every held-out view's mask excludes all of its pixels"):
         score_degrees(model, nothing_kept, train.subset([1, 2, 4, 5, 7]), config, torch.zeros(3))
 

@@ -97,8 +97,9 @@ def test_file_splits_depths_and_observed_masks(tmp_path):
     assert torch.allclose(scene.eval.depths[1], torch.full((30, 40), 8.0 * scene.scale))
     assert scene.eval.observed.dtype == torch.bool
     assert int(scene.eval.observed[1].sum()) == 30 * 30  # frame 6: 30 observed columns
-    assert scene.train.masks.shape == (5, 30, 40) and float(scene.train.masks[3].sum()) == 27 * 40  # 3 rows masked
-    assert torch.equal(scene.train.valid, scene.train.masks) and scene.train.alphas is None  # what training weights
+    masks = scene.train.object_masks
+    assert masks.shape == (5, 30, 40) and float(masks[3].sum()) == 27 * 40  # 3 rows masked
+    assert torch.equal(scene.train.mask_files, masks) and scene.train.alphas is None  # what training weights
 
     other = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=4))
     assert other.eval.names == [names[0], names[4]]
@@ -183,8 +184,8 @@ def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):
     rgba = noise_image(1, 20, 16, channels=4).astype(np.float32) / 255
     expected = rgba[..., :3] * rgba[..., 3:] + np.array([0.0, 1.0, 0.5], np.float32) * (1 - rgba[..., 3:])
     assert np.abs(scene.train.images[1].numpy() - expected).max() <= 0.5 / 255 + 1e-6
-    assert torch.allclose(scene.train.masks[1], torch.from_numpy(rgba[..., 3]))
-    assert scene.train.valid is None  # alpha is not a mask file: training recomposites it instead of ignoring it
+    assert torch.allclose(scene.train.object_masks[1], torch.from_numpy(rgba[..., 3]))
+    assert scene.train.mask_files is None  # alpha is not a mask file: training recomposites it instead of ignoring it
     assert scene.train.cameras[0].K[0, 0].item() == pytest.approx(0.5 * 20 / math.tan(angle / 2), rel=1e-6)
     assert scene.points.shape == (0, 3)
 

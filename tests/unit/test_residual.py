@@ -47,7 +47,7 @@ def _brute_force(model: GaussianModel, views: Views) -> torch.Tensor:
                                 blur=model.cfg.screen_blur, antialiased=model.cfg.antialiased).image  # (H, W, n)
             rgb = model.render(camera, 0, torch.zeros(3)).rgb
             error = (rgb.clamp(0, 1) - views.images[i]).abs().mean(-1).double()
-            valid = torch.ones_like(error) if views.masks is None else (views.masks[i] > 0).double()
+            valid = torch.ones_like(error) if views.object_masks is None else (views.object_masks[i] > 0).double()
             num += (weights * (error * valid)[..., None]).sum((0, 1))
             den += (weights * valid[..., None]).sum((0, 1))
     return torch.where(den > 0, num / den, torch.nan)

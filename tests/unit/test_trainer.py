@@ -808,7 +808,7 @@ def _with_masked_right_side(scene: Scene, seed: int, masked: bool) -> Scene:
     if masked:
         valid = torch.ones(images.shape[:3])
         valid[:, :, side] = 0.0
-    return dataclasses.replace(scene, train=dataclasses.replace(scene.train, images=images, valid=valid))
+    return dataclasses.replace(scene, train=dataclasses.replace(scene.train, images=images, mask_files=valid))
 
 
 def test_pixels_a_mask_file_excludes_never_reach_the_loss(tmp_path, monkeypatch):
@@ -854,14 +854,14 @@ def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
     masked = [_with_masked_right_side(scene, seed, masked=True).train for seed in (1, 2)]
     first, second = (evaluation.evaluate_views(model, views, 1, background) for views in masked)
     assert first == second
-    unmasked = evaluation.evaluate_views(model, dataclasses.replace(masked[0], valid=None), 1, background)
+    unmasked = evaluation.evaluate_views(model, dataclasses.replace(masked[0], mask_files=None), 1, background)
     assert unmasked["psnr"] != first["psnr"]
     # observed pixels the mask excludes are not counted as zero error: every pixel observed reads as the mask alone
     observed = [dataclasses.replace(views, observed=torch.ones(views.images.shape[:3], dtype=torch.bool))
                 for views in masked]
     scores = [evaluation.evaluate_views(model, views, 1, background) for views in observed]
     assert scores[0]["psnr_observed"] == scores[0]["psnr"] == scores[1]["psnr_observed"]
-    nothing_kept = dataclasses.replace(masked[0], valid=torch.zeros_like(masked[0].valid))
+    nothing_kept = dataclasses.replace(masked[0], mask_files=torch.zeros_like(masked[0].mask_files))
     with pytest.raises(SplatuError, match="every view of an evaluated set is excluded"):
         evaluation.evaluate_views(model, nothing_kept, 1, background)
 
@@ -961,7 +961,7 @@ def test_a_new_runs_eval_block_must_shape_its_split(tmp_path, monkeypatch):
 
 def test_an_eval_set_its_masks_exclude_entirely_is_refused_before_training(tmp_path, monkeypatch):
     base = tiny_scene()
-    masked_out = dataclasses.replace(base.eval, valid=torch.zeros(base.eval.images.shape[:3]))
+    masked_out = dataclasses.replace(base.eval, mask_files=torch.zeros(base.eval.images.shape[:3]))
     blank = dataclasses.replace(base, eval=masked_out)
     monkeypatch.setattr(train_command, "load_scene", lambda data_config: blank)
     with pytest.raises(SplatuError, match="exclude every pixel of the eval set"):
