@@ -180,3 +180,11 @@ def test_pixels_outside_the_valid_mask_change_no_score():
     rendered[~valid] = 5.0  # far worse than any valid pixel, and ranked the most certain
     uncertainty[~valid] = -1.0
     assert A.score_image(rendered, target, uncertainty, valid=valid, unobserved=unobserved) == alone
+
+
+def test_the_random_baseline_draws_a_different_uncertainty_for_each_seed():
+    """Random's scores are means over RANDOM_SEEDS: seeds that replayed one draw would average nothing."""
+    errors = _rng().exponential(size=2_000)
+    draws = [A.random_curves(errors, "mae", seed).sparsification for seed in A.RANDOM_SEEDS]
+    assert len({curve.tobytes() for curve in draws}) == len(A.RANDOM_SEEDS)
+    assert len({A.ause(A.random_curves(errors, "mae", seed)) for seed in A.RANDOM_SEEDS}) == len(A.RANDOM_SEEDS)

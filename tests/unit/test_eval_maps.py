@@ -311,3 +311,72 @@ def test_a_maps_directory_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch)
         again = read_entry(root, entry.name)
         for field in ("rgb", "gt", "uncertainty", "mask", "unobserved"):
             assert np.array_equal(getattr(entry, field), getattr(again, field)), field
+
+
+def test_maps_pngs_hold_their_colours_in_the_order_every_tool_reads_them(tmp_path):
+    """The stored PNGs are ordinary images: OpenCV (BGR) finds red where the render is red, and a PNG another tool
+    wrote reads back as the colours it shows, so a red/blue swap on either side would change every score."""
+    rgb = np.zeros((4, 6, 3))
+    rgb[..., 0] = 1.0  # pure red
+    gt = np.zeros((4, 6, 3))
+    gt[..., 2] = 1.0  # pure blue
+    write_entry(tmp_path, MapEntry("v", rgb, gt, np.zeros((4, 6))))
+    stored = cv2.imread(str(tmp_path / "rgb" / "v.png"), cv2.IMREAD_UNCHANGED)
+    assert stored.dtype == np.uint16
+    assert np.all(stored[..., 2] == 65535) and np.all(stored[..., :2] == 0)  # OpenCV's order: B, G, R
+    entry = read_entry(tmp_path, "v")
+    np.testing.assert_array_equal(entry.rgb, rgb)
+    np.testing.assert_array_equal(entry.gt, gt)
+    bgr = np.zeros((4, 6, 3), np.uint8)
+    bgr[..., 0] = 255  # an 8-bit file holding pure blue, in OpenCV's channel order
+    cv2.imwrite(str(tmp_path / "rgb" / "v.png"), bgr)
+    np.testing.assert_array_equal(read_entry(tmp_path, "v").rgb, gt)
+
+
+@pytest.mark.parametrize(("dtype", "value"), [(np.uint8, 1), (np.uint16, 1), (np.uint8, 127)])
+def test_every_non_zero_mask_value_marks_the_pixel(tmp_path, dtype, value):
+    """mask/ and unobserved/: non-zero = marked, however faint (a 0/1 mask saved as 8 or 16 bits reads the same)."""
+    root = tmp_path / "maps"
+    _tiny_maps(root, n=1)
+    left = np.zeros((24, 32), bool)
+    left[:, :10] = True
+    (root / "mask").mkdir()
+    cv2.imwrite(str(root / "mask" / "view_0.png"), (left * value).astype(dtype))
+    cv2.imwrite(str(root / "unobserved" / "view_0.png"), (~left * value).astype(dtype))
+    entry = read_entry(root, "view_0")
+    assert np.array_equal(entry.mask, left) and np.array_equal(entry.unobserved, ~left)
+
+
+def test_stored_uncertainty_keeps_the_order_and_range_of_the_render(tmp_path):
+    """The stored map ranks pixels exactly as the rendered one: nearby values stay apart and large ones (a Fisher
+    variance) stay finite, to float32 precision."""
+    u = np.array([[1.0, 1.0001, 1.0002, 1e5], [3e-8, 2e-8, -7.25, 1e6]])
+    write_entry(tmp_path, MapEntry("v", np.zeros((2, 4, 3)), np.zeros((2, 4, 3)), u))
+    stored = read_entry(tmp_path, "v").uncertainty
+    np.testing.assert_allclose(stored, u, rtol=1e-7)
+    assert np.array_equal(np.argsort(stored, axis=None), np.argsort(u, axis=None))
+
+
+def test_the_plotted_mean_curves_are_the_ones_the_table_reports():
+    """The plot shows each image's curves / O(0), averaged over images (random's also over every seed the table
+    averages), on the pixels the mask scores, for the chosen metric. Start-normalised AUSE is linear in those
+    curves, so the area between the plotted pair is exactly the table's mean start-normalised AUSE."""
+    from splatu.eval_ause import score_entries
+
+    rng = np.random.default_rng(5)
+    entries = []
+    for i in range(3):
+        gt = rng.random((12, 16, 3))
+        rgb = np.clip(gt + rng.normal(0.0, 0.15, gt.shape), 0.0, 1.0)
+        error = A.pixel_errors(rgb, gt)
+        mask = np.zeros((12, 16), bool)
+        mask[:, 4 * i: 4 * i + 9] = True
+        uncertainty = np.where(mask, error + 0.1 * rng.random(error.shape), -error)  # masked-out: anti-correlated
+        entries.append(MapEntry(f"v{i}", rgb, gt, uncertainty, mask=None if i == 2 else mask))
+    for metric in ("mae", "rmse"):
+        report, curves = score_entries(entries, metric)
+        for name, key in (("uncertainty", f"ause_{metric}_start_norm"), ("random", f"random_ause_{metric}_start_norm")):
+            curve = curves[name]
+            assert curve.oracle[0] == pytest.approx(1.0) and curve.sparsification[0] == pytest.approx(1.0)
+            area = np.trapezoid(curve.sparsification - curve.oracle, A.FRACTIONS)
+            assert area == pytest.approx(report["mean"][key], rel=1e-9, abs=1e-12), (metric, name)
