@@ -124,6 +124,8 @@ def test_colmap_pose_beyond_float32_names_the_image(tmp_path):
     ("1 PINHOLE 8 0 5 5 4 3", "camera size 8x0 is not a plausible image size"),
     ("1 PINHOLE -8 6 5 5 4 3", "camera size -8x6 is not a plausible image size"),  # pycolmap reads it unsigned
     ("1 PINHOLE 8 6 0 5 4 3", "need a positive, finite focal length"),
+    ("1 PINHOLE 8 6 5 0 4 3", "need a positive, finite focal length"),  # fy: a camera with zero height in rays
+    ("1 PINHOLE 8 6 5 -5 4 3", "need a positive, finite focal length"),  # fy < 0: the image upside down
     ("1 SIMPLE_PINHOLE 8 6 -5 4 3", "need a positive, finite focal length"),
 ])
 def test_colmap_camera_of_impossible_size_or_focal_names_the_camera(tmp_path, camera, message):
@@ -505,5 +507,32 @@ def test_a_mirrored_pose_names_the_frame(tmp_path):
             row[0] = -row[0]
 
     edit_transforms(root, mirror)
+    error = load_error(root, tmp_path)
+    assert error.what == "pose rotation is not a rotation matrix" and cameras[1].name in error.where
+
+
+@pytest.mark.parametrize("fl_y", [0.0, -36.0])
+def test_a_focal_length_fl_y_that_is_not_positive_is_refused(tmp_path, fl_y):
+    """fl_y is checked as fl_x is: a negative one would load the images upside down, a zero one divide by zero."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(fl_y=fl_y) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == "focal lengths must be positive" and "transforms.json" in error.where
+
+
+@pytest.mark.parametrize("distort", ["scaled", "sheared"])
+def test_a_pose_whose_rotation_is_scaled_or_sheared_names_the_frame(tmp_path, distort):
+    """A rotation block 2% too long, or with a 2% shear, is no rotation (RᵀR ≠ I): it would stretch the scene."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+
+    def deform(content):
+        matrix = np.array(next(f for f in content["frames"] if f["file_path"] == cameras[1].name)["transform_matrix"])
+        factor = np.diag([1.02, 1.02, 1.02]) if distort == "scaled" else np.array([[1, 0.02, 0], [0, 1, 0], [0, 0, 1]])
+        matrix[:3, :3] = matrix[:3, :3] @ factor
+        next(f for f in content["frames"] if f["file_path"] == cameras[1].name)["transform_matrix"] = matrix.tolist()
+
+    edit_transforms(root, deform)
     error = load_error(root, tmp_path)
     assert error.what == "pose rotation is not a rotation matrix" and cameras[1].name in error.where

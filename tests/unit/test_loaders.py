@@ -584,3 +584,83 @@ def test_downscaled_colour_is_the_mean_of_each_block(tmp_path):
                          target_height=8)
     block_means = photo.astype(np.float64).reshape(8, 4, 10, 4, 3).mean(axis=(1, 3))
     assert np.abs(compute_pixels(recipe) - block_means).max() <= 0.5 + 1e-3  # rounded to 8 bits
+
+
+def test_depth_images_are_scaled_by_depth_unit_scale_factor_and_npy_depth_is_not(tmp_path):
+    """nerfstudio's convention: a depth image holds integers times depth_unit_scale_factor (default 1e-3, i.e.
+    millimetres); a .npy holds depth itself."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=8, height=6)
+    cv2.imwrite(str(root / "depth.png"), np.full((6, 8), 2500, np.uint16))
+    np.save(root / "depth.npy", np.full((6, 8), 2.5, np.float32))
+    eval_list = tmp_path / "eval.txt"
+    eval_list.write_text(f"{cameras[0].name}\n")
+    for unit, file, metres in ((None, "depth.png", 2.5), (0.01, "depth.png", 25.0),
+                               (None, "depth.npy", 2.5), (0.01, "depth.npy", 2.5)):
+        content = json.loads((root / "transforms.json").read_text())
+        content.pop("depth_unit_scale_factor", None)
+        if unit is not None:
+            content["depth_unit_scale_factor"] = unit
+        for frame in content["frames"]:
+            frame["depth_file_path"] = file
+        (root / "transforms.json").write_text(json.dumps(content))
+        scene = load_scene(config(root, tmp_path, eval_split="list", eval_list=eval_list))
+        assert torch.allclose(scene.eval.depths[0], torch.full((6, 8), metres * scene.scale)), (unit, file)
+
+
+@pytest.mark.parametrize(("model", "params", "K"), [
+    ("PINHOLE", [36.0, 38.0, 21.0, 14.0], [[36.0, 0.0, 21.0], [0.0, 38.0, 14.0]]),
+    ("SIMPLE_PINHOLE", [36.0, 21.0, 14.0], [[36.0, 0.0, 21.0], [0.0, 36.0, 14.0]]),
+])
+def test_colmap_pinhole_parameters_are_f_or_fx_fy_then_cx_cy(tmp_path, model, params, K):
+    """COLMAP's parameter order: PINHOLE fx, fy, cx, cy; SIMPLE_PINHOLE f, cx, cy (pixel centres at +0.5 in both)."""
+    _write_colmap_text(tmp_path / "scene", model, params, ring_cameras(5, 40, 30))
+    scene = load_scene(config(tmp_path / "scene", tmp_path, eval_split="every-n", eval_every=3))
+    for camera in (*scene.train.cameras, *scene.eval.cameras):
+        assert torch.allclose(camera.K.double(), torch.tensor([*K, [0.0, 0.0, 1.0]], dtype=torch.float64))
+    half = load_scene(config(tmp_path / "scene", tmp_path, downscale=2, eval_split="every-n", eval_every=3))
+    assert torch.allclose(half.train.cameras[0].K.double()[:2], 0.5 * torch.tensor(K, dtype=torch.float64))
+
+
+def test_colmap_images_n_folder_is_used_for_downscale(tmp_path):
+    """As for nerfstudio: with --downscale 2, images_2/NAME is the image (already at half size), not images/NAME."""
+    root = tmp_path / "scene"
+    _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], ring_cameras(5, 40, 30))
+    for i in range(5):
+        write_rgb(root / "images_2" / f"img_{i}.png", noise_image(100 + i, 20, 15))
+    scene = load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=3))
+    assert scene.train.names[0] == "img_1.png"
+    assert torch.equal(scene.train.images[0], torch.from_numpy(noise_image(101, 20, 15) / np.float32(255)))
+
+
+def test_colmap_images_are_ordered_by_name_not_by_id(tmp_path):
+    """The frames come sorted by image name (the capture order of numbered photos), whatever ids COLMAP gave them,
+    so a split by position holds out the same views in every reconstruction of the scene."""
+    from splatu.data.colmap import load_colmap
+
+    root = tmp_path / "scene"
+    cameras = ring_cameras(5, 40, 30)
+    _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    images_txt = root / "sparse" / "0" / "images.txt"
+    rows = [line.split() for line in images_txt.read_text().splitlines()]
+    images_txt.write_text("\n".join(" ".join([str(6 - int(row[0])), *row[1:]]) if row else "" for row in rows) + "\n")
+    (root / "sparse" / "0" / "points3D.txt").write_text("")  # their tracks name no image, so ids are free
+    frames = load_colmap(root, root / "sparse" / "0", 1).frames
+    assert [f.name for f in frames] == [f"img_{i}.png" for i in range(5)]
+    for frame, camera in zip(frames, cameras, strict=True):  # each name keeps its own pose
+        assert torch.allclose(frame.camera.world_to_camera, camera.world_to_camera, atol=1e-6)
+
+
+def test_a_colmap_image_the_reconstruction_did_not_register_is_left_out(tmp_path, monkeypatch):
+    """COLMAP keeps images it could not register, without a pose; they are not views of the scene."""
+    import pycolmap
+
+    from splatu.data import colmap
+
+    root = tmp_path / "scene"
+    _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], ring_cameras(5, 40, 30))
+    reconstruction = pycolmap.Reconstruction(str(root / "sparse" / "0"))
+    reconstruction.deregister_frame(reconstruction.images[3].frame_id)  # img_2.png
+    monkeypatch.setattr(colmap, "read_reconstruction", lambda sparse_dir: reconstruction)
+    frames = colmap.load_colmap(root, root / "sparse" / "0", 1).frames
+    assert [f.name for f in frames] == ["img_0.png", "img_1.png", "img_3.png", "img_4.png"]
