@@ -1371,3 +1371,81 @@ def test_an_ensemble_resume_refused_by_a_members_lock_records_no_session(tmp_pat
     assert caught.value.what == "another `splatu train` is training this run now"
     assert caught.value.where == f"in {run_dir / 'members' / '1'}"
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before  # ensemble_sessions.json too
+
+
+def test_an_ensembles_record_names_the_seeds_its_members_trained_with(tmp_path, scene):
+    """Member k trains with seed + k; ensemble.json must say so for any base seed, not only 0."""
+    run_dir = train_command.train(dataclasses.replace(_ensemble_config(tmp_path), seed=5, ensemble=2))
+    record = json.loads((run_dir / "ensemble.json").read_text())
+    assert record["seeds"] == [5, 6]
+    assert [load_run(run_dir / member).config.seed for member in record["members"]] == record["seeds"]
+
+
+def test_an_ensemble_member_resumes_from_its_newest_checkpoint(tmp_path, scene):
+    """A member stopped after step 3 has checkpoints at steps 2 and 3: it continues at step 4, losing no work."""
+    calls: list[int] = []
+
+    def ctrl_c_in_member_1(step, state):
+        calls.append(step)
+        if len(calls) == 7:  # member 0 ran its 4 steps, member 1 stops after its step 3
+            raise KeyboardInterrupt
+
+    with pytest.raises(interrupts.TrainingInterrupted, match="ensemble member 2/3: interrupted at step 3"):
+        train_command.train(dataclasses.replace(_ensemble_config(tmp_path), checkpoint_every=2),
+                            hooks=[ctrl_c_in_member_1])
+    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    assert [p.name for p in list_checkpoints(run_dir / "members" / "1")] == ["step-0000002.pt", "step-0000003.pt"]
+    resumed_steps: list[int] = []
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir),
+                        hooks=[lambda step, state: resumed_steps.append(step)])
+    assert resumed_steps == [4, 1, 2, 3, 4]  # member 0 finished, member 1 from step 3, member 2 from scratch
+
+
+def test_a_resume_that_trains_only_a_middle_member_still_counts_its_session(tmp_path, scene):
+    """wall_seconds sums every session that trained a member, whichever member it was: here member 1, deleted
+    and trained again, while member 2 after it was already finished."""
+    run_dir = train_command.train(_ensemble_config(tmp_path))
+    first = json.loads((run_dir / "ensemble.json").read_text())["session_seconds"]
+    shutil.rmtree(run_dir / "members" / "1")
+    train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    record = json.loads((run_dir / "ensemble.json").read_text())
+    assert len(record["session_seconds"]) == 2 and record["session_seconds"][0] == first[0]
+    assert record["session_seconds"][1] > 0 and record["wall_seconds"] == pytest.approx(sum(record["session_seconds"]))
+
+
+@pytest.mark.parametrize("sessions", ['[1.5, "2"]', "[true]", "[null]", '[1.0, {"s": 2}]'])
+def test_session_times_that_are_not_all_numbers_are_refused(tmp_path, sessions):
+    """A list holding a string, a boolean or null is as damaged as no list: it must not add up to a wall time."""
+    from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
+
+    (tmp_path / ENSEMBLE_SESSIONS).write_text(f'{{"session_seconds": {sessions}}}')
+    with pytest.raises(SplatuError, match="session_seconds is not a list of numbers") as caught:
+        recorded_sessions(tmp_path)
+    assert caught.value.where == f"in {tmp_path / ENSEMBLE_SESSIONS}"
+
+
+def test_resuming_an_ensemble_on_a_scene_normalised_differently_is_refused(tmp_path, scene):
+    """The members still to train would learn in another frame than the ones already trained: refused, as for a
+    single run, before any member trains."""
+    run_dir = train_command.train(_ensemble_config(tmp_path))
+    shutil.rmtree(run_dir / "members" / "2")
+    scene.center = torch.tensor([0.0, 0.0, 1.0])  # the scene --data now names is normalised differently
+    with pytest.raises(SplatuError, match="normalisation"):
+        train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
+    assert not (run_dir / "members" / "2").exists()
+
+
+@pytest.mark.parametrize(("record", "resume_step", "set_aside"), [
+    ("{", 4, True),  # damaged: counts as made late
+    ('{"step": "six"}', 4, True),
+    ('{"step": 4}', 4, True),  # made after the checkpoint of step 4: the resume makes it again
+    ('{"step": 2}', 4, False),  # made before: kept
+])
+def test_a_degree_choice_the_resume_would_make_again_or_cannot_date_is_set_aside(tmp_path, record, resume_step,
+                                                                                 set_aside):
+    choice = tmp_path / run_records.DEGREE_CHOICE_FILE
+    choice.write_text(record)
+    folder = run_records.set_aside_later_work(tmp_path, resume_step)
+    assert (folder is not None) == set_aside and choice.exists() != set_aside
+    if set_aside:
+        assert (folder / run_records.DEGREE_CHOICE_FILE).read_text() == record
