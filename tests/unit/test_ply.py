@@ -172,3 +172,15 @@ def test_malformed_headers_are_user_errors(tmp_path):
         (tmp_path / name).write_bytes(content)
         with pytest.raises(SplatuError, match=re.escape(str(tmp_path / name))):
             load_ply(tmp_path / name, ModelConfig())
+
+
+def test_f_rest_properties_that_are_not_a_multiple_of_three_are_named(tmp_path):
+    """f_rest holds every red coefficient, then every green, then every blue: 25 of them cannot be three channels."""
+    n = 4
+    names = [*property_names(8, 1), "f_rest_24"]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}",
+              *(f"property float {name}" for name in names), "end_header"]
+    path = tmp_path / "odd.ply"
+    path.write_bytes(("\n".join(header) + "\n").encode("ascii") + np.zeros((n, len(names)), "<f4").tobytes())
+    with pytest.raises(SplatuError, match="PLY has 25 f_rest properties, not a multiple of 3"):
+        load_ply(path, ModelConfig())

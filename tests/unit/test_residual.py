@@ -231,3 +231,13 @@ def test_the_error_is_that_of_the_render_clamped_to_the_displayable_range():
     residuals = training_residuals(model, views, 0, torch.ones(3))
     assert math.isnan(float(residuals[-1]))
     assert torch.equal(residuals[:-1], torch.zeros(len(model) - 1))
+
+
+def test_a_gaussian_no_training_pixel_saw_is_rendered_with_the_worst_residual():
+    """NaN (unseen) becomes 1, the worst error, as empty space does; seen residuals are kept, clamped to [0, 1]."""
+    feature = residual_feature(torch.tensor([0.2, float("nan"), 1.7, 0.0]))
+    torch.testing.assert_close(feature, torch.tensor([[0.2], [1.0], [1.0], [0.0]]))
+    model, views = overlapping_gaussians(), noise_views()
+    source = ResidualSource(model, 0, torch.zeros(3), training_residuals(model, views, 0, torch.zeros(3)),
+                            with_ours=False)
+    assert math.isnan(float(source.residuals[-1])) and float(source.feature[-1, 0]) == 1.0

@@ -93,3 +93,32 @@ def test_a_ply_exported_in_the_world_frame_renders_the_same_from_the_same_camera
         torch.testing.assert_close(after.rgb, before.rgb, atol=2e-4, rtol=0)
         torch.testing.assert_close(after.uncertainty, before.uncertainty, atol=2e-4, rtol=0)
         torch.testing.assert_close(after.depth, before.depth * 2.5, atol=2e-3, rtol=1e-4)
+
+
+@pytest.mark.parametrize("rotation", [torch.diag(torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64)),
+                                      TURN @ torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64)),
+                                      2.0 * torch.eye(3, dtype=torch.float64)])
+def test_a_world_transform_refuses_a_mirror_or_a_matrix_that_is_no_rotation(rotation):
+    """A mirror would turn every Gaussian inside out (its quaternion cannot express it); a scaled matrix is no
+    rotation (the scale is its own field)."""
+    with pytest.raises(ValueError, match="proper rotation"):
+        WorldTransform(rotation, torch.zeros(3, dtype=torch.float64), 1.0)
+    with pytest.raises(ValueError, match="positive scale"):
+        WorldTransform(TURN, torch.zeros(3, dtype=torch.float64), -1.0)
+    WorldTransform(TURN, torch.zeros(3, dtype=torch.float64), 1.0)
+
+
+def test_frames_that_differ_only_in_scale_do_not_match():
+    """Cameras moved apart around the same centre give the same translation but another scale: a model trained in
+    the old frame would come out at the wrong size, so the scene is refused; float noise is not a difference."""
+    from splatu.errors import SplatuError
+    from splatu.world_frame import require_same_frame
+
+    center = torch.tensor([5.0, -1.0, 2.0])
+    trained = WorldTransform.from_normalization(center, 0.25)
+    assert trained.matches(WorldTransform.from_normalization(center, 0.25 * (1 + 1e-9)))
+    moved = WorldTransform.from_normalization(center, 0.26)
+    assert not trained.matches(moved) and not moved.matches(trained)
+    with pytest.raises(SplatuError, match="normalisation"):
+        require_same_frame(trained, moved, "in run", "start a new run")
+    require_same_frame(None, moved, "in run", "start a new run")  # checkpoints older than the record pass
