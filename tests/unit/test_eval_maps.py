@@ -13,6 +13,7 @@ from splatu import ause as A
 from splatu import maps
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
+from splatu.eval_ause import score_entries
 from splatu.maps import MapEntry, entry_names, file_stems, read_entry, safe_name, write_entry
 
 
@@ -361,8 +362,6 @@ def test_the_plotted_mean_curves_are_the_ones_the_table_reports():
     """The plot shows each image's curves / O(0), averaged over images (random's also over every seed the table
     averages), on the pixels the mask scores, for the chosen metric. Start-normalised AUSE is linear in those
     curves, so the area between the plotted pair is exactly the table's mean start-normalised AUSE."""
-    from splatu.eval_ause import score_entries
-
     rng = np.random.default_rng(5)
     entries = []
     for i in range(3):

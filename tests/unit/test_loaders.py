@@ -11,9 +11,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 import torch
 
+from splatu.data import colmap
 from splatu.data.config import DataConfig
 from splatu.data.images import (
     Distortion,
@@ -636,8 +638,6 @@ def test_colmap_images_n_folder_is_used_for_downscale(tmp_path):
 def test_colmap_images_are_ordered_by_name_not_by_id(tmp_path):
     """The frames come sorted by image name (the capture order of numbered photos), whatever ids COLMAP gave them,
     so a split by position holds out the same views in every reconstruction of the scene."""
-    from splatu.data.colmap import load_colmap
-
     root = tmp_path / "scene"
     cameras = ring_cameras(5, 40, 30)
     _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
@@ -645,7 +645,7 @@ def test_colmap_images_are_ordered_by_name_not_by_id(tmp_path):
     rows = [line.split() for line in images_txt.read_text().splitlines()]
     images_txt.write_text("\n".join(" ".join([str(6 - int(row[0])), *row[1:]]) if row else "" for row in rows) + "\n")
     (root / "sparse" / "0" / "points3D.txt").write_text("")  # their tracks name no image, so ids are free
-    frames = load_colmap(root, root / "sparse" / "0", 1).frames
+    frames = colmap.load_colmap(root, root / "sparse" / "0", 1).frames
     assert [f.name for f in frames] == [f"img_{i}.png" for i in range(5)]
     for frame, camera in zip(frames, cameras, strict=True):  # each name keeps its own pose
         assert torch.allclose(frame.camera.world_to_camera, camera.world_to_camera, atol=1e-6)
@@ -653,10 +653,6 @@ def test_colmap_images_are_ordered_by_name_not_by_id(tmp_path):
 
 def test_a_colmap_image_the_reconstruction_did_not_register_is_left_out(tmp_path, monkeypatch):
     """COLMAP keeps images it could not register, without a pose; they are not views of the scene."""
-    import pycolmap
-
-    from splatu.data import colmap
-
     root = tmp_path / "scene"
     _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], ring_cameras(5, 40, 30))
     reconstruction = pycolmap.Reconstruction(str(root / "sparse" / "0"))

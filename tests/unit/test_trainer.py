@@ -25,6 +25,7 @@ from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views
 from splatu.densify import DensifyConfig, DensityController
+from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
 from splatu.errors import SplatuError
 from splatu.losses import photometric_loss
 from splatu.methods import METHODS, get_method
@@ -1416,8 +1417,6 @@ def test_a_resume_that_trains_only_a_middle_member_still_counts_its_session(tmp_
 @pytest.mark.parametrize("sessions", ['[1.5, "2"]', "[true]", "[null]", '[1.0, {"s": 2}]'])
 def test_session_times_that_are_not_all_numbers_are_refused(tmp_path, sessions):
     """A list holding a string, a boolean or null is as damaged as no list: it must not add up to a wall time."""
-    from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
-
     (tmp_path / ENSEMBLE_SESSIONS).write_text(f'{{"session_seconds": {sessions}}}')
     with pytest.raises(SplatuError, match="session_seconds is not a list of numbers") as caught:
         recorded_sessions(tmp_path)

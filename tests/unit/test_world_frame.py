@@ -9,11 +9,12 @@ import pytest
 import torch
 
 from splatu.camera import Camera
+from splatu.errors import SplatuError
 from splatu.model import GaussianModel, ModelConfig
 from splatu.ply import load_ply, save_ply
 from splatu.rasterizer.projection import quaternion_to_rotation
 from splatu.sh import eval_sh, num_sh_bases
-from splatu.world_frame import WorldTransform, rotation_to_quaternion, sh_rotation
+from splatu.world_frame import WorldTransform, require_same_frame, rotation_to_quaternion, sh_rotation
 
 TURN = torch.tensor([[0.36, 0.48, -0.8], [-0.8, 0.6, 0.0], [0.48, 0.64, 0.6]], dtype=torch.float64)
 """A proper rotation (det +1) about a skew axis by about 110°."""
@@ -111,9 +112,6 @@ def test_a_world_transform_refuses_a_mirror_or_a_matrix_that_is_no_rotation(rota
 def test_frames_that_differ_only_in_scale_do_not_match():
     """Cameras moved apart around the same centre give the same translation but another scale: a model trained in
     the old frame would come out at the wrong size, so the scene is refused; float noise is not a difference."""
-    from splatu.errors import SplatuError
-    from splatu.world_frame import require_same_frame
-
     center = torch.tensor([5.0, -1.0, 2.0])
     trained = WorldTransform.from_normalization(center, 0.25)
     assert trained.matches(WorldTransform.from_normalization(center, 0.25 * (1 + 1e-9)))
