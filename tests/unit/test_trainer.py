@@ -1293,14 +1293,19 @@ def test_a_new_training_into_a_folder_with_an_old_final_checkpoint_replaces_it(t
     assert final["config"]["seed"] == 2 and final["num_gaussians"] == summary["num_gaussians"]
 
 
-def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_nothing(tmp_path, scene):
+def _ensemble_stopped_in_member_2(tmp_path) -> Path:
+    """An ensemble run whose first member finished and whose second was stopped at step 2."""
     def ctrl_c_in_member_2(step, state):
         if state.generator.initial_seed() == 1 and step == 2:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted):
         train_command.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
-    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    return (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+
+
+def test_a_second_resume_of_an_ensemble_still_training_is_refused_and_records_nothing(tmp_path, scene):
+    run_dir = _ensemble_stopped_in_member_2(tmp_path)
     before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
     with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError, match="another `splatu train`"):
         train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
@@ -1359,13 +1364,7 @@ def test_the_metrics_log_is_fsynced_before_each_checkpoint_and_the_summary(tmp_p
 def test_an_ensemble_resume_refused_by_a_members_lock_records_no_session(tmp_path, scene):
     """A `--resume` of member 2's own folder may be training it: the ensemble's resume, refused there before it
     trained anything, adds no session (no wall time) to ensemble_sessions.json."""
-    def ctrl_c_in_member_2(step, state):
-        if state.generator.initial_seed() == 1 and step == 2:
-            raise KeyboardInterrupt
-
-    with pytest.raises(interrupts.TrainingInterrupted):
-        train_command.train(_ensemble_config(tmp_path), hooks=[ctrl_c_in_member_2])
-    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    run_dir = _ensemble_stopped_in_member_2(tmp_path)
     before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
     with run_dir_module.training_lock(run_dir / "members" / "1"), pytest.raises(SplatuError) as caught:
         train_command.train(dataclasses.replace(_ensemble_config(tmp_path), resume=run_dir))
