@@ -3,7 +3,7 @@
 For the chosen views (eval, train, or an orbit that also looks from below) and method, it
 writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any option that changes its
 maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new render is
-written in full, see `previous_render` and `swap_in`):
+written in full, see `swap_in`):
 
     npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
@@ -54,7 +54,7 @@ from splatu.figures import (
     save_panel,
 )
 from splatu.interrupts import Terminated, deferred_interrupt, sigterm_as_ctrl_c
-from splatu.maps import MapEntry, file_stems, write_maps_dir
+from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 from splatu.train_config import MAX_SEED
 
@@ -214,18 +214,22 @@ OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
 (colorbar_*.png and render.json are always rewritten)."""
 
 
-def previous_render(out: Path, default_folder: bool) -> list[Path]:
-    """The `OWNED` entries of an earlier render in `out`, refusing folders another tool may have written.
+SWAPPING = ".render-swapping"
+"""Present in an output folder only while `swap_in` replaces its render: a folder that a second Ctrl-C or a kill
+left half-swapped, without its render.json, is still known to be render-uncertainty's."""
+STAGING_PREFIX = ".render.tmp-"
+"""A render is written whole into <out>/.render.tmp-PID first (see `swap_in`)."""
 
-    A folder is ours when it is the default <run>/uncertainty/<label>-<views> or holds our render.json. Checked
-    before the scene loads, so a refusal costs nothing; removed only once the new render is written in full (see
-    `swap_in`), so a command that fails (a moved scene, a corrupt image, Ctrl-C) leaves the earlier render whole.
-    """
-    present = [out / name for name in OWNED if (out / name).exists()]
-    if present and not default_folder and not (out / "render.json").is_file():
-        raise SplatuError(f"--output already holds {present[0].name!r}, not written by render-uncertainty",
+
+def refuse_foreign_output(out: Path, default_folder: bool) -> None:
+    """Refuse an --output folder that holds `OWNED` names another tool may have written. A folder is ours when it
+    is the default <run>/uncertainty/<label>-<views> or holds our render.json (or `SWAPPING`). Checked before the
+    scene loads, so a refusal costs nothing."""
+    present = [name for name in OWNED if (out / name).exists()]
+    ours = default_folder or (out / "render.json").is_file() or (out / SWAPPING).is_file()
+    if present and not ours:
+        raise SplatuError(f"--output already holds {present[0]!r}, not written by render-uncertainty",
                           f"in {out}", "pass a new or empty --output folder (or the folder of an earlier render)")
-    return present
 
 
 def remove(paths: list[Path]) -> None:
@@ -237,18 +241,20 @@ def remove(paths: list[Path]) -> None:
             path.unlink()
 
 
-def swap_in(staging: Path, out: Path, previous: list[Path]) -> None:
-    """Put the whole render written in `staging` in place of the earlier one in `out`. A Ctrl-C or SIGTERM waits
-    for the renames (a second one aborts), and render.json goes first and comes back last, so even a kill leaves no
-    earlier render.json beside files it does not list."""
+def swap_in(staging: Path, out: Path) -> None:
+    """Put the whole render written in `staging` in place of the earlier one in `out`, so that a command that fails
+    (a moved scene, a corrupt image, a full disk, Ctrl-C) leaves the earlier render whole, and no view of it
+    survives the new one. The earlier entries are listed now, not when the command started: eval-ause may have
+    written maps/ since, or a user removed a file. A Ctrl-C or SIGTERM waits for the renames (a second one
+    aborts); render.json goes first and comes back last, so even a kill leaves no earlier render.json beside files
+    it does not list, and `SWAPPING` marks the folder meanwhile."""
     with deferred_interrupt() as stop:
+        (out / SWAPPING).touch()
         (out / "render.json").unlink(missing_ok=True)
-        remove(previous)
+        remove([out / name for name in OWNED if (out / name).exists() or (out / name).is_symlink()])
         for entry in sorted(staging.iterdir(), key=lambda path: path.name == "render.json"):
-            target = out / entry.name
-            if target.is_dir() and not target.is_symlink():  # written since `previous` was listed: eval-ause's maps/
-                shutil.rmtree(target)
-            os.replace(entry, target)
+            os.replace(entry, out / entry.name)
+        (out / SWAPPING).unlink()
     if stop.requested:
         raise Terminated if stop.signal_number == signal.SIGTERM else KeyboardInterrupt
 
@@ -270,9 +276,8 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
         error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
         save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
                    scales["uncertainty"], error, scales["error"])
-    entries = map_entries(views)
-    if entries:  # orbit views have no ground truth to score
-        write_maps_dir(out / "maps", entries)
+    for entry in map_entries(views):  # none for orbit views: they have no ground truth to score
+        write_entry(out / "maps", entry)  # `out` is the staging folder, swapped in whole: no staging of its own
     if orbit:
         titles = [f"{v.name}  elevation {v.elevation_degrees:+.0f}°" for v in views]
         save_orbit_gif(out / "orbit.gif", [v.maps["rgb"] for v in views], [v.maps["uncertainty"] for v in views],
@@ -381,16 +386,17 @@ def run(config: RenderUncertaintyConfig) -> None:
                          config.load)
     out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                        "--output folder")
-    previous = previous_render(out, config.output is None)
+    refuse_foreign_output(out, config.output is None)
     scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,
                           config.seed)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
-    staging = out / f".render.tmp-{os.getpid()}"  # written whole before it replaces anything: see swap_in
+    remove(list(out.glob(f"{STAGING_PREFIX}*")))  # a render killed outright (SIGKILL, OOM) left its staging
+    staging = out / f"{STAGING_PREFIX}{os.getpid()}"  # written whole before it replaces anything: see swap_in
     try:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
             record = write_render(staging, views, config, run_info.train_seconds, built.setup_seconds, seconds)
-            swap_in(staging, out, previous)
+            swap_in(staging, out)
     except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
         if os_error_behind(err) is None:
             raise

@@ -11,11 +11,18 @@ import numpy as np
 import pytest
 import torch
 
+from splatu import render_uncertainty
 from splatu.camera import Camera, look_at
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
 from splatu.orbit import capture_frame, orbit_cameras
-from splatu.render_uncertainty import RenderUncertaintyConfig, render_eval_maps
+from splatu.render_uncertainty import (
+    SWAPPING,
+    RenderUncertaintyConfig,
+    refuse_foreign_output,
+    render_eval_maps,
+    swap_in,
+)
 
 
 def _ring(n: int = 12, radius: float = 2.0, height: float = 1.0) -> list[Camera]:
@@ -305,19 +312,40 @@ def test_a_render_stopped_while_writing_its_files_leaves_the_earlier_one_whole(t
     assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept  # nothing left half-written
 
 
-def test_a_render_replaces_a_maps_folder_written_after_it_listed_the_earlier_render(tmp_path):
+def test_a_render_replaces_what_the_folder_holds_when_it_swaps_in(tmp_path):
     """`eval-ause --load` writes <run>/uncertainty/<label>-eval/maps too, and may do so while a render of that folder
     is running: the render's own maps/ still goes in, where a rename onto a full folder would fail."""
-    from splatu.render_uncertainty import swap_in
-
     out, staging = tmp_path / "out", tmp_path / "out" / ".render.tmp"
     (staging / "maps" / "rgb").mkdir(parents=True)
     (staging / "maps" / "rgb" / "new.png").write_bytes(b"new")
     (staging / "render.json").write_text("{}")
     (out / "maps" / "rgb").mkdir(parents=True)
-    (out / "maps" / "rgb" / "other.png").write_bytes(b"other")  # not among the earlier render's entries
-    swap_in(staging, out, previous=[])
-    assert _folder_names(out) == {"maps/rgb/new.png", "render.json"}
+    (out / "maps" / "rgb" / "other.png").write_bytes(b"other")  # written after the render started
+    swap_in(staging, out)
+    assert _folder_names(out) == {"maps/rgb/new.png", "render.json"}  # and no SWAPPING marker left
+
+
+def test_a_folder_left_half_swapped_is_still_known_as_a_render(tmp_path):
+    """A second Ctrl-C (or a kill) during the swap leaves neither render whole and no render.json: the same command
+    must be able to render there again, not refuse the folder as another tool's."""
+    out = tmp_path / "out"
+    (out / "png").mkdir(parents=True)
+    with pytest.raises(SplatuError, match="not written by render-uncertainty"):
+        refuse_foreign_output(out, default_folder=False)
+    (out / SWAPPING).touch()
+    refuse_foreign_output(out, default_folder=False)
+
+
+def test_a_staging_folder_a_killed_render_left_is_neither_kept_nor_rendered_from(tiny_run, tmp_path):
+    """A render killed outright (SIGKILL, OOM) leaves its staging folder; one under the next render's process id
+    used to have its files swapped in with the new render's."""
+    out = tmp_path / "after_kill"
+    for pid in (os.getpid(), 4242):
+        (out / f".render.tmp-{pid}" / "npy").mkdir(parents=True)
+        (out / f".render.tmp-{pid}" / "npy" / "killed_view_rgb.npy").write_bytes(b"stale")
+    _render(tiny_run, "--output", str(out))
+    assert not any("killed_view" in name or ".render.tmp" in name for name in _folder_names(out))
+    assert not list(out.glob(".render.tmp-*"))
 
 
 def test_a_full_disk_while_files_are_written_is_one_line_and_keeps_the_earlier_render(tiny_run, tmp_path,
@@ -342,6 +370,21 @@ def test_a_full_disk_while_files_are_written_is_one_line_and_keeps_the_earlier_r
         assert "No space left on device" in errors[0] and "free space" in errors[0]
     assert {name: (out / name).read_bytes() for name in _folder_names(out)} == kept
     assert not (tmp_path / "scores.json").exists()
+
+
+def test_a_full_disk_while_the_maps_are_written_names_the_output_folder(tiny_run, tmp_path, monkeypatch, capsys):
+    """The maps go into the render's staging folder, which is gone when the error is read: it must name --output."""
+    out = tmp_path / "maps_full"
+
+    def disk_full(root, entry):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(render_uncertainty, "write_entry", disk_full)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        _render(tiny_run, "--output", str(out))
+    [line] = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error")]
+    assert exc.value.code == 2 and f"in {out}," in line and ".render.tmp" not in line, line
 
 
 def _one_line(capsys, argv: list[str]) -> str:

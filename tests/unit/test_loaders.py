@@ -15,7 +15,7 @@ import pycolmap
 import pytest
 import torch
 
-from splatu.data import colmap
+from splatu.data import colmap, images
 from splatu.data.config import DataConfig
 from splatu.data.images import (
     Distortion,
@@ -340,6 +340,27 @@ def test_a_cache_entry_of_another_shape_or_dtype_is_recomputed(tmp_path, stored)
     np.save(entry, stored)
     assert np.array_equal(load_pixels(recipe, cache), first)
     assert np.array_equal(np.load(entry), cache.load(recipe))
+
+
+def test_every_kind_of_cached_array_is_reused_not_recomputed(tmp_path, monkeypatch):
+    """The check that sends a foreign .npy back to be recomputed must accept what the pipeline itself stores: 8- and
+    16-bit colour, RGBA, masks and depths, or every load would decode every image again."""
+    cv2.imwrite(str(tmp_path / "rgb16.png"), (noise_image(1, 32, 24).astype(np.uint16) * 257))
+    cv2.imwrite(str(tmp_path / "rgba.png"), np.dstack([noise_image(2, 32, 24), np.full((24, 32), 200, np.uint8)]))
+    cv2.imwrite(str(tmp_path / "mask.png"), (np.arange(32)[None, :].repeat(24, 0) > 10).astype(np.uint8) * 255)
+    cv2.imwrite(str(tmp_path / "depth.png"), np.full((24, 32), 1500, np.uint16))
+    np.save(tmp_path / "depth.npy", np.full((24, 32), 2.5, np.float64))
+    recipes = [PixelRecipe(path=tmp_path / name, kind=kind, width=32, height=24, target_width=16, target_height=12)
+               for name, kind in (("rgb16.png", "color"), ("rgba.png", "color"), ("mask.png", "mask"),
+                                  ("depth.png", "depth"), ("depth.npy", "depth"))]
+    cache = ImageCache(tmp_path / "cache")
+    first = [load_pixels(recipe, cache) for recipe in recipes]
+    computed = []
+    monkeypatch.setattr(images, "compute_pixels", lambda recipe: computed.append(recipe) or 1 / 0)
+    again = [load_pixels(recipe, cache) for recipe in recipes]
+    assert computed == []
+    for a, b in zip(first, again, strict=True):
+        assert np.array_equal(a, b)
 
 
 def _with_exif_thumbnail(jpeg: bytes, thumbnail: bytes) -> bytes:
