@@ -171,18 +171,18 @@ class UncertaintyHead:
 
 
 HEAD_KEYS = ("kind", "lam", "threshold", "num_dirs", "degree")
+HEAD_FLAG = "--uncertainty.extra-heads"
 
 
-def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> UncertaintyHead:
-    """The head `spec` ("key=value,key=value") describes: `base` with those values replaced."""
-    flag = "--uncertainty.extra-heads"
+def _head_values(spec: str) -> dict[str, str | int | float]:
+    """The typed key=value pairs of head `spec` ("key=value,key=value"), or a one-line error."""
     values: dict[str, str] = {}
     for item in spec.split(","):
         key, sep, value = (part.strip() for part in item.partition("="))
         problem = ("not key=value" if not sep else f"unknown key {key!r}" if key not in HEAD_KEYS
                    else f"{key!r} given twice" if key in values else None)
         if problem is not None:
-            raise SplatuError(f"bad uncertainty head {spec!r}: {problem}", flag,
+            raise SplatuError(f"bad uncertainty head {spec!r}: {problem}", HEAD_FLAG,
                               f"write key=value pairs joined by commas, keys from {', '.join(HEAD_KEYS)}")
         values[key] = value
     typed: dict[str, str | int | float] = {}
@@ -190,20 +190,34 @@ def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> Uncer
         try:
             typed[key] = value if key == "kind" else int(value) if key in ("num_dirs", "degree") else float(value)
         except ValueError:
-            raise SplatuError(f"{key}={value!r} is not a number in uncertainty head {spec!r}", flag,
+            raise SplatuError(f"{key}={value!r} is not a number in uncertainty head {spec!r}", HEAD_FLAG,
                               "e.g. lam=0.1,degree=2") from None
+    return typed
+
+
+def canonical_head(spec: str) -> str:
+    """One spelling per head: its pairs in `HEAD_KEYS` order, numbers as Python prints them, so that
+    "degree=1,lam=0.10" and "lam=0.1,degree=1" name the same output files."""
+    values = _head_values(spec)
+    return ",".join(f"{key}={values[key]}" for key in HEAD_KEYS if key in values)
+
+
+def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> UncertaintyHead:
+    """The head `spec` ("key=value,key=value") describes: `base` with those values replaced."""
+    typed = _head_values(spec)
     degree = int(typed.pop("degree", max_degree))
     if typed.get("kind", base.kind) not in ("antipodal", "mean", "weighted"):
-        raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", flag, "use antipodal, mean or weighted")
+        raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", HEAD_FLAG,
+                          "use antipodal, mean or weighted")
     if not 0 <= degree <= max_degree:
         more = "" if max_degree == MAX_SH_DEGREE else " (raise --model.u-sh-degree for more)"
         raise SplatuError(f"uncertainty head {spec!r} asks for degree {degree}, above the u-SH degree {max_degree}"
-                          if degree > 0 else f"uncertainty head {spec!r} asks for a negative degree", flag,
+                          if degree > 0 else f"uncertainty head {spec!r} asks for a negative degree", HEAD_FLAG,
                           f"use a degree from 0 to {max_degree}{more}")
     try:
         loss = dataclasses.replace(base, extra_heads=(), **typed)
     except SplatuError as err:  # name the head, not the run's own flag
-        raise SplatuError(f"{err.what} in uncertainty head {spec!r}", flag, err.fix) from None
+        raise SplatuError(f"{err.what} in uncertainty head {spec!r}", HEAD_FLAG, err.fix) from None
     return UncertaintyHead(spec, loss, degree)
 
 

@@ -54,6 +54,7 @@ from splatu.figures import (
     save_panel,
 )
 from splatu.interrupts import Terminated, deferred_interrupt, sigterm_as_ctrl_c
+from splatu.losses import canonical_head
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 from splatu.train_config import MAX_SEED
@@ -316,8 +317,9 @@ def output_label(method: UncertaintyMethod, head: str | None, density_aware: boo
     """The method's name in folder and file names, with every option that changes its maps and is not at its
     default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`) and, when `load` names a
     checkpoint file rather than the run, that file's name (`ours-step-0001000`), so that one variant's maps and
-    scores never overwrite another's, nor an earlier checkpoint's the final model's."""
-    parts = [method if head is None else f"{method}-{head}"]
+    scores never overwrite another's, nor an earlier checkpoint's the final model's; a head has one spelling
+    (`canonical_head`), so the same head asked for twice writes one set of files."""
+    parts = [method if head is None else f"{method}-{canonical_head(head)}"]
     if load is not None and Path(load).expanduser().is_file():
         parts.append(Path(load).stem)
     if density_aware:

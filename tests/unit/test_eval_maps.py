@@ -258,6 +258,9 @@ def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
 
     assert output_label("ours", None) == "ours"
     assert output_label("ours", "degree=1") == "ours-degree=1"
+    # one head, spelt two ways, is one set of files (it used to be two, with identical maps)
+    spelt = [output_label("ours", spec) for spec in ("degree=1,lam=0.10", "lam=0.1, degree=1")]
+    assert spelt == ["ours-lam=0.1,degree=1"] * 2
     assert output_label("ensemble", None, density_aware=True) == "ensemble-density-aware"
     assert output_label("fisher", None, fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
 
