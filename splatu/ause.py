@@ -126,11 +126,21 @@ class RandomScores(NamedTuple):
 
 def random_baseline(errors: np.ndarray, metric: Metric = "mae", seeds: Sequence[int] = RANDOM_SEEDS) -> RandomScores:
     """AUSE, start-normalised AUSE and AUSC of uniform-noise uncertainty, each the mean over `seeds`."""
-    scores = []
-    for seed in seeds:
-        curves = random_curves(errors, metric, seed)
-        scores.append((ause(curves), ause_start_normalised(curves), ausc(curves.sparsification)))
+    return random_scores([random_curves(errors, metric, seed) for seed in seeds])
+
+
+def random_scores(curves: Sequence[Curves]) -> RandomScores:
+    """The random baseline's numbers from its curves, one per seed: each the mean over the seeds."""
+    scores = [(ause(c), ause_start_normalised(c), ausc(c.sparsification)) for c in curves]
     return RandomScores(*(float(v) for v in np.mean(scores, axis=0)))
+
+
+class ImageCurves(NamedTuple):
+    """One image's curves for one metric: what its scores are computed from, and what eval-ause plots."""
+
+    ours: Curves
+    random: list[Curves]
+    """One per `RANDOM_SEEDS`."""
 
 
 def auroc(scores: np.ndarray, positives: np.ndarray) -> float | None:
@@ -153,8 +163,10 @@ def auroc(scores: np.ndarray, positives: np.ndarray) -> float | None:
 
 def score_image(rendered: np.ndarray, target: np.ndarray, uncertainty: np.ndarray,
                 valid: np.ndarray | None = None, unobserved: np.ndarray | None = None,
-                metrics: Sequence[Metric] = ("mae", "rmse")) -> dict[str, float | None]:
-    """Every number one image contributes: AUSE, random, start-normalised, AUSC (ours, random, oracle), AUROC.
+                metrics: Sequence[Metric] = ("mae", "rmse")
+                ) -> tuple[dict[str, float | None], dict[Metric, ImageCurves]]:
+    """Every number one image contributes: AUSE, random, start-normalised, AUSC (ours, random, oracle), AUROC; and
+    per metric the curves they come from, so that a plot shows the very curves the numbers measure.
 
     `valid` (H, W) restricts the pixels scored (e.g. a blender alpha mask); `unobserved`
     (H, W) marks pixels no training camera saw, for AUROC-unobserved.
@@ -163,10 +175,12 @@ def score_image(rendered: np.ndarray, target: np.ndarray, uncertainty: np.ndarra
         raise ValueError(f"uncertainty {uncertainty.shape} does not match image {rendered.shape[:2]}")
     keep = np.ones(uncertainty.shape, bool) if valid is None else valid.astype(bool)
     result: dict[str, float | None] = {}
+    all_curves: dict[Metric, ImageCurves] = {}
     for metric in metrics:
         errors = pixel_errors(rendered, target, metric)[keep]
-        curves = sparsification_curves(errors, uncertainty[keep], metric)
-        random = random_baseline(errors, metric)
+        all_curves[metric] = ImageCurves(sparsification_curves(errors, uncertainty[keep], metric),
+                                         [random_curves(errors, metric, seed) for seed in RANDOM_SEEDS])
+        curves, random = all_curves[metric].ours, random_scores(all_curves[metric].random)
         result[f"ause_{metric}"] = ause(curves)
         result[f"random_ause_{metric}"] = random.ause
         result[f"ause_{metric}_start_norm"] = ause_start_normalised(curves)
@@ -175,7 +189,7 @@ def score_image(rendered: np.ndarray, target: np.ndarray, uncertainty: np.ndarra
         result[f"random_ausc_{metric}"] = random.ausc
         result[f"oracle_ausc_{metric}"] = ausc(curves.oracle)
     result["auroc_unobserved"] = None if unobserved is None else auroc(uncertainty[keep], unobserved[keep])
-    return result
+    return result, all_curves
 
 
 def mean_scores(per_image: Mapping[str, Mapping[str, float | None]]) -> dict[str, float | None]:

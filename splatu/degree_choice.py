@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import torch
 
-from splatu.ause import score_image
+from splatu.ause import ause, pixel_errors, random_baseline, sparsification_curves
 from splatu.camera import Camera
 from splatu.data.scene import Views
 from splatu.errors import SplatuError
@@ -226,13 +226,13 @@ def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: li
     per_head: dict[int, list[float]] = {h.degree: [] for h in heads}
     randoms = []
     for i, (rgb, gt) in enumerate(zip(renders, targets, strict=True)):
-        valid = None if masks is None else masks[i].numpy() > 0
-        if valid is not None and not valid.any():
+        keep = np.ones(maps[i].shape[:2], bool) if masks is None else masks[i].numpy() > 0
+        if not keep.any():
             continue  # its mask file excludes the whole view: nothing to rank
+        errors = pixel_errors(rgb.numpy(), gt.numpy())[keep]  # one ranking target for every head, as eval-ause's
         for c, head in enumerate(heads):
-            scores = score_image(rgb.numpy(), gt.numpy(), maps[i][..., c], valid, metrics=("mae",))
-            per_head[head.degree].append(float(scores["ause_mae"]))
-        randoms.append(float(scores["random_ause_mae"]))
+            per_head[head.degree].append(ause(sparsification_curves(errors, maps[i][..., c][keep])))
+        randoms.append(random_baseline(errors).ause)
     if not randoms:
         raise _nothing_to_score()
     return {d: float(np.mean(per_head[d])) for d in sorted(per_head)}, float(np.mean(randoms))

@@ -62,14 +62,11 @@ class EvalAuseConfig:
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
     """Per-image scores and the mean over images, plus the mean curves for the plot."""
     metrics: tuple[A.Metric, ...] = tuple(dict.fromkeys(("mae", "rmse", metric)))
-    per_image = {e.name: A.score_image(e.rgb, e.gt, e.uncertainty, e.mask, e.unobserved, metrics) for e in entries}
-    ours, random = [], []
-    for e in entries:
-        keep = np.ones(e.uncertainty.shape, bool) if e.mask is None else e.mask
-        errors = A.pixel_errors(e.rgb, e.gt, metric)[keep]
-        ours.append(A.start_normalised(A.sparsification_curves(errors, e.uncertainty[keep], metric)))
-        # every seed the table's random baseline averages, so the plotted curve is the reported one
-        random.extend(A.start_normalised(A.random_curves(errors, metric, seed)) for seed in A.RANDOM_SEEDS)
+    scored = {e.name: A.score_image(e.rgb, e.gt, e.uncertainty, e.mask, e.unobserved, metrics) for e in entries}
+    per_image = {name: scores for name, (scores, _) in scored.items()}
+    ours = [A.start_normalised(curves[metric].ours) for _, curves in scored.values()]
+    # every seed the table's random baseline averages, so the plotted curve is the reported one
+    random = [A.start_normalised(c) for _, curves in scored.values() for c in curves[metric].random]
     mean_curves = {
         name: A.Curves(np.mean([c.oracle for c in curves], axis=0), np.mean([c.sparsification for c in curves], axis=0))
         for name, curves in (("uncertainty", ours), ("random", random))

@@ -120,7 +120,7 @@ def test_score_image_and_mean():
     rendered = target + rng.normal(0.0, 0.1, target.shape)
     errors = A.pixel_errors(rendered, target)
     unobserved = errors > np.median(errors)
-    scores = A.score_image(rendered, target, errors / errors.max(), unobserved=unobserved)
+    scores = A.score_image(rendered, target, errors / errors.max(), unobserved=unobserved)[0]
     assert scores["ause_mae"] == pytest.approx(0.0, abs=1e-12)
     # the MAE error orders pixels almost, not exactly, like the squared error
     assert 0.0 < scores["ause_rmse"] < 0.2 * scores["random_ause_rmse"]
@@ -135,7 +135,7 @@ def test_score_image_and_mean():
     assert means["auroc_unobserved"] == pytest.approx(1.0)
     valid = np.zeros((32, 40), bool)
     valid[:, :20] = True
-    masked = A.score_image(rendered, target, rng.random((32, 40)), valid=valid)
+    masked, _ = A.score_image(rendered, target, rng.random((32, 40)), valid=valid)
     assert masked["ause_mae"] > 0.1
 
 
@@ -145,8 +145,8 @@ def test_ausc_is_the_area_under_each_curve_and_its_gap_is_the_unnormalised_ause(
     counts = np.maximum(((100 - np.arange(100)) * 10) // 100, 1)
     expected_oracle = np.trapezoid((counts - 1) / 2.0, A.FRACTIONS)
     curves = A.sparsification_curves(errors, -errors)  # worst first: S keeps the largest errors
-    scores = A.score_image(errors[:, None, None] * np.ones((10, 1, 3)) / 3.0, np.zeros((10, 1, 3)),
-                           -errors[:, None], metrics=("mae",))
+    scores, _ = A.score_image(errors[:, None, None] * np.ones((10, 1, 3)) / 3.0, np.zeros((10, 1, 3)),
+                              -errors[:, None], metrics=("mae",))
     assert A.ausc(curves.oracle) == pytest.approx(expected_oracle)
     assert scores["oracle_ausc_mae"] == pytest.approx(expected_oracle)
     assert scores["ausc_mae"] == pytest.approx(np.trapezoid(9.0 - (counts - 1) / 2.0, A.FRACTIONS))
@@ -176,10 +176,10 @@ def test_pixels_outside_the_valid_mask_change_no_score():
     unobserved = rng.random((32, 40)) < 0.3
     valid = rng.random((32, 40)) < 0.6
     alone = A.score_image(rendered[valid][:, None], target[valid][:, None], uncertainty[valid][:, None],
-                          unobserved=unobserved[valid][:, None])  # an N×1 image, in the mask's row-major order
+                          unobserved=unobserved[valid][:, None])[0]  # an N×1 image, in the mask's row-major order
     rendered[~valid] = 5.0  # far worse than any valid pixel, and ranked the most certain
     uncertainty[~valid] = -1.0
-    assert A.score_image(rendered, target, uncertainty, valid=valid, unobserved=unobserved) == alone
+    assert A.score_image(rendered, target, uncertainty, valid=valid, unobserved=unobserved)[0] == alone
 
 
 def test_the_random_baseline_draws_a_different_uncertainty_for_each_seed():
