@@ -10,7 +10,6 @@ Adam moments is tens of MB.
 from __future__ import annotations
 
 import dataclasses
-import math
 import random
 import re
 from pathlib import Path
@@ -172,15 +171,10 @@ def saved_frame(state: dict[str, Any]) -> WorldTransform | None:
     if saved is None:
         return None
     try:
-        frame = WorldTransform.from_state(saved)
-        whole = (frame.rotation.shape == (3, 3) and frame.translation.shape == (3,) and math.isfinite(frame.scale)
-                 and bool(frame.rotation.isfinite().all()) and bool(frame.translation.isfinite().all()))
-    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError):
-        whole = False
-    if not whole:
+        return WorldTransform.from_state(saved)
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError):  # WorldTransform refuses a bad frame
         raise SplatuError("checkpoint's world_transform (the scene's normalisation) is damaged",
-                          f"in {state.get('read_from', 'the run checkpoint')}", OLDER_CHECKPOINT)
-    return frame
+                          f"in {state.get('read_from', 'the run checkpoint')}", OLDER_CHECKPOINT) from None
 
 
 class TrainedRun(NamedTuple):

@@ -59,10 +59,10 @@ class MetricsLog:
                 record = json.loads(line)
             except json.JSONDecodeError:
                 continue  # empty, or half a line: the process died while appending it
-            if not (isinstance(record, dict) and is_finite_number(record.get("step", 0))):
+            logged_at = record.get("step", 0) if isinstance(record, dict) else None
+            if not is_finite_number(logged_at):
                 continue  # not a record this log writes (a hand edit): nothing a resume could place
-            later = record.get("step", 0) > step or (record.get("step") == step and
-                                                     record.get("event") in REDONE_AT_RESUME)
+            later = logged_at > step or (logged_at == step and record.get("event") in REDONE_AT_RESUME)
             (dropped if later else kept).append(line)
         atomic_write_text(self.path, "".join(ln + "\n" for ln in kept))
         return dropped

@@ -35,8 +35,11 @@ class WorldTransform:
     scale: float
 
     def __post_init__(self) -> None:
-        if not self.scale > 0 or abs(float(torch.linalg.det(self.rotation.double())) - 1.0) > 1e-6:
-            raise ValueError("a world transform needs a proper rotation (det +1) and a positive scale")
+        finite = (self.rotation.shape == (3, 3) and self.translation.shape == (3,) and math.isfinite(self.scale)
+                  and bool(self.rotation.isfinite().all()) and bool(self.translation.isfinite().all()))
+        if not (finite and self.scale > 0 and abs(float(torch.linalg.det(self.rotation.double())) - 1.0) <= 1e-6):
+            raise ValueError("a world transform needs a finite proper rotation (det +1), translation and positive "
+                             "scale")
 
     @classmethod
     def from_normalization(cls, center: Tensor, scale: float) -> WorldTransform:

@@ -109,6 +109,17 @@ def test_a_world_transform_refuses_a_mirror_or_a_matrix_that_is_no_rotation(rota
     WorldTransform(TURN, torch.zeros(3, dtype=torch.float64), 1.0)
 
 
+def test_a_world_transform_refuses_non_finite_or_misshapen_parts():
+    """A NaN rotation has a NaN determinant, which no tolerance test rejects; an infinite scale is still > 0."""
+    nan_turn = TURN.clone()
+    nan_turn[0, 0] = float("nan")
+    zero = torch.zeros(3, dtype=torch.float64)
+    for rotation, translation, scale in ((nan_turn, zero, 1.0), (TURN, zero, float("inf")),
+                                         (TURN, torch.tensor([0.0, float("inf"), 0.0]), 1.0), (TURN, zero[:2], 1.0)):
+        with pytest.raises(ValueError, match="finite proper rotation"):
+            WorldTransform(rotation, translation, scale)
+
+
 def test_frames_that_differ_only_in_scale_do_not_match():
     """Cameras moved apart around the same centre give the same translation but another scale: a model trained in
     the old frame would come out at the wrong size, so the scene is refused; float noise is not a difference."""
