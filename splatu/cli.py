@@ -101,3 +101,6 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt as stop:
         print("interrupted", file=sys.stderr)
         sys.exit(exit_code(stop))
+    except BrokenPipeError:  # `splatu train --help | head`: the reader left, so there is no one to tell
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's own flush must not fail too
+        sys.exit(1)

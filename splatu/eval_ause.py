@@ -8,21 +8,23 @@ directly; `--load RUN` first renders the run's eval views into that layout with 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+import tyro
 from rich.console import Console
 from rich.table import Table
 
 from splatu import ause as A
 from splatu.atomic import atomic_write_text
-from splatu.baselines import UncertaintyMethod
 from splatu.checkpoint import run_folder
-from splatu.errors import FREE_AND_RERUN, SplatuError, os_error_behind, require_at_least, unwritable, writable_dir
+from splatu.errors import FREE_AND_RERUN, SplatuError, writable_dir
 from splatu.figures import plot_sparsification
+from splatu.interrupts import finish_first
 from splatu.maps import MapEntry, entry_names, read_entry
+from splatu.uncertainty_options import DEFAULTS, OPTION_NAMES, UncertaintyOptions
 
 
 @dataclass
@@ -31,32 +33,15 @@ class EvalAuseConfig:
 
     load: Path | None = None
     """A training run directory: render its eval views with --method, then score them."""
-    data: str | None = None
-    """With --load: the scene to score on; default: the one the run was trained on (its recorded path, split and
-    downscale)."""
+    uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
+    """With --load: what to render and score (a maps directory already holds its one uncertainty)."""
     maps: Path | None = None
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
-    method: UncertaintyMethod = "ours"
-    """With --load: which uncertainty to score (see splatu.baselines): ours, ensemble, visibility, fisher, random,
-    spread, ours-spread, residual, ours-residual, angle, ours-residual-angle or ours-view-residual-angle."""
-    head: str | None = None
-    """With --load and a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle,
-    ours-view-residual-angle): one of the run's extra uncertainty heads (its spec, as given to
-    --uncertainty.extra-heads); default: the run's own."""
-    density_aware: bool = False
-    """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
-    fisher_probes: int = 2
-    """With --method fisher: Rademacher probes per training view."""
-    seed: int = 0
-    """With --load: seed of the random method and of the Fisher probes, so a seed's score can be reproduced."""
     metric: A.Metric = "mae"
     """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
     output: Path | None = None
     """Where to write the JSON (default: ause_<label>.json in the run, the label being the method and the options
     that change its maps; or ause.json in the maps dir)."""
-
-    def __post_init__(self) -> None:
-        require_at_least(self.fisher_probes, 1, "--fisher-probes")
 
 
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
@@ -88,14 +73,10 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     report["method"] = label
     report["options"] = options or {"maps": str(maps_dir)}
     output = checked_output(output or maps_dir / "ause.json")
-    atomic_write_text(output, json.dumps(report, indent=2), FREE_AND_RERUN)
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
-    try:
+    with finish_first():  # a stop between the two would pair the new scores with the earlier plot
         plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
-    except OSError as err:  # a full disk: matplotlib raises it as it is
-        if os_error_behind(err) is None:
-            raise
-        raise unwritable(output.with_suffix(".png"), err, FREE_AND_RERUN) from None
+        atomic_write_text(output, json.dumps(report, indent=2), FREE_AND_RERUN)
     return report
 
 
@@ -140,15 +121,9 @@ def print_report(report: dict[str, Any], metric: A.Metric) -> None:
     Console(width=max(console.width, needed)).print(table)
 
 
-LOAD_ONLY_OPTIONS = ("data", "method", "head", "density_aware", "fisher_probes", "seed")
-"""Options that choose what --load renders; a maps directory's scores cannot depend on them."""
-
-
-def load_only_options_set(config: EvalAuseConfig) -> list[str]:
-    """The --load-only options moved off their defaults, as flags: with --maps they would be silently ignored."""
-    defaults = EvalAuseConfig()
-    return [f"--{name.replace('_', '-')}" for name in LOAD_ONLY_OPTIONS
-            if getattr(config, name) != getattr(defaults, name)]
+def load_only_options_set(options: UncertaintyOptions) -> list[str]:
+    """The uncertainty options moved off their defaults, as flags: with --maps they would be silently ignored."""
+    return [f"--{name.replace('_', '-')}" for name in OPTION_NAMES if getattr(options, name) != getattr(DEFAULTS, name)]
 
 
 def run(config: EvalAuseConfig) -> None:
@@ -156,7 +131,7 @@ def run(config: EvalAuseConfig) -> None:
         raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
                           "use --load RUN_DIR to evaluate a run or --maps DIR for precomputed maps")
     if config.maps is not None:
-        ignored = load_only_options_set(config)
+        ignored = load_only_options_set(config.uncertainty)
         if ignored:
             flags, verb = " ".join(ignored), "applies" if len(ignored) == 1 else "apply"
             raise SplatuError(f"{flags} only {verb} with --load (a maps directory already holds its images and "
@@ -165,19 +140,16 @@ def run(config: EvalAuseConfig) -> None:
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:
-        from splatu.render_uncertainty import check_method_options, output_label, render_eval_maps
+        from splatu.render_uncertainty import render_eval_maps
 
-        check_method_options(config.method, config.density_aware, config.fisher_probes, config.seed)
-
+        options = config.uncertainty
+        options.check()
         if config.output is not None:  # before the render, so a bad --output costs nothing
             checked_output(config.output)
-        maps_dir, entries = render_eval_maps(config.load, config.method, config.density_aware, config.fisher_probes,
-                                             config.seed, data=config.data, head=config.head)
-        label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed,
-                             config.load)
+        maps_dir, entries = render_eval_maps(config.load, options)
+        label = options.label(config.load)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
-        options = {name: getattr(config, name) for name in LOAD_ONLY_OPTIONS}
-        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options},
+        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},
                                entries)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

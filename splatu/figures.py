@@ -20,7 +20,9 @@ import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
+from splatu.atomic import atomic_write
 from splatu.ause import FRACTIONS, Curves
+from splatu.errors import FREE_AND_RERUN
 
 UNCERTAINTY_CMAP = "inferno"
 ERROR_CMAP = "magma"
@@ -129,8 +131,16 @@ def plot_sparsification(path: Path, curves: Mapping[str, Curves], title: str, me
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_whole(fig, path)
+
+
+def save_whole(fig: plt.Figure, path: Path) -> None:
+    """A plot beside the numbers it shows: written whole or not at all (`atomic_write`), so a full disk or a kill
+    never leaves a torn PNG next to its JSON; a refused write is one line."""
+    try:
+        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), FREE_AND_RERUN)
+    finally:
+        plt.close(fig)
 
 
 @dataclass(frozen=True)
@@ -201,5 +211,4 @@ def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, Spee
         ax.grid(alpha=0.3)
     fig.suptitle(textwrap.fill(title, 120), fontsize=9)
     fig.tight_layout(rect=(0.0, 0.0, 0.8, 1.0))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_whole(fig, path)

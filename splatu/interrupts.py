@@ -79,6 +79,16 @@ def deferred_interrupt() -> Iterator[StopRequest]:
 
 
 @contextmanager
+def finish_first() -> Iterator[None]:
+    """Writes that must land together (a render swapped in, a score and its plot): a Ctrl-C or SIGTERM during the
+    block waits for its end and is raised then, as the stop it was; a second one aborts at once."""
+    with deferred_interrupt() as stop:
+        yield
+    if stop.requested:
+        raise Terminated if stop.signal_number == signal.SIGTERM else KeyboardInterrupt
+
+
+@contextmanager
 def sigterm_as_ctrl_c() -> Iterator[None]:
     """SIGTERM raises KeyboardInterrupt for a whole command, as Ctrl-C does: outside the steps too (loading the
     scene, between ensemble members), a kill then unwinds through the code that records a session."""

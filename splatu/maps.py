@@ -21,6 +21,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
+from splatu.data.images import write_png
 from splatu.errors import SplatuError, load_number_array, os_error_behind, require_file, unwritable_folder
 
 FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
@@ -155,11 +156,9 @@ def entry_names(root: Path) -> list[str]:
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
-    quantised = np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(np.uint16)
-    if quantised.ndim == 3:
-        quantised = quantised[..., ::-1]
-    if not cv2.imwrite(str(path), quantised):
-        raise SplatuError("could not write image", f"in {path}", "check the output directory is writable")
+    """[0, 1] values as 16-bit PNG, so the scored colours lose next to nothing to quantisation."""
+    write_png(path, np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(np.uint16),
+              "check the output directory is writable")
 
 
 def write_entry(root: Path, entry: MapEntry) -> None:

@@ -19,21 +19,21 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-import cv2
 import numpy as np
 import torch
+import tyro
 from rich.console import Console
 
 from splatu.atomic import atomic_write_text
-from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintyRender, UncertaintySource, method_list
+from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
+from splatu.data.images import write_png
 from splatu.data.scene import Views
 from splatu.errors import (
     FREE_AND_RERUN,
@@ -53,11 +53,10 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
-from splatu.interrupts import Terminated, deferred_interrupt, sigterm_as_ctrl_c
-from splatu.losses import canonical_head
+from splatu.interrupts import finish_first, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
-from splatu.train_config import MAX_SEED
+from splatu.uncertainty_options import UncertaintyOptions
 
 ViewSet = Literal["eval", "train", "orbit"]
 
@@ -68,22 +67,13 @@ class RenderUncertaintyConfig:
 
     load: Path = Path("outputs/poster/splatu/latest")
     """A training run directory (an ensemble run for --method ensemble)."""
-    data: str | None = None
-    """Scene to render; default: the one the run was trained on (its recorded path, split and downscale)."""
-    method: UncertaintyMethod = "ours"
-    """Which uncertainty to render (see splatu.baselines): ours, ensemble, visibility, fisher, random, spread,
-    ours-spread, residual, ours-residual, angle, ours-residual-angle or ours-view-residual-angle."""
-    head: str | None = None
-    """With a method that reads ours (ours, ours-spread, ours-residual, ours-residual-angle,
-    ours-view-residual-angle): one of the run's extra uncertainty heads (its spec, as given to
-    --uncertainty.extra-heads); default: the run's own."""
+    uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
+    """Which uncertainty to render, and the options that change its maps."""
     views: ViewSet = "eval"
     """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
-    density_aware: bool = False
-    """With --method ensemble: add (1 - accumulated alpha)² to the std, for empty space."""
     max_views: int = 0
     """Render at most this many views (evenly spaced); 0 renders all."""
     orbit_frames: int = 24
@@ -93,16 +83,12 @@ class RenderUncertaintyConfig:
     orbit_radius_scale: float = DEFAULT_RADIUS_SCALE
     """Orbit radius as a multiple of the median training-camera distance to the centre (the default half keeps
     the from-below views above the floor of a capture walked around an object: see splatu.orbit)."""
-    fisher_probes: int = 2
-    """Rademacher probes per training view for --method fisher."""
-    seed: int = 0
-    """Seed of the random method and of the Fisher probes."""
     gif_fps: int = 6
     """Frames per second of the orbit GIF."""
 
     def __post_init__(self) -> None:
         for flag, value, minimum in (("--max-views", self.max_views, 0), ("--orbit-frames", self.orbit_frames, 1),
-                                     ("--fisher-probes", self.fisher_probes, 1), ("--gif-fps", self.gif_fps, 1),
+                                     ("--gif-fps", self.gif_fps, 1),
                                      ("--orbit-radius-scale", self.orbit_radius_scale, 1e-3)):
             require_at_least(value, minimum, flag)
 
@@ -205,11 +191,6 @@ def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
     }
 
 
-def _write_png(path: Path, rgb_uint8: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), rgb_uint8[..., ::-1]):
-        raise SplatuError("could not write image", f"in {path}", "check the output directory is writable")
-
-
 OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
 """What a render writes under names of its own choosing: cleared first, so no view of an earlier render survives
 (colorbar_*.png and render.json are always rewritten)."""
@@ -249,15 +230,13 @@ def swap_in(staging: Path, out: Path) -> None:
     written maps/ since, or a user removed a file. A Ctrl-C or SIGTERM waits for the renames (a second one
     aborts); render.json goes first and comes back last, so even a kill leaves no earlier render.json beside files
     it does not list, and `SWAPPING` marks the folder meanwhile."""
-    with deferred_interrupt() as stop:
+    with finish_first():
         (out / SWAPPING).touch()
         (out / "render.json").unlink(missing_ok=True)
         remove([out / name for name in OWNED if (out / name).exists() or (out / name).is_symlink()])
         for entry in sorted(staging.iterdir(), key=lambda path: path.name == "render.json"):
             os.replace(entry, out / entry.name)
         (out / SWAPPING).unlink()
-    if stop.requested:
-        raise Terminated if stop.signal_number == signal.SIGTERM else KeyboardInterrupt
 
 
 def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -> dict[str, ColourScale]:
@@ -270,10 +249,10 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     for view in views:
         for key, value in view.maps.items():
             np.save(out / "npy" / f"{view.name}_{key}.npy", value.astype(np.float32))
-        _write_png(out / "png" / f"{view.name}_rgb.png",
-                   (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
+        write_png(out / "png" / f"{view.name}_rgb.png",
+                  (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), FREE_AND_RERUN)
         for key in ("uncertainty", "depth", "alpha"):
-            _write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]))
+            write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]), FREE_AND_RERUN)
         error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
         save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
                    scales["uncertainty"], error, scales["error"])
@@ -286,62 +265,34 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     return scales
 
 
-def _load(load: Path, method: UncertaintyMethod, head: str | None):
-    """The run, checked against the method (imports kept here: they pull in the whole trainer stack)."""
+def _load(load: Path, options: UncertaintyOptions):
+    """The run, checked against the options (imports kept here: they pull in the whole trainer stack)."""
     from splatu.baselines.load import check_method, load_any_run
 
-    if head is not None and method not in METHODS_WITH_OURS:
-        raise SplatuError(f"--head picks an uncertainty head of ours; --method {method} has none",
-                          "in the command's options", f"drop --head, or use --method {method_list(METHODS_WITH_OURS)}")
-    run = load_any_run(load, head)
-    check_method(method, run)
+    options.check()
+    run = load_any_run(load, options.head)
+    check_method(options.method, run)
     return run
 
 
-def _setup(run, method: UncertaintyMethod, data: str | None, density_aware: bool, fisher_probes: int, seed: int):
+def _setup(run, options: UncertaintyOptions):
     """The run's scene and the method's renderer."""
     from splatu.baselines.load import build_method, run_data
     from splatu.data.resolve import load_scene
 
-    scene = load_scene(run_data(run, data))
-    return scene, build_method(method, run, scene, density_aware, fisher_probes, seed)
+    scene = load_scene(run_data(run, options.data))
+    return scene, build_method(options.method, run, scene, options.density_aware, options.fisher_probes,
+                               options.seed)
 
 
-SEEDED_METHODS = ("random", "fisher")
-"""The methods whose maps depend on --seed."""
-
-
-def output_label(method: UncertaintyMethod, head: str | None, density_aware: bool = False,
-                 fisher_probes: int = RenderUncertaintyConfig.fisher_probes, seed: int = RenderUncertaintyConfig.seed,
-                 load: Path | None = None) -> str:
-    """The method's name in folder and file names, with every option that changes its maps and is not at its
-    default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`) and, when `load` names a
-    checkpoint file rather than the run, that file's name (`ours-step-0001000`), so that one variant's maps and
-    scores never overwrite another's, nor an earlier checkpoint's the final model's; a head has one spelling
-    (`canonical_head`), so the same head asked for twice writes one set of files."""
-    parts = [method if head is None else f"{method}-{canonical_head(head)}"]
-    if load is not None and Path(load).expanduser().is_file():
-        parts.append(Path(load).stem)
-    if density_aware:
-        parts.append("density-aware")
-    if fisher_probes != RenderUncertaintyConfig.fisher_probes:
-        parts.append(f"{fisher_probes}-probes")
-    if seed != RenderUncertaintyConfig.seed:
-        parts.append(f"seed-{seed}")
-    return "-".join(parts)
-
-
-def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool = False,
-                     fisher_probes: int = 2, seed: int = 0, data: str | None = None, head: str | None = None
-                     ) -> tuple[Path, list[MapEntry]]:
+def render_eval_maps(load: Path, options: UncertaintyOptions) -> tuple[Path, list[MapEntry]]:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder and
     the views as stored there (see write_maps_dir)."""
-    run = _load(load, method, head)
-    label = output_label(method, head, density_aware, fisher_probes, seed, load)
-    folder = writable_dir(run_folder(load) / "uncertainty" / f"{label}-eval",
+    run = _load(load, options)
+    folder = writable_dir(run_folder(load) / "uncertainty" / f"{options.label(load)}-eval",
                           "run directory (--load writes maps there)")
     root = folder / "maps"
-    scene, built = _setup(run, method, data, density_aware, fisher_probes, seed)
+    scene, built = _setup(run, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
     entries = map_entries(views)
@@ -357,23 +308,6 @@ def render_eval_maps(load: Path, method: UncertaintyMethod, density_aware: bool 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")
 
 
-def check_method_options(method: UncertaintyMethod, density_aware: bool, fisher_probes: int, seed: int) -> None:
-    """Refuse, in one line, an option `method` never reads (density-aware is the ensemble's, probes are Fisher's,
-    the seed is random's and Fisher's), rather than ignore it silently; and a seed outside training's range.
-    Shared with eval-ause."""
-    require_at_least(seed, 0, "--seed")
-    if seed >= MAX_SEED:  # the maps seed torch with seed · 1,000,003 + a 32-bit hash (64 bits)
-        raise SplatuError(f"--seed {seed} is too large", "in the command's options", f"pass a seed below {MAX_SEED:,}")
-    for flag, is_set, readers in (("--density-aware", density_aware, ("ensemble",)),
-                                  ("--fisher-probes", fisher_probes != RenderUncertaintyConfig.fisher_probes,
-                                   ("fisher",)),
-                                  ("--seed", seed != RenderUncertaintyConfig.seed, SEEDED_METHODS)):
-        if is_set and method not in readers:
-            methods = " or ".join(f"--method {reader}" for reader in readers)
-            raise SplatuError(f"{flag} only applies with {methods}", "in the command's options",
-                              f"drop {flag}, or pass {methods}")
-
-
 def run(config: RenderUncertaintyConfig) -> None:
     orbit_only = [f"--{n.replace('_', '-')}" for n in ORBIT_OPTIONS
                   if getattr(config, n) != getattr(RenderUncertaintyConfig, n)]  # the class holds the defaults
@@ -381,16 +315,14 @@ def run(config: RenderUncertaintyConfig) -> None:
         flags = " ".join(orbit_only)
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",
                           "in the command's options", f"drop {flags}, or pass --views orbit")
-    check_method_options(config.method, config.density_aware, config.fisher_probes, config.seed)
-    run_info = _load(config.load, config.method, config.head)
+    options = config.uncertainty
+    run_info = _load(config.load, options)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    label = output_label(config.method, config.head, config.density_aware, config.fisher_probes, config.seed,
-                         config.load)
-    out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
+    out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
+                       f"{config.views}",
                        "--output folder")
     refuse_foreign_output(out, config.output is None)
-    scene, built = _setup(run_info, config.method, config.data, config.density_aware, config.fisher_probes,
-                          config.seed)
+    scene, built = _setup(run_info, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
     remove(list(out.glob(f"{STAGING_PREFIX}*")))  # a render killed outright (SIGKILL, OOM) left its staging
@@ -405,7 +337,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise unwritable_folder(out, err) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    Console().print(f"rendered {len(views)} {config.views} views with {config.method} "
+    Console().print(f"rendered {len(views)} {config.views} views with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
 
 
@@ -414,8 +346,7 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
     """Every file of a render, render.json last; returns what render.json holds."""
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
-        "method": config.method, "head": config.head, "views": config.views, "density_aware": config.density_aware,
-        "fisher_probes": config.fisher_probes, "seed": config.seed, "data": config.data,
+        **config.uncertainty.record(), "views": config.views,
         "train_seconds": train_seconds, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],

@@ -192,6 +192,16 @@ def read_image(path: Path) -> np.ndarray:
     return pixels
 
 
+def write_png(path: Path, pixels: np.ndarray, fix: str) -> None:
+    """Encode uint8 or uint16 pixels, channels in RGB order (grey is written as it is), as a PNG; the inverse of
+    `read_image`, so every PNG splatu writes has its channels the same way round. A refused write is one line,
+    ending in `fix`."""
+    if pixels.ndim == 3 and pixels.shape[2] == 3:
+        pixels = np.ascontiguousarray(pixels[..., ::-1])
+    if not cv2.imwrite(str(path), pixels):
+        raise SplatuError("could not write an image", f"in {path}", fix)
+
+
 def _read_depth(recipe: PixelRecipe) -> np.ndarray:
     """A depth map from .npy (float, scene units) or an integer image times depth_scale."""
     fix = "write depth as a finite float32 .npy with one value per pixel, or as a 16-bit PNG"

@@ -23,6 +23,7 @@ from splatu.render_uncertainty import (
     render_eval_maps,
     swap_in,
 )
+from splatu.uncertainty_options import UncertaintyOptions
 
 
 def _ring(n: int = 12, radius: float = 2.0, height: float = 1.0) -> list[Camera]:
@@ -175,7 +176,8 @@ def test_an_extra_uncertainty_head_renders_and_scores_on_its_own(tiny_run, capsy
     entrypoint(["eval-ause", "--load", str(tiny_run), "--head", EXTRA_HEAD])
     head = json.loads((tiny_run / f"ause_ours-{EXTRA_HEAD}.json").read_text())
     assert head["method"] == f"ours-{EXTRA_HEAD}" and len(head["per_image"]) == 5
-    own_dir, extra_dir = (render_eval_maps(tiny_run, "ours", head=h)[0] / "uncertainty" for h in (None, EXTRA_HEAD))
+    own_dir, extra_dir = (render_eval_maps(tiny_run, UncertaintyOptions(head=h))[0] / "uncertainty"
+                          for h in (None, EXTRA_HEAD))
     names = sorted(p.name for p in own_dir.glob("*.npy"))
     assert names == sorted(p.name for p in extra_dir.glob("*.npy")) and len(names) == 5
     own, extra = ([np.load(folder / n) for n in names] for folder in (own_dir, extra_dir))

@@ -218,3 +218,14 @@ def test_an_ascii_only_console_gets_help_and_one_line_errors_not_a_crash():
     assert refused.stderr.decode("ascii").splitlines() == [
         "error: unrecognized options: --stepz, 3, on the command line, did you mean --steps? "
         "(see `splatu train --help`)"]
+
+
+def test_help_into_a_closed_pipe_is_no_traceback():
+    """`splatu train --help | head -1`: the reader leaves before the help is written, which was a BrokenPipeError
+    traceback; the command now just ends."""
+    child = subprocess.Popen([sys.executable, "-m", "splatu", "train", "--help"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    child.stdout.close()  # before the child has imported torch, let alone written its help
+    err = child.stderr.read()
+    assert child.wait(timeout=120) == 1
+    assert "Traceback" not in err and err == ""

@@ -1,8 +1,11 @@
 """`splatu eval-ause --maps` round trip on tiny directories, and its one-line errors."""
 
 import dataclasses
+import errno
 import json
 import multiprocessing
+import os
+import signal
 from pathlib import Path
 
 import cv2
@@ -15,6 +18,7 @@ from splatu.cli import entrypoint
 from splatu.errors import SplatuError
 from splatu.eval_ause import score_entries
 from splatu.maps import MapEntry, entry_names, file_stems, read_entry, safe_name, write_entry
+from splatu.uncertainty_options import UncertaintyOptions
 
 
 def _tiny_maps(root: Path, n: int = 3, size: tuple[int, int] = (24, 32)) -> dict[str, np.ndarray]:
@@ -181,12 +185,12 @@ def test_eval_ause_says_so_when_every_eval_view_is_masked_out(tmp_path, monkeypa
     blank = R.RenderedView("v", {"rgb": np.zeros((4, 4, 3)), "uncertainty": np.zeros((4, 4))},
                            gt=np.zeros((4, 4, 3)), mask=np.zeros((4, 4), bool))
     scene = SimpleNamespace(eval=None, train=None)
-    monkeypatch.setattr(R, "_load", lambda load, method, head: None)
+    monkeypatch.setattr(R, "_load", lambda load, options: None)
     monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None)))
     monkeypatch.setattr(R, "view_spec", lambda *args: None)
     monkeypatch.setattr(R, "render_views", lambda source, spec: ([blank], [0.1]))
     with pytest.raises(SplatuError, match="no eval view has a pixel to score"):
-        R.render_eval_maps(tmp_path, "ours")
+        R.render_eval_maps(tmp_path, UncertaintyOptions())
     assert not (tmp_path / "uncertainty" / "ours-eval" / "maps").exists()
 
 
@@ -254,15 +258,18 @@ def test_view_names_become_file_stems_and_two_that_would_share_files_are_refused
 
 
 def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
-    from splatu.render_uncertainty import output_label
+    def label(**options) -> str:
+        return UncertaintyOptions(**options).label()
 
-    assert output_label("ours", None) == "ours"
-    assert output_label("ours", "degree=1") == "ours-degree=1"
+    assert label() == "ours"
+    assert label(head="degree=1") == "ours-degree=1"
     # one head, spelt two ways, is one set of files (it used to be two, with identical maps)
-    spelt = [output_label("ours", spec) for spec in ("degree=1,lam=0.10", "lam=0.1, degree=1")]
+    spelt = [label(head=spec) for spec in ("degree=1,lam=0.10", "lam=0.1, degree=1")]
     assert spelt == ["ours-lam=0.1,degree=1"] * 2
-    assert output_label("ensemble", None, density_aware=True) == "ensemble-density-aware"
-    assert output_label("fisher", None, fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
+    assert label(method="ensemble", density_aware=True) == "ensemble-density-aware"
+    assert label(method="fisher", fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
+    # the data a run is rendered on is not in the name: --data moves the scene, not the maps' method
+    assert label(data="elsewhere") == "ours"
 
 
 def _rewrite_maps(root: Path, entries: list[MapEntry], tag: str, times: int) -> None:
@@ -382,3 +389,43 @@ def test_the_plotted_mean_curves_are_the_ones_the_table_reports():
             assert curve.oracle[0] == pytest.approx(1.0) and curve.sparsification[0] == pytest.approx(1.0)
             area = np.trapezoid(curve.sparsification - curve.oracle, A.FRACTIONS)
             assert area == pytest.approx(report["mean"][key], rel=1e-9, abs=1e-12), (metric, name)
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_while_the_plot_is_written_waits_for_the_scores_beside_it(tmp_path, monkeypatch, capsys, stop):
+    """A Ctrl-C or kill between the plot and the JSON used to leave the new curves beside the earlier scores (or the
+    reverse): the stop now waits for both, then exits as that stop."""
+    from splatu import eval_ause
+
+    _tiny_maps(tmp_path / "maps", n=1)
+    out = tmp_path / "ause.json"
+    out.write_text("{}")  # an earlier score
+    plot = eval_ause.plot_sparsification
+
+    def stop_then_plot(*args):
+        os.kill(os.getpid(), stop)
+        plot(*args)
+
+    monkeypatch.setattr(eval_ause, "plot_sparsification", stop_then_plot)
+    with pytest.raises(SystemExit) as exc:
+        _run("--maps", str(tmp_path / "maps"), "--output", str(out))
+    assert exc.value.code == 128 + stop
+    assert json.loads(out.read_text())["images"] == 1 and out.with_suffix(".png").stat().st_size > 0
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_a_plot_the_disk_refuses_is_one_line_and_keeps_the_earlier_scores(tmp_path, monkeypatch, capsys):
+    from splatu import figures
+
+    _tiny_maps(tmp_path / "maps", n=1)
+    out = tmp_path / "ause.json"
+    out.write_text("{}")
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(figures.plt.Figure, "savefig", full_disk)
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "maps"), "--output", str(out))
+    assert "ause.png" in line and "free space" in line
+    assert out.read_text() == "{}" and not out.with_suffix(".png").exists()
+    assert not list(tmp_path.glob(".ause.png.tmp-*"))

@@ -681,3 +681,21 @@ def test_a_colmap_image_the_reconstruction_did_not_register_is_left_out(tmp_path
     monkeypatch.setattr(colmap, "read_reconstruction", lambda sparse_dir: reconstruction)
     frames = colmap.load_colmap(root, root / "sparse" / "0", 1).frames
     assert [f.name for f in frames] == ["img_0.png", "img_1.png", "img_3.png", "img_4.png"]
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_write_png_is_read_back_in_rgb_order(tmp_path, dtype):
+    """One writer for every PNG: its channels come back the way read_image (and any viewer) reads them."""
+    rgb = np.zeros((2, 3, 3), dtype)
+    rgb[..., 0] = np.iinfo(dtype).max  # pure red: a swapped writer reads back blue
+    rgb[1, 2] = (1, 2, 3)
+    images.write_png(tmp_path / "red.png", rgb, "fix it")
+    np.testing.assert_array_equal(images.read_image(tmp_path / "red.png"), rgb)
+    grey = np.arange(6, dtype=dtype).reshape(2, 3)
+    images.write_png(tmp_path / "grey.png", grey, "fix it")
+    np.testing.assert_array_equal(images.read_image(tmp_path / "grey.png"), grey)
+
+
+def test_write_png_refusal_is_one_line_with_the_callers_fix(tmp_path):
+    with pytest.raises(SplatuError, match=r"could not write an image.*no_such_folder.*free some space"):
+        images.write_png(tmp_path / "no_such_folder" / "a.png", np.zeros((2, 2, 3), np.uint8), "free some space")

@@ -19,11 +19,11 @@ from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from splatu.data.frames import opengl_camera_to_world
+from splatu.data.images import write_png
 from splatu.data.ply import write_ply_points
 from splatu.data.poster.config import PosterConfig
 from splatu.data.poster.geometry import TARGET, build_scene
@@ -76,9 +76,8 @@ def cache_key(cfg: PosterConfig) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), image):
-        raise SplatuError("could not write an image", f"in {path}", "check that the cache directory is writable")
+CACHE_FIX = ("free space on that disk (it takes about 32 MB), or pass --cache-dir or set SPLATU_CACHE to a writable "
+             "folder")
 
 
 def _generate(cfg: PosterConfig, out: Path) -> None:
@@ -101,10 +100,10 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
             raise AssertionError(f"ray missed every surface in {camera.name}; the room must enclose all cameras")
         rgb8 = (view.rgb * 255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         seen = observed_mask(scene, view.points, train_cameras, camera.center().double())
-        _write_png(out / "images" / f"{camera.name}.png", cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
+        write_png(out / "images" / f"{camera.name}.png", rgb8, CACHE_FIX)
         np.save(out / "depth" / f"{camera.name}.npy", view.depth.to(torch.float32).numpy())
-        _write_png(out / "observed" / f"{camera.name}.png",
-                   (seen.reshape(cfg.height, cfg.width).to(torch.uint8) * 255).numpy())
+        write_png(out / "observed" / f"{camera.name}.png",
+                  (seen.reshape(cfg.height, cfg.width).to(torch.uint8) * 255).numpy(), CACHE_FIX)
         if index in train_set:
             picks = torch.randperm(cfg.width * cfg.height, generator=generator)[: quota[len(point_xyz)]]
             noise = noise_std * torch.randn(picks.numel(), 3, generator=generator, dtype=torch.float64)
@@ -173,8 +172,7 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
     except OSError as err:
         if not (final / "transforms.json").is_file():  # else another process finished it first: use that one
             raise SplatuError(f"could not write the built-in scene ({err.strerror or err})", f"in {final.parent}",
-                              "free space on that disk (it takes about 32 MB), or pass --cache-dir or set "
-                              "SPLATU_CACHE to a writable folder") from None
+                              CACHE_FIX) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return final
