@@ -21,7 +21,7 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None], fix: str = RESUM
     """Call `write` on a binary temporary sibling of `path`, fsync it, then rename it over `path`. A write the disk
     refuses is one line, ending in `fix`."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = temporary_sibling(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as f:
@@ -40,6 +40,18 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None], fix: str = RESUM
     finally:
         with contextlib.suppress(OSError):  # e.g. the parent is a file: the error above is the one to report
             tmp.unlink(missing_ok=True)
+
+
+def temporary_sibling(path: Path) -> Path:
+    """Where `path` is written whole before it is renamed into place: hidden, and named by the writing process, so
+    two writers never share one and a killed writer's leftover can be found (`leftover_temporaries`)."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
+def leftover_temporaries(folder: Path, name_glob: str) -> list[Path]:
+    """The temporary siblings (`temporary_sibling`) of the names matching `name_glob` in `folder`: what writers
+    killed outright (SIGKILL, out of memory) left, and whose rename never came."""
+    return sorted(folder.glob(f".{name_glob}.tmp-*"))
 
 
 def sync_appended(path: Path) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
+from splatu.atomic import temporary_sibling
 from splatu.data.images import write_png
 from splatu.errors import SplatuError, load_number_array, os_error_behind, require_file, unwritable_folder
 
@@ -184,7 +185,7 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
     Returns the views as stored (read back before the swap), which is what `eval-ause --maps` reads: a caller
     scores those rather than `root`, which another process may replace at any time.
     """
-    staging = root.with_name(f".{root.name}.tmp-{os.getpid()}")
+    staging = temporary_sibling(root)
     shutil.rmtree(staging, ignore_errors=True)
     try:
         staging.mkdir(parents=True)

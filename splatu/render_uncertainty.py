@@ -29,7 +29,7 @@ import torch
 import tyro
 from rich.console import Console
 
-from splatu.atomic import atomic_write_text
+from splatu.atomic import atomic_write_text, leftover_temporaries, temporary_sibling
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
@@ -199,8 +199,8 @@ OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
 SWAPPING = ".render-swapping"
 """Present in an output folder only while `swap_in` replaces its render: a folder that a second Ctrl-C or a kill
 left half-swapped, without its render.json, is still known to be render-uncertainty's."""
-STAGING_PREFIX = ".render.tmp-"
-"""A render is written whole into <out>/.render.tmp-PID first (see `swap_in`)."""
+STAGING = "render"
+"""A render is written whole into <out>/.render.tmp-PID first (`temporary_sibling`; see `swap_in`)."""
 
 
 def refuse_foreign_output(out: Path, default_folder: bool) -> None:
@@ -325,8 +325,8 @@ def run(config: RenderUncertaintyConfig) -> None:
     scene, built = _setup(run_info, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
-    remove(list(out.glob(f"{STAGING_PREFIX}*")))  # a render killed outright (SIGKILL, OOM) left its staging
-    staging = out / f"{STAGING_PREFIX}{os.getpid()}"  # written whole before it replaces anything: see swap_in
+    remove(leftover_temporaries(out, STAGING))  # a render killed outright (SIGKILL, OOM) left its staging
+    staging = temporary_sibling(out / STAGING)  # written whole before it replaces anything: see swap_in
     try:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
             record = write_render(staging, views, config, run_info.train_seconds, built.setup_seconds, seconds)

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from splatu.atomic import temporary_sibling
 from splatu.errors import SplatuError, unwritable
 
 LATEST = "latest"
@@ -37,7 +38,7 @@ def new_timestamped_dir(parent: Path) -> Path:
 def point_latest(run_dir: Path) -> Path:
     """Make <run_dir>/../latest a relative symlink to `run_dir`, replaced atomically."""
     link = run_dir.parent / LATEST
-    tmp = run_dir.parent / f".{LATEST}.tmp-{os.getpid()}"
+    tmp = temporary_sibling(link)
     tmp.unlink(missing_ok=True)
     tmp.symlink_to(run_dir.name, target_is_directory=True)
     os.replace(tmp, link)

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from splatu.atomic import atomic_write_text, sync_appended
+from splatu.atomic import atomic_write_text, leftover_temporaries, sync_appended
 from splatu.checkpoint import (
     CHECKPOINT_DIR,
     checkpoint_step,
@@ -99,7 +99,7 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
 def remove_torn_checkpoints(run_dir: Path) -> None:
     """On resume: delete the temporary files of checkpoint writes that a killed process left (each the size of a
     checkpoint); a write that completes renames its own away. The run's lock keeps any other writer out."""
-    for path in (run_dir / CHECKPOINT_DIR).glob(".step-*.pt.tmp-*"):
+    for path in leftover_temporaries(run_dir / CHECKPOINT_DIR, "step-*.pt"):
         path.unlink(missing_ok=True)
 
 

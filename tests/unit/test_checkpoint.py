@@ -166,3 +166,18 @@ def test_a_checkpoint_with_a_damaged_config_model_or_frame_names_the_file(tmp_pa
     with pytest.raises(SplatuError) as caught:
         ckpt.load_run(tmp_path)
     assert "damaged" in caught.value.what and caught.value.where == f"in {path}"
+
+
+def test_a_checkpoint_older_than_the_frame_record_and_the_blur_option_loads_as_it_was_trained(tmp_path):
+    """Runs saved before the scene's normalisation was recorded, and before `screen_blur` and `antialiased` were
+    options, load with no frame to check (so any scene is let through) and with 3DGS's 0.3 px² blur, unscaled
+    opacities: what they were trained with, not the presets' 0.1 of today."""
+    config = TrainConfig(steps=7)
+    state = _state(config, 0)
+    del state["config"]["model"]["screen_blur"], state["config"]["model"]["antialiased"]
+    assert "world_transform" not in state
+    ckpt.save_checkpoint(tmp_path, 7, state)
+    loaded_config, model, frame = ckpt.load_run(tmp_path)
+    assert frame is None
+    assert loaded_config.model.screen_blur == 0.3 and loaded_config.model.antialiased is False
+    assert loaded_config.steps == 7 and len(model) == state["num_gaussians"]

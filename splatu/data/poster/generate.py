@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from splatu.atomic import temporary_sibling
 from splatu.data.frames import opengl_camera_to_world
 from splatu.data.images import write_png
 from splatu.data.ply import write_ply_points
@@ -163,7 +164,7 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
     except OSError as err:
         raise SplatuError(f"cannot create the cache directory ({err.strerror})", f"in {final.parent}",
                           "choose a writable cache directory") from err
-    staging = final.parent / f".{final.name}.tmp-{os.getpid()}"
+    staging = temporary_sibling(final)
     shutil.rmtree(staging, ignore_errors=True)
     try:
         with _single_thread():
