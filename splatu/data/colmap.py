@@ -248,6 +248,30 @@ def _world_to_camera(image: pycolmap.Image, where: str) -> np.ndarray:
     return world_to_camera
 
 
+def _image_name(image: pycolmap.Image, images_file: Path) -> str:
+    """The image's file name; pycolmap hands names to Python as UTF-8, so another encoding's bytes raised a
+    UnicodeDecodeError that named neither the image nor the file."""
+    try:
+        return image.name
+    except UnicodeDecodeError:
+        raise SplatuError(f"the name of image {image.image_id} is not UTF-8 text", f"in {images_file}",
+                          "rename the photo to a UTF-8 name and run the reconstruction again") from None
+
+
+def registered_images(reconstruction: pycolmap.Reconstruction, images_file: Path) -> list[pycolmap.Image]:
+    """The images with a pose, sorted by name; two images with one name would both read the same file, each
+    with its own pose, so they are refused."""
+    named: dict[str, pycolmap.Image] = {}
+    for image in reconstruction.images.values():
+        name = _image_name(image, images_file)
+        if name in named:
+            first, second = sorted((named[name].image_id, image.image_id))
+            raise SplatuError(f"images {first} and {second} both have the name {name!r}", f"in {images_file}",
+                              "remove the duplicate image from the model or re-run the reconstruction")
+        named[name] = image
+    return [named[name] for name in sorted(named) if named[name].has_pose]
+
+
 def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     """Registered images (sorted by name) with undistorted cameras, and points3D with colours."""
     reconstruction = read_reconstruction(sparse_dir)
@@ -255,9 +279,7 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     files = model_files(sparse_dir)
     intrinsics: dict[int, tuple[np.ndarray, Distortion | None, np.ndarray]] = {}
     frames: list[Frame] = []
-    for image in sorted(reconstruction.images.values(), key=lambda im: im.name):
-        if not image.has_pose:
-            continue
+    for image in registered_images(reconstruction, files["images"]):
         colmap_camera = reconstruction.cameras[image.camera_id]
         if image.camera_id not in intrinsics:
             where = f"in {files['cameras']} (camera {image.camera_id})"

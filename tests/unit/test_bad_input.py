@@ -83,7 +83,7 @@ def write_colmap(root: Path, camera: str = "1 PINHOLE 8 6 5 5 4 3",
     sparse = root / "sparse" / "0"
     sparse.mkdir(parents=True)
     (sparse / "cameras.txt").write_text(f"# a comment\n{camera}\n")
-    lines = [f"{i + 1} {quat} {i} 0 0 1 {'ab'[i]}.png\n\n" for i, quat in enumerate(poses)]
+    lines = [f"{i + 1} {quat} {i} 0 0 1 {'abc'[i]}.png\n\n" for i, quat in enumerate(poses)]
     (sparse / "images.txt").write_text("".join(lines))
     (sparse / "points3D.txt").write_text(points)
     return sparse
@@ -117,6 +117,22 @@ def test_colmap_pose_beyond_float32_names_the_image(tmp_path):
     images.write_text(images.read_text().replace("2 1 0 0 0 1 0 0", "2 1 0 0 0 1e39 0 0"))
     error = load_error(tmp_path / "scene", tmp_path)
     assert "b.png has a pose value beyond float32's range (1e+39)" in error.what and error.where == f"in {images}"
+
+
+def test_colmap_image_name_that_is_not_utf8_names_the_image_and_file(tmp_path):
+    """pycolmap reads the name's bytes, but handing them to Python raised a UnicodeDecodeError (a traceback)."""
+    images = write_colmap(tmp_path / "scene") / "images.txt"
+    images.write_bytes(images.read_bytes().replace(b"b.png", b"\xffb.png"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == "the name of image 2 is not UTF-8 text" and error.where == f"in {images}"
+
+
+def test_colmap_images_with_one_name_are_refused(tmp_path):
+    """They were both loaded, from the one file, each with its own pose."""
+    images = write_colmap(tmp_path / "scene", poses=("1 0 0 0",) * 3) / "images.txt"
+    images.write_text(images.read_text().replace("c.png", "a.png"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == "images 1 and 3 both have the name 'a.png'" and error.where == f"in {images}"
 
 
 @pytest.mark.parametrize(("camera", "message"), [
