@@ -175,6 +175,13 @@ def pose_line_in_place_of_points(path: Path) -> int | None:
     return None
 
 
+def name_with_space(path: Path) -> tuple[int, str] | None:
+    """(line number, name) of the first images.txt pose line whose image name holds a space. COLMAP's reader takes
+    a name up to its first space, so `my photo.jpg` was looked for as `my`, and reported as a missing image."""
+    return next(((number, " ".join(tokens[9:])) for number, tokens in _data_lines(path)
+                 if len(tokens) > 10 and _is_pose(tokens)), None)
+
+
 def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
     """The model through pycolmap; a text file it cannot parse, or would misread, is named with its line."""
     files = model_files(sparse_dir)
@@ -187,6 +194,10 @@ def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
         raise SplatuError(f"{images.name} line {number} is an image's pose where COLMAP reads the 2D points of the "
                           "image on the line before, so every other image would be lost", f"in {images}",
                           "give each image two lines, its pose then its 2D points (an empty line when it has none)")
+    if images.suffix == ".txt" and (spaced := name_with_space(images)) is not None:
+        raise SplatuError(f"{images.name} line {spaced[0]} names image {spaced[1]!r}, but COLMAP's text format "
+                          "reads a name only up to its first space", f"in {images}",
+                          "rename the photo and its entry without spaces, or export the model as .bin")
     return reconstruction
 
 

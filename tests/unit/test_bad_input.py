@@ -127,6 +127,16 @@ def test_colmap_image_name_that_is_not_utf8_names_the_image_and_file(tmp_path):
     assert error.what == "the name of image 2 is not UTF-8 text" and error.where == f"in {images}"
 
 
+def test_colmap_text_image_name_with_a_space_names_the_line(tmp_path):
+    """pycolmap read `my b.png` as `my`, so the error was "image not found" for a file named images/my."""
+    images = write_colmap(tmp_path / "scene") / "images.txt"
+    images.write_text(images.read_text().replace("b.png", "my b.png"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == ("images.txt line 3 names image 'my b.png', but COLMAP's text format reads a name only up "
+                          "to its first space")
+    assert error.where == f"in {images}" and ".bin" in error.fix
+
+
 def test_colmap_images_with_one_name_are_refused(tmp_path):
     """They were both loaded, from the one file, each with its own pose."""
     images = write_colmap(tmp_path / "scene", poses=("1 0 0 0",) * 3) / "images.txt"
