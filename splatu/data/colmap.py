@@ -283,6 +283,17 @@ def registered_images(reconstruction: pycolmap.Reconstruction, images_file: Path
     return [named[name] for name in sorted(named) if named[name].has_pose]
 
 
+def refuse_unusable_point(points: np.ndarray, ids: list[int], points_file: Path) -> None:
+    """One line naming the first point that is not finite in float32 (a .bin may hold NaN, a .txt 1e39): it seeds
+    a Gaussian at infinity, and training ran on until the export refused the model as non-finite."""
+    bad = ~(np.abs(points) <= FLOAT32_MAX).all(axis=1)
+    if bad.any():
+        index = int(bad.argmax())
+        raise SplatuError(f"point {ids[index]} has a non-finite position or one beyond float32's range "
+                          f"({points[index].tolist()})", f"in {points_file}",
+                          "delete that point from the model or re-run the reconstruction")
+
+
 def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     """Registered images (sorted by name) with undistorted cameras, and points3D with colours."""
     reconstruction = read_reconstruction(sparse_dir)
@@ -317,5 +328,6 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
         )))
     points3d = [point for _, point in sorted(reconstruction.points3D.items())]  # by id: a stable order
     points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
+    refuse_unusable_point(points, sorted(reconstruction.points3D), files["points3D"])
     colors = np.array([p.color for p in points3d], dtype=np.float32).reshape(-1, 3) / 255.0
     return RawScene(name=root.name, source=str(sparse_dir), frames=frames, points=points, point_colors=colors)

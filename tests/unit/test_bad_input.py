@@ -160,6 +160,20 @@ def test_colmap_camera_of_impossible_size_or_focal_names_the_camera(tmp_path, ca
     assert message in error.what and error.where.endswith("cameras.txt (camera 1)")
 
 
+@pytest.mark.parametrize(("fmt", "value"), [("txt", 1e39), ("bin", float("nan"))])
+def test_colmap_point_that_is_not_finite_in_float32_names_the_point(tmp_path, fmt, value):
+    """It seeded a Gaussian at infinity: training ran, and only the export said the model had NaN or Inf."""
+    sparse = write_colmap(tmp_path / "scene", points="7 0.5 0.5 2 255 0 0 0.1\n8 1 1 2 0 255 0 0.1\n")
+    reconstruction = pycolmap.Reconstruction(str(sparse))
+    reconstruction.points3D[8].xyz = np.array([value, 1.0, 2.0])
+    for name in ("cameras", "images", "points3D"):
+        (sparse / f"{name}.txt").unlink()
+    (reconstruction.write_text if fmt == "txt" else reconstruction.write_binary)(str(sparse))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what.startswith("point 8 has a non-finite position or one beyond float32's range")
+    assert error.where == f"in {sparse / f'points3D.{fmt}'}"
+
+
 def test_colmap_zero_quaternion_is_refused_not_read_as_identity(tmp_path):
     write_colmap(tmp_path / "scene", poses=("1 0 0 0", "0 0 0 0"))
     error = load_error(tmp_path / "scene", tmp_path)
