@@ -7,6 +7,7 @@ OpenCV using the exactly equivalent OpenCV coefficients.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -117,7 +118,21 @@ def _source_path(images_dir: Path, name: str, downscale: int) -> tuple[Path, int
 def _is_number(token: str, kind: type = float) -> bool:
     """Whether COLMAP's C++ reader would parse `token` as a finite `kind` (it rejects nan and inf)."""
     try:
-        return bool(np.isfinite(kind(token)))
+        return math.isfinite(kind(token))
+    except (ValueError, OverflowError):
+        return False
+
+
+ID_LIMIT = (1 << 32) - 1
+"""COLMAP keeps camera and image ids (and a 2D point's index) as 32-bit unsigned integers whose largest value
+means "invalid"; 3D point ids are 64-bit."""
+
+
+def _is_id(token: str, limit: int = ID_LIMIT) -> bool:
+    """Whether `token` is an id COLMAP's reader can hold: an integer from 0 below `limit`. A larger one fails its
+    reader, which names no line (and numpy could not even test an integer that large for finiteness)."""
+    try:
+        return 0 <= int(token) < limit
     except ValueError:
         return False
 
@@ -127,10 +142,11 @@ def _valid_text_line(name: str, tokens: list[str]) -> bool:
     numbers = [_is_number(t) for t in tokens]
     if name == "cameras":
         count = PARAMETER_COUNTS.get(tokens[1]) if len(tokens) > 1 else None
-        return (len(tokens) >= 5 and _is_number(tokens[0], int) and all(numbers[2:])
-                and (count is None or len(tokens) == 4 + count))
-    if name == "points3D":
-        return len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers)
+        return (len(tokens) >= 5 and _is_id(tokens[0]) and all(numbers[2:])
+                and all(_is_number(t, int) for t in tokens[2:4]) and (count is None or len(tokens) == 4 + count))
+    if name == "points3D":  # POINT3D_ID, X, Y, Z, R, G, B (integers), ERROR, then (IMAGE_ID, POINT2D_IDX) pairs
+        return (len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers) and _is_id(tokens[0], (1 << 64) - 1)
+                and all(_is_number(t, int) for t in tokens[4:7]) and all(_is_id(t) for t in tokens[8:]))
     return _is_pose(tokens) or _is_points(tokens)
 
 
@@ -141,8 +157,8 @@ def _is_points(tokens: list[str]) -> bool:
 
 def _is_pose(tokens: list[str]) -> bool:
     """Whether an images.txt line is a pose line: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME."""
-    return (len(tokens) >= 10 and _is_number(tokens[0], int) and all(_is_number(t) for t in tokens[1:8])
-            and _is_number(tokens[8], int) and not _is_points(tokens))
+    return (len(tokens) >= 10 and _is_id(tokens[0]) and all(_is_number(t) for t in tokens[1:8])
+            and _is_id(tokens[8]) and not _is_points(tokens))
 
 
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
@@ -211,20 +227,35 @@ def broken_reference(files: dict[str, Path]) -> SplatuError | None:
             return SplatuError(f"unknown camera model {tokens[1]!r} (camera {tokens[0]})",
                                f"in {cameras} line {number}", f"use one of {', '.join(SUPPORTED_MODELS)}")
         camera_ids.add(int(tokens[0]))
-    image_ids = set()
-    for number, tokens in _data_lines(images):
-        if not _is_pose(tokens):
-            continue
-        image_ids.add(int(tokens[0]))
+    point_counts: dict[int, int] = {}
+    for number, tokens, count in _poses_and_point_counts(images):
+        point_counts[int(tokens[0])] = count
         if int(tokens[8]) not in camera_ids:
             return SplatuError(f"image {tokens[9]} uses camera {tokens[8]}, which {cameras.name} does not define",
                                f"in {images} line {number}", "fix its CAMERA_ID or export the model from COLMAP again")
     for number, tokens in _data_lines(files["points3D"]):
-        missing = next((i for i in tokens[8::2] if int(float(i)) not in image_ids), None)
+        track = [(int(image), int(index)) for image, index in zip(tokens[8::2], tokens[9::2], strict=True)]
+        missing = next((image for image, _ in track if image not in point_counts), None)
         if missing is not None:
             return SplatuError(f"point {tokens[0]}'s track names image {missing}, which {images.name} does not define",
                                f"in {files['points3D']} line {number}", "export the model from COLMAP again")
+        beyond = next(((image, index) for image, index in track if index >= point_counts[image]), None)
+        if beyond is not None:
+            return SplatuError(f"point {tokens[0]}'s track names 2D point {beyond[1]} of image {beyond[0]}, which has "
+                               f"{point_counts[beyond[0]]} in {images.name}", f"in {files['points3D']} line {number}",
+                               "export the model from COLMAP again")
     return None
+
+
+def _poses_and_point_counts(images: Path) -> Iterator[tuple[int, list[str], int]]:
+    """(line number, tokens, number of 2D points) of each pose line of an images.txt: COLMAP reads the line after
+    a pose, blank or not, as that image's 2D points, X Y POINT3D_ID triples that tracks index from 0."""
+    with images.open(encoding="utf-8", errors="replace") as file:
+        lines = list(file)
+    for number, (line, after) in enumerate(zip(lines, [*lines[1:], ""], strict=True), start=1):
+        tokens = line.split()
+        if not line.startswith("#") and _is_pose(tokens):
+            yield number, tokens, len(after.split()) // 3
 
 
 def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:

@@ -100,8 +100,10 @@ def test_unknown_colmap_camera_model(tmp_path):
     ({"camera": "7 PINHOLE 8 6 5 5 4 3"}, "image a.png uses camera 1, which cameras.txt does not define",
      "images.txt", 1),
     ({"camera": "# no camera left"}, "image a.png uses camera 1, which cameras.txt does not define", "images.txt", 1),
-    ({"points": "1 0.5 0.5 2 255 0 0 0.1 1 0\n2 0.5 0.5 2 255 0 0 0.1 8 0\n"},
+    ({"points": "1 0.5 0.5 2 255 0 0 0.1\n2 0.5 0.5 2 255 0 0 0.1 8 0\n"},
      "point 2's track names image 8, which images.txt does not define", "points3D.txt", 2),
+    ({"points": "1 0.5 0.5 2 255 0 0 0.1 1 0\n"},  # pycolmap: "vector::_M_range_check: __n (which is 0) >= ..."
+     "point 1's track names 2D point 0 of image 1, which has 0 in images.txt", "points3D.txt", 1),
 ])
 def test_colmap_unknown_model_or_dangling_id_names_the_file_and_line(tmp_path, edits, message, file, line):
     """pycolmap refuses these in its own terms ("Camera model does not exist", "Rig with ID 7 does not exist")
@@ -193,6 +195,11 @@ def test_colmap_model_missing_a_file_names_it(tmp_path, missing):
     ("points3D.txt", lambda text: "1 0.5 0.5 2 255 0 0 0.1\n1 x y z\n", 2),
     ("cameras.txt", lambda text: text.replace("5 5 4 3", "inf 5 4 3"), 2),
     ("cameras.txt", lambda text: text.replace("5 5 4 3", "5 5 4"), 2),  # PINHOLE takes 4 parameters
+    ("cameras.txt", lambda text: text.replace("8 6", "8.5 6"), 2),  # sizes are integers
+    ("points3D.txt", lambda text: "1 0.5 0.5 2 0.5 0 0 0.1\n", 1),  # so are colours
+    # ids too large for COLMAP's integers: numpy's finiteness test raised a TypeError on them
+    ("cameras.txt", lambda text: text.replace("1 PINHOLE", f"{10 ** 30} PINHOLE"), 2),
+    ("images.txt", lambda text: text.replace("2 1 0 0 0", f"{10 ** 30} 1 0 0 0"), 3),
 ])
 def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, file, edit, line):
     path = write_colmap(tmp_path / "scene") / file
