@@ -58,8 +58,10 @@ def file_stems(names: list[str]) -> list[str]:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    image = cv2.imread(str(require_file(path, "image", "write it or remove the view from every folder")),
-                       cv2.IMREAD_UNCHANGED)
+    """An 8- or 16-bit PNG as float64 in [0, 1], RGB(A); decoded from its bytes, since cv2.imread crashed the
+    process (a segfault) on a path that is not UTF-8."""
+    data = require_file(path, "image", "write it or remove the view from every folder").read_bytes()
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if image is None:
         raise SplatuError("image could not be decoded", f"in {path}", "re-export it as an 8- or 16-bit PNG")
     scale = 65535.0 if image.dtype == np.uint16 else 255.0

@@ -195,11 +195,15 @@ def read_image(path: Path) -> np.ndarray:
 def write_png(path: Path, pixels: np.ndarray, fix: str) -> None:
     """Encode uint8 or uint16 pixels, channels in RGB order (grey is written as it is), as a PNG; the inverse of
     `read_image`, so every PNG splatu writes has its channels the same way round. A refused write is one line,
-    ending in `fix`."""
+    ending in `fix`. Python writes the file: cv2.imwrite crashed the process (a segfault) on a path that is not
+    UTF-8, such as a run folder named after a scene folder with a Latin-1 name."""
     if pixels.ndim == 3 and pixels.shape[2] == 3:
         pixels = np.ascontiguousarray(pixels[..., ::-1])
-    if not cv2.imwrite(str(path), pixels):
-        raise SplatuError("could not write an image", f"in {path}", fix)
+    data = cv2.imencode(".png", pixels)[1].tobytes()
+    try:
+        path.write_bytes(data)
+    except OSError as err:
+        raise SplatuError(f"could not write an image ({err.strerror})", f"in {path}", fix) from None
 
 
 def _read_depth(recipe: PixelRecipe) -> np.ndarray:

@@ -61,6 +61,14 @@ def test_maps_round_trip_through_the_cli(tmp_path, capsys):
     assert "mean" in capsys.readouterr().out
 
 
+def test_maps_round_trip_in_a_folder_whose_name_is_not_utf8(tmp_path):
+    """cv2.imwrite and cv2.imread crashed the process (a segfault) on such a path, and a run's folder is named
+    after its scene's folder, whatever bytes that name holds."""
+    root = Path(os.fsdecode(os.fsencode(tmp_path) + b"/maps\xff"))
+    _tiny_maps(root, n=1)
+    assert read_entry(root, "view_0").rgb.shape == (24, 32, 3)
+
+
 def test_oracle_maps_score_zero_and_masks_restrict_pixels(tmp_path):
     root = tmp_path / "maps"
     errors = _tiny_maps(root, n=1)
