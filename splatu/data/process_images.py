@@ -19,7 +19,7 @@ import tyro
 from rich.console import Console
 
 from splatu.data.pycolmap_quiet import pycolmap
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, writable_dir
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 
@@ -49,13 +49,32 @@ def default_output(images: Path) -> Path:
     return images.parent if images.name == "images" else images.with_name(f"{images.name}-colmap")
 
 
+def _photo_name(path: Path) -> str:
+    """The name COLMAP gets for a photo, once it is known to be a file with a UTF-8 name: a symlink loop aborted
+    pycolmap's reader (killing the process), and pycolmap refused a name in another encoding with a TypeError."""
+    if not path.is_file():
+        raise SplatuError("not a photo file (a folder, a broken link or a link loop)", f"in {path}",
+                          "remove it, or make it the photo it names")
+    try:
+        path.name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise SplatuError("the photo's name is not UTF-8 text", f"in {path}", "rename it to a UTF-8 name") from None
+    return path.name
+
+
 def _photos(images: Path) -> list[str]:
+    """The photos' names, in file order; too few is one line that names what was skipped, since a folder of HEIC
+    photos, or of subfolders, otherwise reads as an empty one."""
     if not images.is_dir():
         raise SplatuError("photo folder not found", f"in {images}", "pass a folder of JPEG/PNG photos")
-    names = sorted(p.name for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    entries = sorted(images.iterdir())
+    names = [_photo_name(p) for p in entries if p.suffix.lower() in IMAGE_SUFFIXES]
     if len(names) < 2:
-        raise SplatuError(f"too few photos ({len(names)}): structure from motion needs at least 2",
-                          f"in {images}", "add overlapping photos of the scene")
+        others = [p.name for p in entries if p.suffix.lower() not in IMAGE_SUFFIXES]
+        skipped = f" ({len(others)} other entries skipped, e.g. {others[0]!r})" if others else ""
+        raise SplatuError(f"too few photos ({len(names)}): structure from motion needs at least 2{skipped}",
+                          f"in {images}", "add overlapping photos of the scene, directly in the folder, as "
+                          f"{'/'.join(sorted(suffix[1:] for suffix in IMAGE_SUFFIXES))} files")
     return names
 
 
@@ -156,7 +175,7 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
                           "pass --overwrite or choose another --output")
     link = _images_link(cfg.images, output)
     created = [path for path in (output, output / "sparse") if not path.exists()] + [database, sparse]
-    output.mkdir(parents=True, exist_ok=True)
+    writable_dir(output, "--output")  # a file there raised FileExistsError
     database.unlink(missing_ok=True)
     if sparse.exists():
         shutil.rmtree(sparse)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -516,6 +517,69 @@ def test_a_conflicting_images_folder_is_refused_before_the_sfm_runs(tmp_path, mo
     with pytest.raises(SplatuError, match="different images folder"):
         process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["images"]
+
+
+@pytest.mark.parametrize("entry", ["link loop", "broken link", "folder"])
+def test_process_images_refuses_a_photo_that_is_no_file_before_the_sfm(tmp_path, monkeypatch, entry):
+    """A symlink loop named a.jpg aborted pycolmap's reader (SIGABRT, the whole process); the others were skipped
+    with a warning only COLMAP's log gave."""
+    from splatu.data import process_images as P
+
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    odd = photos / "a.jpg"
+    if entry == "folder":
+        odd.mkdir()
+    else:
+        odd.symlink_to(odd.name if entry == "link loop" else "nowhere.jpg")
+    monkeypatch.setattr(P, "_reconstruct", lambda *args: pytest.fail("the SfM ran"))
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert caught.value.what.startswith("not a photo file") and caught.value.where == f"in {odd}"
+    assert not (tmp_path / "out").exists()
+
+
+def test_process_images_refuses_a_photo_name_that_is_not_utf8(tmp_path, monkeypatch):
+    """pycolmap refused the name with a TypeError (a traceback listing its whole signature)."""
+    from splatu.data import process_images as P
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in (b"a.png", b"\xffb.png"):
+        path = Path(os.fsdecode(os.fsencode(photos) + b"/" + name))
+        path.write_bytes(cv2.imencode(".png", noise_image(len(name), 16, 16))[1].tobytes())  # imwrite: a segfault
+    monkeypatch.setattr(P, "_reconstruct", lambda *args: pytest.fail("the SfM ran"))
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert caught.value.what == "the photo's name is not UTF-8 text" and "b.png" in caught.value.where
+
+
+def test_process_images_output_that_is_a_file_is_one_line(tmp_path, monkeypatch):
+    """It raised FileExistsError from mkdir."""
+    from splatu.data import process_images as P
+
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    (tmp_path / "out").write_text("a file")
+    monkeypatch.setattr(P, "_reconstruct", lambda *args: pytest.fail("the SfM ran"))
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert caught.value.what.startswith("cannot write the output folder") and "--output" in caught.value.fix
+    assert (tmp_path / "out").read_text() == "a file"
+
+
+def test_process_images_with_no_usable_photos_names_what_it_skipped(tmp_path):
+    """A folder of 30 HEIC photos read as "too few photos (0)", as if it were empty."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(3):
+        (photos / f"IMG_{i}.HEIC").write_bytes(b"heic")
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert caught.value.what.endswith("(3 other entries skipped, e.g. 'IMG_0.HEIC')")
+    assert "jpg/png" in caught.value.fix
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):
