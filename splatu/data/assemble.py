@@ -26,12 +26,19 @@ MIN_DOWNSCALED_SIDE = 8
 
 
 def _read_eval_list(path: Path | None) -> list[str]:
+    """The names an --eval-list file holds. It is read as UTF-8 with or without a byte-order mark (Windows editors
+    write one, and it made the first name unknown); other bytes were a UnicodeDecodeError traceback."""
     if path is None:
         raise SplatuError("eval split `list` needs a list file", "in --eval-list",
                           "pass --eval-list FILE with one image name per line")
     if not path.is_file():
         raise SplatuError("eval list file not found", f"in {path}", "pass an existing --eval-list file")
-    return [line.strip().removeprefix("./") for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise SplatuError(f"eval list is not UTF-8 text (byte {err.start})", f"in {path}",
+                          "save it as UTF-8, one image name per line") from None
+    return [line.strip().removeprefix("./") for line in text.splitlines() if line.strip()]
 
 
 def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], dict[str, list[int]], bool]:

@@ -447,6 +447,26 @@ def test_empty_split_from_an_eval_list(tmp_path):
     assert "empty split" in error.what and "all.txt" in error.where
 
 
+def test_an_eval_list_that_is_not_utf8_is_one_line(tmp_path):
+    """read_text raised UnicodeDecodeError (a traceback) on a list saved in Latin-1."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    listed = tmp_path / "eval.txt"
+    listed.write_bytes("images/fram\xe9_000.png\n".encode("latin-1"))
+    error = load_error(root, tmp_path, eval_split="list", eval_list=listed)
+    assert error.what == "eval list is not UTF-8 text (byte 11)" and error.where == f"in {listed}"
+
+
+def test_an_eval_list_with_a_byte_order_mark_reads_its_first_name(tmp_path):
+    """Windows editors start UTF-8 files with one; the first name was '\\ufeffimages/...', an unknown frame."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    listed = tmp_path / "eval.txt"
+    listed.write_text(cameras[1].name + "\n", encoding="utf-8-sig")
+    scene = load_scene(DataConfig(data=str(root), cache_dir=tmp_path / "cache", eval_split="list", eval_list=listed))
+    assert scene.eval.names == [cameras[1].name]
+
+
 def test_too_few_images(tmp_path):
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=1)
