@@ -19,7 +19,7 @@ from splatu.data.frames import Frame, RawScene, world_to_camera_from_opengl
 from splatu.data.images import PixelRecipe, read_image
 from splatu.data.nerfstudio import frame_entry
 from splatu.errors import SplatuError
-from splatu.json_files import read_json
+from splatu.json_files import is_finite_number, read_json
 
 SPLIT_FILES = ("train", "val", "test")
 
@@ -35,15 +35,18 @@ def _image_path(root: Path, file_path: str) -> Path:
 
 
 def load_blender(root: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
+    """All frames of the split files, in the order train, val, test. A training image listed again is refused, as
+    in a nerfstudio file: one in train and test was scored on a view the model trained on."""
     frames: list[Frame] = []
     splits: dict[str, list[int]] = {}
+    trained: set[Path] = set()
     for split in SPLIT_FILES:
         json_path = root / f"transforms_{split}.json"
         if not json_path.is_file():
             continue
         content = read_json(json_path)
         angle = content.get("camera_angle_x")
-        if not isinstance(angle, int | float) or not 0 < angle < math.pi:
+        if not is_finite_number(angle) or not 0 < angle < math.pi:  # a bool is no angle
             raise SplatuError(f"camera_angle_x must be an angle in (0, pi) radians (got {angle!r})",
                               f"in {json_path}", "fix camera_angle_x")
         frame_list = content.get("frames")
@@ -53,6 +56,11 @@ def load_blender(root: Path, downscale: int, background: tuple[float, float, flo
         for index, frame in enumerate(frame_list):
             name, _where, c2w = frame_entry(frame, index, json_path)
             path = _image_path(root, frame["file_path"])
+            if path in trained:
+                raise SplatuError(f"frames[{index}] lists image {name!r}, which transforms_train.json lists too",
+                                  f"in {json_path}", "list each training image once, and hold out only other images")
+            if split == "train":
+                trained.add(path)
             if index == 0:  # the format stores no image size: all frames of a file share the first one's
                 height, width = read_image(path).shape[:2]
                 focal = 0.5 * width / math.tan(0.5 * angle)

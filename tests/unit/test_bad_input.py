@@ -467,6 +467,37 @@ def test_an_eval_list_with_a_byte_order_mark_reads_its_first_name(tmp_path):
     assert scene.eval.names == [cameras[1].name]
 
 
+def write_blender(root: Path, train: list[str], test: list[str], angle: object = 0.69) -> None:
+    """A NeRF-synthetic scene whose split files list these file paths (images r_0, r_1, r_2 in train/ and test/)."""
+    for split in ("train", "test"):
+        for i in range(3):
+            write_rgb(root / split / f"r_{i}.png", noise_image(i, 20, 16, channels=4))
+    for split, paths in (("train", train), ("test", test)):
+        frames = [{"file_path": path, "transform_matrix": np.eye(4).tolist()} for path in paths]
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": angle, "frames": frames}))
+
+
+@pytest.mark.parametrize(("train", "test", "listed_again", "file"), [
+    (["./train/r_0", "./train/r_1"], ["./test/r_0", "./train/r_1"], "frames[1] lists image 'train/r_1'",
+     "transforms_test.json"),  # scored on a view it trained on
+    (["./train/r_0", "./train/r_1", "./train/r_0"], ["./test/r_0"], "frames[2] lists image 'train/r_0'",
+     "transforms_train.json"),  # trained on twice as often
+])
+def test_a_nerf_synthetic_training_image_listed_again_is_refused(tmp_path, train, test, listed_again, file):
+    """nerfstudio files refuse both; NeRF-synthetic ones were loaded as they were."""
+    write_blender(tmp_path / "lego", train, test)
+    error = load_error(tmp_path / "lego", tmp_path)
+    assert error.what == f"{listed_again}, which transforms_train.json lists too"
+    assert error.where == f"in {tmp_path / 'lego' / file}"
+
+
+def test_a_nerf_synthetic_camera_angle_that_is_a_bool_is_refused(tmp_path):
+    """true was read as 1 radian."""
+    write_blender(tmp_path / "lego", ["./train/r_0", "./train/r_1"], ["./test/r_0"], angle=True)
+    error = load_error(tmp_path / "lego", tmp_path)
+    assert error.what == "camera_angle_x must be an angle in (0, pi) radians (got True)"
+
+
 def test_too_few_images(tmp_path):
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=1)
