@@ -341,7 +341,7 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
                 raise SplatuError(f"camera size {width}x{height} is not a plausible image size", where,
                                   "give the camera its image width and height in pixels")
             K, distortion = opencv_camera(colmap_camera, where)
-            K_new = undistorted_intrinsics(K, distortion, colmap_camera.width, colmap_camera.height)
+            K_new = undistorted_intrinsics(K, distortion, colmap_camera.width, colmap_camera.height, where)
             intrinsics[image.camera_id] = (K, distortion, K_new)
         K, distortion, K_new = intrinsics[image.camera_id]
         world_to_camera = _world_to_camera(image, f"in {files['images']}")

@@ -91,8 +91,16 @@ def _from_opencv(K: np.ndarray) -> np.ndarray:
     return K
 
 
-def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: int, height: int) -> np.ndarray:
-    """The pinhole K to undistort to: OpenCV's optimal matrix with alpha=0 (fisheye: balance=0).
+MAX_UNDISTORTED_ZOOM = 10.0
+"""How far the undistorted camera's focal lengths may stray from the lens's, either way. alpha=0 only crops to
+valid pixels, so a real lens's stay close (fox: 1.01x); absurd coefficients gave 2e-6x (a fisheye k1 of -1, with
+its principal point off the image) or 4e29x (k1 = 1e30), and trained on garbage without a word."""
+
+
+def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: int, height: int,
+                           where: str) -> np.ndarray:
+    """The pinhole K to undistort to: OpenCV's optimal matrix with alpha=0 (fisheye: balance=0); one that is not a
+    usable camera for the image is a one-line error naming `where`.
 
     alpha=0 keeps only valid pixels, so undistorted images have no black borders; the price is
     a slightly narrower field of view than the distorted image.
@@ -107,9 +115,14 @@ def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: 
     else:
         new_K, _ = cv2.getOptimalNewCameraMatrix(_to_opencv(K), D, (width, height), 0.0, (width, height))
     new_K = _from_opencv(np.asarray(new_K, dtype=np.float64))
-    if not np.isfinite(new_K).all() or new_K[0, 0] <= 0 or new_K[1, 1] <= 0:
-        raise SplatuError(f"OpenCV found no valid undistorted camera for distortion {distortion.coeffs}",
-                          f"for a {width}x{height} camera", "check the distortion coefficients and intrinsics")
+    zoom = np.diag(new_K)[:2] / np.diag(K)[:2]
+    centred = 0 <= new_K[0, 2] <= width and 0 <= new_K[1, 2] <= height
+    if not (np.isfinite(new_K).all() and centred and (zoom >= 1 / MAX_UNDISTORTED_ZOOM).all()
+            and (zoom <= MAX_UNDISTORTED_ZOOM).all()):
+        raise SplatuError(f"distortion {distortion.coeffs} has no usable undistorted camera (OpenCV's has focal "
+                          f"length {new_K[0, 0]:.3g} for the lens's {K[0, 0]:.3g} and principal point "
+                          f"({new_K[0, 2]:.3g}, {new_K[1, 2]:.3g}) in a {width}x{height} image)", where,
+                          "check the distortion coefficients and intrinsics")
     return new_K
 
 

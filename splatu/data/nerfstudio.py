@@ -173,7 +173,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
         distortion = _distortion(frame, top, where)
         key = (K.tobytes(), width, height, distortion)
         if key not in undistorted_cache:
-            undistorted_cache[key] = undistorted_intrinsics(K, distortion, width, height)
+            undistorted_cache[key] = undistorted_intrinsics(K, distortion, width, height, where)
         K_new = undistorted_cache[key]
         camera = Camera(
             K=torch.tensor(K_new, dtype=torch.float64),

@@ -233,6 +233,27 @@ def test_truncated_image_names_the_file(tmp_path, ext, kind):
     assert error.where.endswith(cameras[2].name)
 
 
+@pytest.mark.parametrize(("model", "k1", "expected"), [
+    ("OPENCV_FISHEYE", -1.0, "distortion (-1.0, 0.0, 0.0, 0.0) has no usable undistorted camera (OpenCV's has "
+     "focal length 8e-05 for the lens's 36 and principal point (80.5, 75.5) in a 40x30 image)"),
+    ("OPENCV", 1e30, "distortion (1e+30, 0.0, 0.0, 0.0, 0.0) has no usable undistorted camera (OpenCV's has "
+     "focal length 1.6e+31 for the lens's 36 and principal point (19.9, 14.9) in a 40x30 image)"),
+])
+def test_distortion_without_a_usable_undistorted_camera_names_the_frame(tmp_path, model, k1, expected):
+    """OpenCV's undistorted camera for these had a focal length 2e-6 or 4e29 times the lens's, and trained."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c.update(camera_model=model, k1=k1))
+    error = load_error(root, tmp_path)
+    assert error.what == expected and error.where == f"in frame {cameras[0].name!r} of {root / 'transforms.json'}"
+
+
+def test_colmap_distortion_without_a_usable_undistorted_camera_names_the_camera(tmp_path):
+    write_colmap(tmp_path / "scene", camera="1 OPENCV 8 6 5 5 4 3 1e30 0 0 0")
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert "has no usable undistorted camera" in error.what and error.where.endswith("cameras.txt (camera 1)")
+
+
 def test_image_size_that_disagrees_with_the_intrinsics(tmp_path):
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
