@@ -183,9 +183,12 @@ def truncated_format(data: bytes) -> str | None:
 
 
 def read_image(path: Path) -> np.ndarray:
-    """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order."""
+    """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order. A folder where the image should
+    be is said to be one: "not found" sent the user looking for a path that exists (an empty file_path names the
+    scene folder itself)."""
     if not path.is_file():
-        raise SplatuError("image not found", f"in {path}", "check the file path in the scene description")
+        what = "image path is a folder, not an image file" if path.is_dir() else "image not found"
+        raise SplatuError(what, f"in {path}", "check the file path in the scene description")
     try:
         data = path.read_bytes()
     except OSError as err:

@@ -221,6 +221,17 @@ def test_colmap_images_txt_without_its_empty_points_lines_is_refused_not_half_re
     assert error.where == f"in {images}"
 
 
+@pytest.mark.parametrize("file_path", ["images", ""])
+def test_an_image_path_that_is_a_folder_says_so(tmp_path, file_path):
+    """It said "image not found" for a path that exists; an empty file_path is the scene folder itself."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][0].update(file_path=file_path))
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == "image path is a folder, not an image file"
+    assert error.where == f"in {root / file_path}"
+
+
 @pytest.mark.parametrize(("ext", "kind"), [(".jpg", "JPEG"), (".png", "PNG")])
 def test_truncated_image_names_the_file(tmp_path, ext, kind):
     """libjpeg decodes a cut JPEG with only a warning (the rest grey); both formats are refused by content."""
