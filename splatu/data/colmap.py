@@ -42,6 +42,13 @@ def find_sparse_dir(root: Path) -> Path | None:
     return None
 
 
+def empty_sparse_dir(root: Path) -> Path | None:
+    """The first model folder (sparse/0, ...) that exists under a scene folder where `find_sparse_dir` found no
+    model file, as a failed COLMAP run leaves it: such a scene was "unknown format: no COLMAP sparse/0", with
+    sparse/0 right there."""
+    return next((root / c for c in SPARSE_CANDIDATES if (root / c).is_dir()), None)
+
+
 def scene_root_of(sparse_dir: Path) -> Path | None:
     """The scene folder whose model `sparse_dir` is (for `--data` pointed at the model itself), or None.
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from splatu.config_values import changed_options
 from splatu.data.assemble import assemble
 from splatu.data.blender import is_blender, load_blender
-from splatu.data.colmap import find_sparse_dir, load_colmap, scene_root_of
+from splatu.data.colmap import empty_sparse_dir, find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
 from splatu.data.frames import RawScene
 from splatu.data.images import ImageCache, default_cache_dir
@@ -54,6 +54,9 @@ def read_scene_files(path: Path, downscale: int, background: tuple[float, float,
         return load_colmap(path, sparse, downscale)
     elif (root := scene_root_of(path)) is not None:
         return load_colmap(root, path, downscale)
+    elif (empty := empty_sparse_dir(path)) is not None:
+        raise SplatuError("the COLMAP model folder is empty (no cameras, images or points3D file)", f"in {empty}",
+                          "run the reconstruction again (splatu process-images) or export the model into it")
     raise SplatuError("unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0",
                       f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
 

@@ -54,6 +54,13 @@ def test_unknown_format(tmp_path):
     assert "unknown scene format" in error.what and "photos" in error.where
 
 
+def test_an_empty_colmap_model_folder_says_so(tmp_path):
+    """A failed COLMAP run leaves sparse/0 empty; the error said the scene had no sparse/0."""
+    (tmp_path / "scene" / "sparse" / "0").mkdir(parents=True)
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what.startswith("the COLMAP model folder is empty") and error.where == f"in {tmp_path}/scene/sparse/0"
+
+
 def test_corrupt_image_names_the_file(tmp_path):
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4)
