@@ -95,7 +95,9 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
 
     object_masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
     alphas: float32 (N, H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
-    mask_files: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one;
+    mask_files: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one, each
+    0 where its file is 0 and 1 elsewhere, as nerfstudio reads them (a mask saved as 0/1 weighted the pixels it
+    keeps by 1/255, training on near-black images and scoring them at 59 dB);
     depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
@@ -109,7 +111,7 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     pixels = _stack([f.image for f in frames], cache)
     images = np.stack([p[..., :3] for p in pixels]).astype(np.float32)
     alphas = [p[..., 3] if p.shape[-1] == 4 else None for p in pixels]
-    file_masks = _stack([f.mask for f in frames], cache)
+    file_masks = [None if m is None else (m > 0).astype(np.float32) for m in _stack([f.mask for f in frames], cache)]
     size = images.shape[1:3]
     alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
     mask_files = torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None

@@ -41,6 +41,25 @@ def config(path: Path, tmp_path: Path, **overrides) -> DataConfig:
     return DataConfig(data=str(path), cache_dir=tmp_path / "cache", **overrides)
 
 
+def test_a_mask_file_keeps_every_pixel_that_is_not_0_whatever_its_value(tmp_path):
+    """As nerfstudio reads masks. One saved as 0/1 weighted its kept pixels by 1/255: training saw near-black
+    images, and evaluation scored them at 59 dB."""
+    root = tmp_path / "scene"
+    cameras = ring_cameras(4, 40, 30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / camera.name, noise_image(i, 40, 30))
+        mask = np.full((30, 40), (1, 128, 255, 1)[i], np.uint8)
+        mask[:, :10] = 0
+        cv2.imwrite(str(root / f"mask_{i}.png"), mask)
+    write_transforms(root / "transforms.json", cameras, [c.name for c in cameras],
+                     frame_extras=[{"mask_path": f"mask_{i}.png"} for i in range(4)])
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=2))
+    expected = torch.ones(30, 40)
+    expected[:, :10] = 0
+    for views in (scene.train, scene.eval):
+        assert all(torch.equal(mask, expected) for mask in views.mask_files)
+
+
 def test_nerfstudio_round_trip_gives_identical_cameras_points_and_pixels(tmp_path):
     root = tmp_path / "scene"
     rng = np.random.default_rng(1)
