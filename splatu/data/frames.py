@@ -48,7 +48,11 @@ class RawScene:
 
 def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
     """A finite 4x4 rigid transform within float32's range from a JSON value (3x4 or 4x4), or a one-line error
-    naming `where`."""
+    naming `where`. Its entries must be JSON numbers: numpy read true as 1.0 and "0.5" as 0.5 without a word."""
+    rows = value if isinstance(value, list) and all(isinstance(row, list) for row in value) else []
+    odd = [v for row in rows for v in row if isinstance(v, bool) or not isinstance(v, int | float)]
+    if odd:
+        raise SplatuError(f"pose holds {odd[0]!r}, which is not a number", where, fix)
     try:
         matrix = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):

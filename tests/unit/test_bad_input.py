@@ -308,6 +308,22 @@ def test_non_finite_pose_names_the_frame(tmp_path, bad_value):
     assert "non-finite" in error.what and cameras[1].name in error.where
 
 
+@pytest.mark.parametrize(("entry", "shown"), [(True, "True"), ("1", "'1'"), (None, "None")])
+def test_a_pose_entry_that_is_not_a_number_names_the_frame(tmp_path, entry, shown):
+    """numpy read true as 1.0 and "1" as 1.0, so such a pose loaded as if it were numbers; null read as NaN, "pose
+    has non-finite values"."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+
+    def replace_one_with(content):
+        matrix = next(f for f in content["frames"] if f["file_path"] == cameras[1].name)["transform_matrix"]
+        matrix[3][3] = entry
+
+    edit_transforms(root, replace_one_with)
+    error = load_error(root, tmp_path)
+    assert error.what == f"pose holds {shown}, which is not a number" and cameras[1].name in error.where
+
+
 def test_a_pose_whose_last_row_is_not_0_0_0_1_names_the_frame(tmp_path):
     """It was accepted, and its last row silently ignored: not a rigid pose, whatever the file meant by it."""
     root = tmp_path / "scene"
