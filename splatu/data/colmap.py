@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import FLOAT32_MAX, Frame, RawScene
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, Frame, RawScene
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
@@ -73,10 +73,6 @@ def model_files(sparse_dir: Path) -> dict[str, Path]:
         raise SplatuError(f"the COLMAP model has no {' or '.join(missing)}", f"in {sparse_dir}",
                           "export the whole model (cameras, images and points3D, all .bin or all .txt) from COLMAP")
     return {name: sparse_dir / f"{name}.{ext}" for name in MODEL_FILES}
-
-
-MAX_IMAGE_SIDE = 1 << 16
-"""Larger than any camera's image side; pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19."""
 
 
 def _signed(size: int) -> int:

@@ -19,6 +19,9 @@ OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 """Flips camera y and z: OpenGL/Blender axes (y up, looking along -z) to OpenCV (y down, +z forward)."""
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Cameras train in float32: a pose value beyond this is finite in the file but infinite in training."""
+MAX_IMAGE_SIDE = 1 << 16
+"""Larger than any camera's image side: pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19, and
+OpenCV's undistortion takes 32-bit sizes, so a nerfstudio w of 3e9 was an OpenCV traceback."""
 
 
 @dataclass

@@ -23,6 +23,7 @@ import torch
 from splatu.camera import Camera
 from splatu.data.frames import (
     FLOAT32_MAX,
+    MAX_IMAGE_SIDE,
     Frame,
     RawScene,
     checked_matrix,
@@ -83,8 +84,9 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     fy = values["fl_y"] if values["fl_y"] is not None else fx
     cx = values["cx"] if values["cx"] is not None else width / 2
     cy = values["cy"] if values["cy"] is not None else height / 2
-    if width <= 0 or height <= 0:
-        raise SplatuError(f"image size {width}x{height} is not positive", where, "give w and h in pixels")
+    if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
+        raise SplatuError(f"image size {width}x{height} is not a plausible image size", where,
+                          "give w and h in pixels")
     if fx <= 0 or fy <= 0:
         raise SplatuError("focal lengths must be positive", where, "fix fl_x and fl_y")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width, height

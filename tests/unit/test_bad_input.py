@@ -705,6 +705,15 @@ def test_an_intrinsic_that_is_a_bool_string_or_beyond_float32_names_the_key(tmp_
     assert f"intrinsic {key} must be a finite number" in error.what and "transforms.json" in error.where
 
 
+def test_a_nerfstudio_image_width_beyond_opencv_s_sizes_names_the_frame(tmp_path):
+    """With distortion, a w beyond OpenCV's 32-bit sizes was a cv2.error traceback ("Can't parse 'imageSize'")."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(w=3e9, k1=0.1) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == "image size 3000000000x30 is not a plausible image size" and cameras[0].name in error.where
+
+
 def test_two_frames_with_the_same_file_path_are_refused(tmp_path):
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=4)
