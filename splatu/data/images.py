@@ -41,7 +41,9 @@ class Distortion:
     """OPENCV: (k1, k2, p1, p2[, k3]); OPENCV_FISHEYE: (k1, k2, k3, k4)."""
 
     def is_identity(self) -> bool:
-        return not any(self.coeffs)
+        """Whether undistorting changes nothing: OPENCV without coefficients is a pinhole, but OPENCV_FISHEYE
+        without them is still an equidistant fisheye (r = f·θ, not f·tan θ), which was loaded as a pinhole."""
+        return self.model == "OPENCV" and not any(self.coeffs)
 
 
 @dataclass(frozen=True)

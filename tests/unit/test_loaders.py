@@ -136,6 +136,7 @@ def _smooth_pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     ("OPENCV", (-0.25, 0.08, 0.002, -0.001), 1),
     ("OPENCV", (-0.25, 0.08, 0.002, -0.001), 2),
     ("OPENCV_FISHEYE", (0.05, -0.02, 0.01, 0.0), 1),
+    ("OPENCV_FISHEYE", (0.0, 0.0, 0.0, 0.0), 1),  # an equidistant fisheye: it was loaded as a pinhole
 ])
 def test_undistorted_image_matches_the_pinhole_camera(tmp_path, model, coeffs, downscale):
     """Render a distorted photo analytically, undistort it, and check each pixel sees the ray our K says."""
