@@ -20,6 +20,7 @@ from splatu.errors import SplatuError, require_at_least
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.rasterizer import RasterOutput
+from splatu.rasterizer.projection import unit_quaternions
 
 SPLIT_SCALE_DIVISOR = 1.6
 """Split children are this much smaller than their parent (3DGS: 0.8·N with N = 2)."""
@@ -252,8 +253,8 @@ class DensityController:
 
 
 def _rotate(quats: Tensor, vectors: Tensor) -> Tensor:
-    """Rotate `vectors` (M, 3) by unnormalised quaternions (M, 4), wxyz."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    """Rotate `vectors` (M, 3) by quaternions (M, 4), wxyz, of any length, normalised as the rasterizer does."""
+    q = unit_quaternions(quats)
     w, xyz = q[:, :1], q[:, 1:]
     t = 2.0 * torch.cross(xyz, vectors, dim=-1)
     return vectors + w * t + torch.cross(xyz, t, dim=-1)

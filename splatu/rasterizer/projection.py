@@ -37,6 +37,10 @@ from splatu.rasterizer.kernels import compiled
 MAX_SCALE = 1e30
 """Scales are clamped here so float64 covariance products stay finite; no real scene comes close."""
 
+MIN_QUATERNION_NORM = 1e-18
+"""A shorter quaternion gets the gradient of one this long in its direction: the exact gradient grows as 1/|q| and
+passes float32's range below |q| ≈ 1e-37 (float64's below 1e-308)."""
+
 LOW_PASS = 0.3
 """The 3DGS screen-space blur added to cov2d (about one pixel), in px²."""
 
@@ -55,16 +59,8 @@ class Projection:
 
 
 def quaternion_to_rotation(quats: Tensor) -> Tensor:
-    """Rotation matrices (N, 3, 3) from wxyz quaternions of any scale; a zero quaternion maps to the identity.
-
-    Each quaternion is first multiplied by the power of two that brings its largest component into [1, 2): exact,
-    so a unit quaternion's rotation is the same to the bit, while q·1e-13 (its norm below the 1e-12 floor) and
-    q·1e200 (its norm overflowing) now give q's rotation, not another shape. The factor is a constant to autograd,
-    which is exact: the normalisation makes the result independent of it. The gradient scales as 1/|q|, so in
-    float32 a quaternion of norm below about 1e-37 has an infinite one (training skips such a step)."""
-    largest = quats.detach().abs().amax(-1, keepdim=True).clamp_min(torch.finfo(quats.dtype).tiny)
-    scaled = quats * torch.exp2(-torch.floor(torch.log2(largest)))
-    q = scaled / scaled.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    """Rotation matrices (N, 3, 3) from wxyz quaternions of any scale; a zero quaternion maps to the identity."""
+    q = unit_quaternions(quats)
     w, x, y, z = q.unbind(-1)
     return torch.stack(
         [
@@ -74,6 +70,27 @@ def quaternion_to_rotation(quats: Tensor) -> Tensor:
         ],
         dim=-1,
     ).reshape(*q.shape[:-1], 3, 3)
+
+
+def unit_quaternions(quats: Tensor) -> Tensor:
+    """q/|q| for wxyz quaternions (..., 4) of any scale, and 0 for q = 0, with a finite gradient for every q.
+
+    Each quaternion is first multiplied by the power of two that brings its largest component into [1, 2), in two
+    factors (2¹⁰⁷⁴, for the smallest float64 denormal, is itself beyond float64): exact, so a unit quaternion's result
+    is the same to the bit, while |q|² of q·1e-13 cannot underflow nor that of q·1e200 overflow. The backward is the
+    exact Jacobian (I − q̂q̂ᵀ)/|q|, written out, with |q| floored at MIN_QUATERNION_NORM. A rotation, even in q̂,
+    then has gradient 0 at q = 0, where no direction is better than its opposite.
+    """
+    with torch.no_grad():
+        largest = quats.abs().amax(-1, keepdim=True)
+        exponent = torch.where(largest > 0, -torch.floor(torch.log2(largest)), 0.0)
+        half = torch.floor(exponent / 2)
+        scaled = quats * torch.exp2(half) * torch.exp2(exponent - half)
+        norm = scaled.norm(dim=-1, keepdim=True)  # in [1, 4) unless q = 0
+        unit = scaled / norm.clamp_min(1.0)
+        length = norm * torch.exp2(-half) * torch.exp2(half - exponent)  # |q|: may round to 0 or inf, both safe below
+    tangent = (quats - quats.detach()) / length.clamp_min(MIN_QUATERNION_NORM)  # 0, but its gradient is 1 / |q|
+    return unit + tangent - unit * (unit * tangent).sum(-1, keepdim=True)
 
 
 def project_gaussians(

@@ -282,12 +282,15 @@ def test_a_gaussian_is_not_pruned_while_its_only_view_may_still_be_undrawn():
     assert pruned == [0] * (2 * views - 2) + [N - 1, 0]  # the silent rows go after 2N − 1 = 9 steps, not 1
 
 
-def test_split_children_are_offset_along_the_parents_rotated_long_axis():
-    """A needle along local x, turned 90° about z, lies along world y: its children must be sampled along y."""
+@pytest.mark.parametrize("length", [1.0, 1e-13])
+def test_split_children_are_offset_along_the_parents_rotated_long_axis(length):
+    """A needle along local x, turned 90° about z, lies along world y: its children must be sampled along y. The
+    quaternion's length does not matter, as in the rasterizer: at 1e-13 its norm was clamped at 1e-12, and the
+    children were sampled along x."""
     model, optimizers = _tagged_model()
     with torch.no_grad():
         model.log_scales[0] = torch.tensor([0.5, 1e-4, 1e-4]).log()
-        model.quats[0] = torch.tensor([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+        model.quats[0] = length * torch.tensor([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
     grads = torch.full((N,), LOW)
     grads[0] = HIGH
     cfg = DensifyConfig(warmup_length=0, refine_every=10, n_split_samples=8)

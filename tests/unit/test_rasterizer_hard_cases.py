@@ -11,6 +11,7 @@ import math
 import pytest
 import torch
 
+from splatu.rasterizer.projection import MIN_QUATERNION_NORM
 from splatu.sh import eval_sh
 from tests.reference_rasterizer import GaussianScene, random_scene, reference_rasterize
 
@@ -406,3 +407,43 @@ def test_opacity_of_exactly_one_255th_is_drawn_where_it_is_centred(fast):
     out, _ = render_backward(fast, scene, D)
     assert out.num_contributing_pairs == 1 and out.alpha[3, 4].item() == 1 / 255
     assert_matches_reference(fast, scene)
+
+
+def integer_quaternion_scene() -> GaussianScene:
+    """A random scene whose quaternions are small integers, so that any power-of-two multiple of them is exact (even
+    as a denormal) and draws the same rotation."""
+    scene = random_scene(seed=3, n=12, width=16, height=12)
+    scene.quats = torch.round(scene.quats * 4)
+    scene.quats[:, 0] += scene.quats.abs().sum(-1) == 0  # none is zero
+    return scene
+
+
+@pytest.mark.parametrize(("dtype", "exponent"), [(torch.float32, -125), (torch.float32, -140), (D, -1030),
+                                                 (D, -1065)])
+def test_a_quaternion_too_short_for_its_exact_gradient_keeps_its_rotation_and_a_finite_gradient(fast, dtype, exponent):
+    """The gradient of q/|q| is (I − q̂q̂ᵀ)/|q|: beyond float32 below |q| ≈ 1e-37, so it read inf and training skipped
+    every step while such a quaternion lasted (float64: below 1e-308). Below MIN_QUATERNION_NORM the backward takes
+    |q| as that norm: the gradient keeps its direction and is that of q̂·MIN_QUATERNION_NORM. A float64 denormal
+    (2⁻¹⁰⁶⁵·q) also drew another rotation: its power-of-two prescale stopped at 2¹⁰²², leaving a norm below 1e-12."""
+    scene = integer_quaternion_scene()
+    expected, expected_params = render_backward(fast, scene, dtype)
+    norms = scene.quats.norm(dim=-1, keepdim=True)
+    scene.quats = scene.quats * 2.0**exponent
+    got, params = render_backward(fast, scene, dtype)
+    assert torch.equal(got.image, expected.image)
+    grad = expected_params["quats"].grad.double() * norms / MIN_QUATERNION_NORM
+    assert grad.abs().max() > 0
+    torch.testing.assert_close(params["quats"].grad.double(), grad, rtol=1e-5, atol=1e-6 * grad.abs().max().item())
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_a_zero_quaternion_draws_the_identity_rotation_with_a_zero_gradient(fast, dtype):
+    """q = 0 has no direction: it draws the identity, and its gradient is 0 (R is even in q̂, so no direction away
+    from 0 is better than its opposite)."""
+    scene = integer_quaternion_scene()
+    scene.quats[:4] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=D)
+    expected, _ = render_backward(fast, scene, dtype)
+    scene.quats[:4] = 0.0
+    got, params = render_backward(fast, scene, dtype)
+    assert torch.equal(got.image, expected.image)
+    assert (params["quats"].grad[:4] == 0).all() and params["quats"].grad[4:].abs().max() > 0
