@@ -113,7 +113,8 @@ def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_c
             py = (ty * TILE + local_y + 0.5).reshape(-1)
             dx = px[None, :] - proj.means2d[hit, 0:1]
             dy = py[None, :] - proj.means2d[hit, 1:2]
-            A, S, Q = proj.sheared_conics[hit, :, None].unbind(1)
+            log_a, S, log_q = proj.log_conics[hit, :, None].unbind(1)
+            A, S, Q = torch.stack([log_a.exp(), S, log_q.exp()]).to(proj.means2d.dtype)
             swapped = proj.swapped[hit, None]
             v, w = torch.where(swapped, dy, dx), torch.where(swapped, dx, dy)
             sigma = 0.5 * (A * (v - S * w) ** 2 + Q * w * w)

@@ -39,20 +39,22 @@ w and T are 0 and its inputs finite (`rasterize` refuses NaN and Inf, which woul
 
 @dataclass
 class GaussianParams:
-    """Per-Gaussian screen-space quantities the compositor reads, all (N, ·) in one dtype."""
+    """Per-Gaussian screen-space quantities the compositor reads, all (N, ·) in one dtype but `log_conics`."""
 
     means2d: Tensor
-    sheared_conics: Tensor  # (A, S, Q), see projection.py
+    log_conics: Tensor  # (ln A, S, ln Q), float64, see projection.py
     swapped: Tensor  # (N,) bool: cov_xx > cov_yy, so (v, w) = (dy, dx) in the sheared form (projection.py)
     opacities: Tensor
     features_ext: Tensor  # (N, C+2): features, depth z, 1
 
     @functools.cached_property
     def conic_planes(self) -> Tensor:
-        """(3, N): the rows A, S, Q, each contiguous, made once per render. A compiled kernel reading a (Q, 3)
-        conic's columns loads them one by one at stride 3, inside its loop over the block's pixels: the backward's
-        entry_gradients took 9.9 against 6.2 ms per trained-model render for that alone (a scratch timing)."""
-        return self.sheared_conics.t().contiguous()
+        """(3, N): the rows A, S, Q in the render's dtype, each contiguous, made once per render. A compiled kernel
+        reading a (Q, 3) conic's columns loads them one by one at stride 3, inside its loop over the block's pixels:
+        the backward's entry_gradients took 9.9 against 6.2 ms per trained-model render for that alone (a scratch
+        timing)."""
+        log_a, shear, log_q = self.log_conics.t()
+        return torch.stack([log_a.exp(), shear, log_q.exp()]).to(self.means2d.dtype)
 
 
 @dataclass
@@ -69,14 +71,14 @@ class PixelAccumulators:
 @dataclass
 class GaussianGrads:
     """Gradient accumulators for the compositor's inputs, packed channel-first (C+2 + 1 + 3 + 2 + 2, N) so that
-    each chunk scatters into them once, along N: features_ext | opacity | sheared conic | means2d | absgrad.
+    each chunk scatters into them once, along N: features_ext | opacity | log conic | means2d | absgrad.
     torch's CPU index_add_ of (Q, 13) rows along dim 0 took 8× the time of the same values as (13, Q) along
     dim 1 (35.6 against 4.2 ms for 900k entries into 20k Gaussians, a scratch timing)."""
 
     packed: Tensor
 
     WIDTHS = (1, 3, 2, 2)
-    """Rows after the C+2 feature gradients: opacity, sheared conic, means2d, absgrad."""
+    """Rows after the C+2 feature gradients: opacity, (ln A, S, ln Q), means2d, absgrad."""
 
     @classmethod
     def zeros(cls, like: Tensor, channels_ext: int) -> GaussianGrads:
@@ -84,7 +86,7 @@ class GaussianGrads:
         return cls(like.new_zeros(channels_ext + sum(cls.WIDTHS), like.shape[0]))
 
     def split(self, channels_ext: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """(features_ext, opacities, sheared_conics, means2d, absgrad) as (N, ·) views."""
+        """(features_ext, opacities, log_conics, means2d, absgrad) as (N, ·) views."""
         f, o, c, m, a = self.packed.split([channels_ext, *self.WIDTHS], dim=0)
         return f.t(), o.squeeze(0), c.t(), m.t(), a.t()
 

@@ -73,16 +73,17 @@ def _finish(image_ext: Tensor, background: Tensor, width: int, height: int) -> t
 
 
 class CompositeFunction(torch.autograd.Function):
-    """(means2d, sheared_conics, opacities, extended features, background) → image, alpha, Σ w·z, contributions;
-    `swapped` (which axis each sheared conic runs along) has no gradient."""
+    """(means2d, log_conics, opacities, extended features, background) → image, alpha, Σ w·z, contributions;
+    `swapped` (which axis each sheared conic runs along) has no gradient. The float64 `log_conics` get their
+    gradient in the render's dtype, which autograd casts."""
 
     @staticmethod
     def forward(
-        ctx: Any, means2d: Tensor, sheared_conics: Tensor, opacities: Tensor, features_ext: Tensor,
+        ctx: Any, means2d: Tensor, log_conics: Tensor, opacities: Tensor, features_ext: Tensor,
         background: Tensor, swapped: Tensor, entries: BlockEntries, width: int, height: int, absgrad: Tensor,
         max_elements: int, counted: Tensor | None,
     ) -> tuple[Tensor, ...]:
-        g = GaussianParams(means2d, sheared_conics, swapped, opacities, features_ext)
+        g = GaussianParams(means2d, log_conics, swapped, opacities, features_ext)
         acc, states = _run_forward(g, entries, width, max_elements, keep_state=True, counted=counted)
         image, alpha, depth_num, t_final = _finish(acc.image_ext, background, width, height)
         # the backward reads the Gaussians' parameters from the saved states, as the forward formed them
@@ -105,10 +106,10 @@ class CompositeFunction(torch.autograd.Function):
         up_planes = up_ext.permute(2, 0, 1).contiguous()
         for state in reversed(ctx.states):
             backward_chunk(state, features_ext, up_planes, behind, grads)
-        grad_features_ext, grad_opacities, grad_sheared_conics, grad_means2d, absgrad = grads.split(channels_ext)
+        grad_features_ext, grad_opacities, grad_log_conics, grad_means2d, absgrad = grads.split(channels_ext)
         ctx.absgrad += absgrad
         grad_background = (ctx.t_final[:, :, None] * up_image).sum((0, 1))
-        return (grad_means2d, grad_sheared_conics, grad_opacities, grad_features_ext, grad_background,
+        return (grad_means2d, grad_log_conics, grad_opacities, grad_features_ext, grad_background,
                 None, None, None, None, None, None, None)
 
 
@@ -119,7 +120,7 @@ def composite(
     """image (H,W,C), alpha (H,W), Σ w·z (H,W), contrib_sum, contrib_max, pair count; no-grad path saves nothing.
     `contribution_mask` (H, W, bool) limits contrib_sum and contrib_max to its pixels."""
     counted = None if contribution_mask is None else to_blocks(contribution_mask.to(g.means2d.dtype), entries)
-    inputs = (g.means2d, g.sheared_conics, g.opacities, g.features_ext, background)
+    inputs = (g.means2d, g.log_conics, g.opacities, g.features_ext, background)
     if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
         image, alpha, depth_num, csum, cmax, pairs = CompositeFunction.apply(
             *inputs, g.swapped, entries, width, height, absgrad, max_elements, counted

@@ -50,7 +50,7 @@ def sheared_entry_offsets(
     Offsets are clamped to ±sqrt(max)/4 (4.6e18 px in float32), so that A·t² and Q·w² stay finite where A or Q
     underflow to 0. A clamp changes no α unless the footprint's std along an axis is about 1e18 px or more; the
     gradients of such a footprint's entries (their S, Q and mean) do change, as the backward takes the clamped
-    offsets and ignores the clamp. float32 cannot carry those gradients anyway (½Σgσw² then exceeds its range).
+    offsets and ignores the clamp.
     """
     limit = torch.finfo(dx0.dtype).max ** 0.5 / 4
     w0 = torch.where(swapped, dx0, dy)
@@ -125,14 +125,17 @@ def entry_gradients(
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
     t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, sheared_conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
 ) -> Tensor:
-    """Per entry, one packed column (C+2 + 8, Q): dL/df_ext | dL/do | dL/d(A, S, Q) | dL/dmean2d (2) | Σ|dL/dmean2d|
-    per axis (2), so that the caller scatters into the Gaussians once (channel-first: see GaussianGrads).
+    """Per entry, one packed column (C+2 + 8, Q): dL/df_ext | dL/do | dL/d(ln A, S, ln Q) | dL/dmean2d (2) |
+    Σ|dL/dmean2d| per axis (2), so that the caller scatters into the Gaussians once (channel-first: see GaussianGrads).
 
     dL/dα = T g − (Σ_b + T_final h)/(1 − α), Σ_b = Σ of w g over the pairs behind this one in the pixel:
     those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
     holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½A t² + ½Q w², t = v − S w,
     ∂σ/∂S = −A t w, ∂σ/∂mean_v = −A t and ∂σ/∂mean_w = A S t − Q w, so every gradient is a moment of gσ over the
-    block's pixels; r = 1 (swapped) maps (mean_v, mean_w) back to (mean_y, mean_x).
+    block's pixels; r = 1 (swapped) maps (mean_v, mean_w) back to (mean_y, mean_x). A and Q enter as their logs:
+    dL/d ln A = Σ gσ·½A·t², dL/d ln Q = Σ gσ·½Q·w². Every product takes A or Q with the offsets first (A·t0, Q·w0,
+    and per pair A·t, Q·w): for a footprint seen from 1e18 px away A is ~1e-38, and t0·Σ gσ·t alone could exceed
+    float32, then meet an A that underflowed to 0 (inf·0 = NaN).
     """
     behind = (weighted_cumulative.index_select(1, last) - weighted_cumulative
               + carried_behind.index_select(1, block)).to(alpha_raw.dtype)
@@ -143,18 +146,21 @@ def entry_gradients(
     grad_opacity = (grad_alpha * alpha_raw).sum(0) / opacity
     grad_sigma = -grad_alpha * alpha_raw
     A, S, Q = sheared_conic.unbind(0)
-    t, w = _sheared_offsets(t0, w0, p, r, alpha_raw.shape[0])
-    abs_v = (grad_sigma * t).abs().sum(0) * A  # Σ|gσ ∂σ/∂mean_v|, A > 0
-    abs_w = (grad_sigma * (A * S * t - Q * w)).abs().sum(0)
+    at0, ap, qw0, qr = A * t0, A * p, Q * w0, Q * r
+    at, qw = _sheared_offsets(at0, qw0, ap, qr, alpha_raw.shape[0])  # A·t and Q·w at each pixel
+    abs_v = (grad_sigma * at).abs().sum(0)  # Σ|gσ ∂σ/∂mean_v|
+    abs_w = (grad_sigma * (S * at - qw)).abs().sum(0)
     # the signed moments from Σ gσ·xᵏ (k ≤ 2): t and w are linear in x
     x = torch.arange(alpha_raw.shape[0], dtype=t0.dtype, device=t0.device)[:, None]
     m0, m1, m2 = grad_sigma.sum(0), (grad_sigma * x).sum(0), (grad_sigma * x * x).sum(0)
-    gt, gw = t0 * m0 + p * m1, w0 * m0 + r * m1  # Σ gσ t, Σ gσ w
-    gtx = t0 * m1 + p * m2  # Σ gσ t x
+    g_at, g_qw = at0 * m0 + ap * m1, qw0 * m0 + qr * m1  # Σ gσ·A·t, Σ gσ·Q·w
     swapped = r > 0
-    grad_v, grad_w = -A * gt, A * S * gt - Q * gw
+    grad_v, grad_w = -g_at, S * g_at - g_qw
     rest = torch.stack([
-        grad_opacity, 0.5 * (t0 * gt + p * gtx), -A * (w0 * gt + r * gtx), 0.5 * (w0 * gw + r * (w0 * m1 + r * m2)),
+        grad_opacity,
+        0.5 * (at0 * t0 * m0 + 2.0 * at0 * p * m1 + ap * p * m2),  # Σ gσ·½A·t²
+        -(at0 * w0 * m0 + (at0 * r + ap * w0) * m1 + ap * r * m2),  # Σ gσ·(−A·t·w)
+        0.5 * (qw0 * w0 * m0 + 2.0 * qw0 * r * m1 + qr * r * m2),  # Σ gσ·½Q·w²
         torch.where(swapped, grad_w, grad_v), torch.where(swapped, grad_v, grad_w),
         torch.where(swapped, abs_w, abs_v), torch.where(swapped, abs_v, abs_w),
     ])

@@ -15,13 +15,19 @@ off-screen (at 3,000 px, terms of 10⁷ cancelled to about 1 and moved α by up 
 the longer axis (w) keeps |S| ≤ 1 (and A, Q ≤ 1/blur), so the form is as well conditioned at every orientation; with
 w = dy always, a needle near the x axis has S up to about 0.9 × its long-axis std in px.
 
+A and Q are handed on as logs, in float64 (`log_conics`): the compositor differentiates ln A and ln Q, whose gradients
+Σ gσ·½A·t² and Σ gσ·½Q·w² are bounded by the pixels' own (σ·e^−σ ≤ 1/e). dL/dA = ½Σ gσ·t² itself exceeded float32
+for a footprint seen from ~1e18 px away (a mean just past the near plane, far to the side), and made every gradient
+inf or NaN. A and Q still reach the kernels rounded once from float64.
+
 Culling rule (exact, shared with the brute-force reference): a Gaussian is culled when
 z ≤ near, z ≥ far, or its box [mx ± r] × [my ± r] with r = ceil(3·sqrt(λ_max(cov2d))) lies
 entirely off-screen: mx + r ≤ 0 or mx − r ≥ width or my + r ≤ 0 or my − r ≥ height.
 
 All covariance algebra runs in float64 whatever the input dtype: an enormous or degenerate Σ
 then stays finite (det is formed from non-negative Cauchy–Binet terms, so it cannot cancel to
-a negative number), and results are cast back to the input dtype.
+a negative number), and results are cast back to the input dtype. A footprint matrix T = J W R S
+past 2^MAX_FOOTPRINT_EXPONENT px is scaled down to it whole (see there).
 """
 
 from __future__ import annotations
@@ -41,6 +47,12 @@ MIN_QUATERNION_NORM = 1e-18
 """A shorter quaternion gets the gradient of one this long in its direction: the exact gradient grows as 1/|q| and
 passes float32's range below |q| ≈ 1e-37 (float64's below 1e-308)."""
 
+MAX_FOOTPRINT_EXPONENT = 250
+"""A footprint matrix T larger than 2²⁵⁰ px (1.8e75) is multiplied by the power of two that brings it there, so that
+det(T Tᵀ) ~ |T|⁴ stays within float64: at 1e77 px (a mean 1e-20 in front of a camera of focal length 1e30 px) it
+was inf, and every gradient NaN. Its α changes only where its mean is also ~1e75 px or more away (float32 clamps
+offsets at 4.6e18 px anyway, see kernels.sheared_entry_offsets)."""
+
 LOW_PASS = 0.3
 """The 3DGS screen-space blur added to cov2d (about one pixel), in px²."""
 
@@ -48,7 +60,7 @@ LOW_PASS = 0.3
 @dataclass
 class Projection:
     means2d: Tensor  # (N, 2) pixels, input dtype, differentiable
-    sheared_conics: Tensor  # (N, 3) (A, S, Q): the conic in sheared form (module docstring), differentiable
+    log_conics: Tensor  # (N, 3) (ln A, S, ln Q): the sheared conic (module docstring), float64, differentiable
     swapped: Tensor  # (N,) bool: cov_xx > cov_yy, so (v, w) = (dy, dx) in the sheared form
     depths: Tensor  # (N,) camera-space z, input dtype, differentiable
     cov2d: Tensor  # (N, 3) (xx, xy, yy), float64, detached: for footprints
@@ -148,6 +160,9 @@ def _projected(
     M = quaternion_to_rotation(quats.to(f64)) * s[:, None, :]  # R S
     JW = J @ R_cam  # (N, 2, 3), one (2N, 3) @ (3, 3) product
     T = (JW[:, :, :, None] * M[:, None, :, :]).sum(2)  # J W R S; cov2d = T Tᵀ + blur I (no tiny-matrix bmm)
+    with torch.no_grad():  # 0 unless T passes 2^MAX_FOOTPRINT_EXPONENT px (and for T = 0: its log2 is −inf)
+        excess = (torch.floor(torch.log2(T.abs().amax((1, 2)))) - MAX_FOOTPRINT_EXPONENT).clamp_min(0.0)
+    T = T * torch.exp2(-excess)[:, None, None]
     a = (T[:, 0] * T[:, 0]).sum(-1)
     b = (T[:, 0] * T[:, 1]).sum(-1)
     c = (T[:, 1] * T[:, 1]).sum(-1)
@@ -163,7 +178,7 @@ def _projected(
     cxx, cyy = a + blur, c + blur
     swapped = cxx > cyy
     cww = torch.where(swapped, cxx, cyy)
-    sheared_conics = torch.stack([cww / det, b / cww, 1.0 / cww], dim=-1)
+    log_conics = torch.stack([torch.log(cww / det), b / cww, -torch.log(cww)], dim=-1)
 
     with torch.no_grad():
         half_diff = 0.5 * (cxx - cyy)
@@ -181,5 +196,5 @@ def _projected(
     means2d = torch.where(visible[:, None], torch.stack([u, v], dim=-1), 0.0).clamp(-largest, largest)
     # |minors| = sqrt(det(T Tᵀ)) (Cauchy–Binet): its gradient stays bounded where a flat footprint makes it 0
     opacity_scale = (torch.linalg.vector_norm(minors, dim=-1) / det.sqrt()).to(out_dtype) if antialiased else None
-    return (means2d.to(out_dtype), sheared_conics.to(out_dtype), swapped, z.clamp(-largest, largest).to(out_dtype),
+    return (means2d.to(out_dtype), log_conics, swapped, z.clamp(-largest, largest).to(out_dtype),
             cov2d, det.detach(), radii, visible, opacity_scale)

@@ -108,7 +108,7 @@ def rasterize(
     absgrad = torch.zeros(n, 2, dtype=dtype, device=device)
     ones = torch.ones(n, 1, dtype=dtype, device=device)
     features_ext = torch.cat([features.to(dtype), proj.depths[:, None], ones], dim=1)
-    params = GaussianParams(proj.means2d, proj.sheared_conics, proj.swapped, opacities, features_ext)
+    params = GaussianParams(proj.means2d, proj.log_conics, proj.swapped, opacities, features_ext)
     image, alpha, depth_num, contrib_sum, contrib_max, pairs = composite(
         params, background.to(dtype), entries, width, height, absgrad, MAX_CHUNK_ELEMENTS, contribution_mask
     )

@@ -117,14 +117,14 @@ def test_gradcheck_composite_function_directly():
                                 WIDTH, HEIGHT, block_width=8)
     n = s["means"].shape[0]
     assert proj.swapped[proj.visible].any() and not proj.swapped[proj.visible].all()  # both sheared forms
-    inputs = [proj.means2d, proj.sheared_conics, s["opacities"], s["features"], proj.depths, s["background"]]
+    inputs = [proj.means2d, proj.log_conics, s["opacities"], s["features"], proj.depths, s["background"]]
     inputs = [x.detach().clone().requires_grad_(True) for x in inputs]
     absgrad = torch.zeros(n, 2, dtype=F64)
 
-    def composite(means2d, sheared_conics, opacities, features, depths, background):
+    def composite(means2d, log_conics, opacities, features, depths, background):
         features_ext = torch.cat([features, depths[:, None], torch.ones(n, 1, dtype=F64)], dim=1)
         image, alpha, depth_num, *_ = CompositeFunction.apply(
-            means2d, sheared_conics, opacities, features_ext, background, proj.swapped, entries, WIDTH, HEIGHT,
+            means2d, log_conics, opacities, features_ext, background, proj.swapped, entries, WIDTH, HEIGHT,
             absgrad, 1 << 20, None,
         )
         return image, alpha, depth_num
@@ -279,7 +279,7 @@ def test_compiled_projection_takes_parameters_of_any_length_without_recompiling(
                     warnings.filterwarnings("error", message="torch.compile of rasterizer kernel")
                     proj = project_gaussians(means, quats, log_scales, w2c, K * scale, width, height, 0.01, 100.0,
                                              log_scales=True, blur=0.3, antialiased=True)
-                outputs = (proj.means2d, proj.sheared_conics, proj.depths, proj.opacity_scale)
+                outputs = (proj.means2d, proj.log_conics, proj.depths, proj.opacity_scale)
                 sum(o.sum() for o in outputs).backward()
                 results.append([o.detach() for o in outputs]
                                + [proj.radii, means.grad, quats.grad, log_scales.grad])
