@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from splatu.rasterizer.composite import GaussianParams
-from splatu.rasterizer.errors import RasterInputError, require_finite, require_shape
+from splatu.rasterizer.errors import RasterInputError, require_finite, require_float32_range, require_shape
 from splatu.rasterizer.footprint import block_entries
 from splatu.rasterizer.function import composite
 from splatu.rasterizer.projection import LOW_PASS, project_gaussians
@@ -26,6 +26,10 @@ row, at the cost of more entries to sort and composite."""
 MIN_BLUR = 1e-3
 """The smallest screen blur, px²: it keeps det(cov2d) ≥ 1e-6, above projection's 1e-10 clamp, and the sheared
 conic's A, Q ≤ 1/blur well conditioned, for a footprint flat or a point."""
+
+MIN_NEAR = torch.finfo(torch.float32).smallest_normal
+"""The nearest allowed near plane, float32's smallest normal number (1.2e-38): with a near of 1e-300, a float64 depth
+of 1e-200 got through, and its f·x/z² overflowed float64 in the gradients (NaN)."""
 
 MAX_CHUNK_ELEMENTS = 1 << 22
 """Entries × block width composited at once; bounds peak memory on large scenes."""
@@ -89,11 +93,13 @@ def rasterize(
              "world_to_camera": world_to_camera, "K": K, "background": background}
     for name, tensor in named.items():
         require_finite(name, tensor)
+    for name in ("means", "world_to_camera", "K"):
+        require_float32_range(name, named[name])
     if contribution_mask is not None:
         require_shape("contribution_mask", contribution_mask, (height, width))
-    if not (math.isfinite(near) and near > 0 and far > near):  # far may be inf; NaN fails every comparison
+    if not (math.isfinite(near) and near >= MIN_NEAR and far > near):  # far may be inf; NaN fails every comparison
         raise RasterInputError(f"rasterize got near = {near}, far = {far}", "in the call to rasterize",
-                               "pass 0 < near < far (3DGS uses near 0.01; far may be inf)")
+                               f"pass {MIN_NEAR:.1e} ≤ near < far (3DGS uses near 0.01; far may be inf)")
     if not (math.isfinite(blur) and blur >= MIN_BLUR):
         raise RasterInputError(f"rasterize got blur = {blur}", "in the call to rasterize",
                                f"pass a blur of at least {MIN_BLUR} px² (3DGS uses 0.3, Mip-Splatting's 2D filter 0.1)")

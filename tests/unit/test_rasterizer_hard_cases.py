@@ -344,6 +344,16 @@ def test_zero_length_sh_direction_stays_finite(fast):
     assert (sh.grad[0, 1:] == 0).all()  # only the DC term of the centred Gaussian is used
 
 
+@pytest.mark.parametrize("name", ["means", "world_to_camera", "K"])
+def test_float64_geometry_beyond_float32_s_range_is_a_clear_error(fast, name):
+    """A float64 mean at 1e300 (or a focal length of 1e300 px) projected to 1e300 px and beyond, and the projection's
+    gradients (f·x/z², squares of the footprint) overflowed float64 to NaN: float64 renders take float32's range."""
+    scene = random_scene(seed=1, n=5, width=8, height=6)
+    getattr(scene, name)[0, 0] = 1e300
+    with pytest.raises(fast.RasterInputError, match=f"`{name}`.*float32's range"):
+        scene.render(fast.rasterize)
+
+
 @pytest.mark.parametrize("with_background", [True, False])
 def test_no_gaussians_gives_the_background(fast, with_background):
     scene = random_scene(seed=2, n=0, width=7, height=5)
@@ -358,9 +368,11 @@ def test_no_gaussians_gives_the_background(fast, with_background):
 
 
 @pytest.mark.parametrize(("near", "far"), [(-1.0, 100.0), (0.0, 100.0), (math.nan, 100.0), (0.01, math.nan),
-                                           (5.0, 1.0), (math.inf, math.inf)])
+                                           (5.0, 1.0), (math.inf, math.inf), (1.0, 1.0), (1e-300, 100.0)])
 def test_a_near_and_far_that_are_no_positive_range_are_a_clear_error(fast, near, far):
-    """near ≤ 0 divided by a zero depth (NaN gradients); NaN or near > far culled everything without a word."""
+    """near ≤ 0 divided by a zero depth (NaN gradients); NaN or near > far culled everything without a word. A near
+    below float32's smallest normal number let a float64 depth of 1e-200 through, whose f·x/z² overflowed float64 in
+    the gradients."""
     scene = random_scene(seed=1, n=5, width=8, height=6)
     scene.near, scene.far = near, far
     with pytest.raises(fast.RasterInputError, match="near"):
