@@ -41,7 +41,8 @@ class EvalAuseConfig:
     """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
     output: Path | None = None
     """Where to write the JSON (default: ause_<label>.json in the run, the label being the method and the options
-    that change its maps; or ause.json in the maps dir)."""
+    that change its maps; or ause.json in the maps dir). With --load it also takes the maps it scores, as
+    <output stem>-maps/ beside it, so that a run folder that cannot be written to can still be scored."""
 
 
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
@@ -96,6 +97,16 @@ def checked_output(output: Path) -> Path:
     return output
 
 
+def maps_beside(output: Path) -> Path:
+    """Where `--load --output X.json` puts the maps it scores: X-maps/ beside the JSON. The render replaces that
+    folder whole, so a folder of that name that eval-ause did not write (no timing.json) is refused, not deleted."""
+    root = output.with_name(f"{output.stem}-maps")
+    if root.exists() and not (root / "timing.json").is_file():
+        raise SplatuError("the folder eval-ause would write the scored maps to exists and holds something else",
+                          f"in {root}", "move it, or pass another --output")
+    return root
+
+
 def _fmt(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.4f}"
 
@@ -144,9 +155,10 @@ def run(config: EvalAuseConfig) -> None:
 
         options = config.uncertainty
         options.check()
+        maps_root = None
         if config.output is not None:  # before the render, so a bad --output costs nothing
-            checked_output(config.output)
-        maps_dir, entries = render_eval_maps(config.load, options)
+            maps_root = maps_beside(checked_output(config.output))
+        maps_dir, entries = render_eval_maps(config.load, options, maps_root)
         label = options.label(config.load)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},

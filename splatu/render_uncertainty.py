@@ -285,13 +285,18 @@ def _setup(run, options: UncertaintyOptions):
                                options.seed)
 
 
-def render_eval_maps(load: Path, options: UncertaintyOptions) -> tuple[Path, list[MapEntry]]:
-    """Render the eval split into the maps layout only (what `eval-ause --load` scores); returns its folder and
-    the views as stored there (see write_maps_dir)."""
+def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None = None
+                     ) -> tuple[Path, list[MapEntry]]:
+    """Render the eval split into the maps layout only (what `eval-ause --load` scores), at `root` (default: the
+    run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files); returns it and the views as
+    stored there (see write_maps_dir)."""
     run = _load(load, options)
-    folder = writable_dir(run_folder(load) / "uncertainty" / f"{options.label(load)}-eval",
-                          "run directory (--load writes maps there)")
-    root = folder / "maps"
+    if root is None:
+        root = run_folder(load) / "uncertainty" / f"{options.label(load)}-eval" / "maps"
+        writable_dir(root.parent, "run folder (eval-ause --load writes the maps it scores there), or pass "
+                                  "--output elsewhere to write them beside it")
+    else:
+        writable_dir(root.parent, "--output folder")
     scene, built = _setup(run, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)

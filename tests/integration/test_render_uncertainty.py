@@ -6,6 +6,7 @@ import json
 import math
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -504,3 +505,34 @@ def test_training_into_an_output_folder_that_is_a_file_fails_before_the_scene_lo
     a_file.write_text("not a folder")
     line = _one_line(capsys, ["train", "--data", str(tmp_path / "no_such_scene"), "--output-dir", str(a_file)])
     assert "cannot write" in line and "--output-dir" in line  # not "scene not found": checked first
+
+
+def _listing(folder: Path) -> list[tuple[str, int]]:
+    return sorted((str(p.relative_to(folder)), p.stat().st_mtime_ns) for p in folder.rglob("*"))
+
+
+def test_eval_ause_with_an_output_writes_nothing_into_the_run(tiny_run, tmp_path, capsys):
+    """A run folder that cannot be written to (a colleague's, a read-only share) can be scored: with --output, the
+    maps it scores go beside the JSON, not into <run>/uncertainty/."""
+    before = _listing(tiny_run)
+    out = tmp_path / "scores" / "ause.json"
+    entrypoint(["eval-ause", "--load", str(tiny_run), "--output", str(out)])
+    assert _listing(tiny_run) == before
+    report = json.loads(out.read_text())
+    assert report["images"] == 5 and out.with_suffix(".png").is_file()
+    maps = out.with_name("ause-maps")
+    assert len(list((maps / "uncertainty").glob("*.npy"))) == 5 and (maps / "timing.json").is_file()
+    entrypoint(["eval-ause", "--load", str(tiny_run), "--output", str(out)])  # its own maps are replaced
+    assert json.loads(out.read_text())["mean"] == report["mean"]
+
+
+def test_eval_ause_never_replaces_a_folder_it_did_not_write(tiny_run, tmp_path, capsys):
+    theirs = tmp_path / "ause-maps"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("mine")
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["eval-ause", "--load", str(tiny_run), "--output", str(tmp_path / "ause.json")])
+    assert exc.value.code == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "holds something else" in lines[0] and str(theirs) in lines[0]
+    assert (theirs / "notes.txt").read_text() == "mine" and not (tmp_path / "ause.json").exists()
