@@ -89,7 +89,7 @@ def loss_of(image: Tensor, alpha: Tensor) -> Tensor:
 def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_camera, K, width, height):
     """Project, bin Gaussians to the 16×16 tiles their 3σ box touches, composite each tile densely.
     Returns the image, the alpha map and the number of pixel–Gaussian pairs evaluated."""
-    from splatu.rasterizer.projection import project_gaussians
+    from splatu.rasterizer.projection import conic_rows, project_gaussians
 
     proj = project_gaussians(means, quats, log_scales, world_to_camera, K, width, height, 0.01, 1e10, True)
     ids = torch.nonzero(proj.visible).squeeze(1)
@@ -113,8 +113,7 @@ def reference_rasterize(means, quats, log_scales, opacities, colours, world_to_c
             py = (ty * TILE + local_y + 0.5).reshape(-1)
             dx = px[None, :] - proj.means2d[hit, 0:1]
             dy = py[None, :] - proj.means2d[hit, 1:2]
-            log_a, S, log_q = proj.log_conics[hit, :, None].unbind(1)
-            A, S, Q = torch.stack([log_a.exp(), S, log_q.exp()]).to(proj.means2d.dtype)
+            A, S, Q = conic_rows(proj.log_conics[hit], proj.means2d.dtype)[:, :, None]
             swapped = proj.swapped[hit, None]
             v, w = torch.where(swapped, dy, dx), torch.where(swapped, dx, dy)
             sigma = 0.5 * (A * (v - S * w) ** 2 + Q * w * w)

@@ -102,5 +102,7 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
         print("interrupted", file=sys.stderr)
         sys.exit(exit_code(stop))
     except BrokenPipeError:  # `splatu train --help | head`: the reader left, so there is no one to tell
+        if debug:
+            raise
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's own flush must not fail too
         sys.exit(1)

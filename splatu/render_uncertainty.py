@@ -266,10 +266,10 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
 
 
 def _load(load: Path, options: UncertaintyOptions):
-    """The run, checked against the options (imports kept here: they pull in the whole trainer stack)."""
+    """The run, checked against the method (imports kept here: they pull in the whole trainer stack); the
+    options themselves are checked by each command first (`UncertaintyOptions.check`)."""
     from splatu.baselines.load import check_method, load_any_run
 
-    options.check()
     run = load_any_run(load, options.head)
     check_method(options.method, run)
     return run
@@ -321,6 +321,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",
                           "in the command's options", f"drop {flags}, or pass --views orbit")
     options = config.uncertainty
+    options.check()
     run_info = _load(config.load, options)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
     out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"

@@ -66,7 +66,9 @@ class UncertaintyOptions:
         default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`) and, when `load` names a
         checkpoint file rather than the run, that file's name (`ours-step-0001000`), so that one variant's maps and
         scores never overwrite another's, nor an earlier checkpoint's the final model's; a head has one spelling
-        (`canonical_head`), so the same head asked for twice writes one set of files."""
+        (`canonical_head`), so the same head asked for twice writes one set of files. `data` is not part of it:
+        it only says where the run's own scene now is (another scene's normalisation is refused), so its maps are
+        the same maps."""
         parts = [self.method if self.head is None else f"{self.method}-{canonical_head(self.head)}"]
         if load is not None and Path(load).expanduser().is_file():
             parts.append(Path(load).stem)

@@ -33,8 +33,8 @@ def _read_eval_list(path: Path | None) -> list[str]:
                           "pass --eval-list FILE with one image name per line")
     if not path.is_file():
         raise SplatuError("eval list file not found", f"in {path}", "pass an existing --eval-list file")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
+    try:  # decoded whole, the mark removed after: utf-8-sig would count a bad byte's offset from after the mark
+        text = path.read_bytes().decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as err:
         raise SplatuError(f"eval list is not UTF-8 text (byte {err.start})", f"in {path}",
                           "save it as UTF-8, one image name per line") from None

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from splatu.atomic import atomic_write
-from splatu.errors import SplatuError, load_number_array
+from splatu.errors import SplatuError, load_number_array, unwritable
 
 PixelKind = Literal["color", "mask", "depth"]
 CACHE_VERSION = 2
@@ -124,7 +124,9 @@ def undistorted_intrinsics(K: np.ndarray, distortion: Distortion | None, width: 
         raise SplatuError(f"distortion {distortion.coeffs} has no usable undistorted camera (OpenCV's has focal "
                           f"length {new_K[0, 0]:.3g} for the lens's {K[0, 0]:.3g} and principal point "
                           f"({new_K[0, 2]:.3g}, {new_K[1, 2]:.3g}) in a {width}x{height} image)", where,
-                          "check the distortion coefficients and intrinsics")
+                          "check the distortion coefficients and intrinsics; a lens that sees 90° or more off its "
+                          "axis (a wide fisheye) has no pinhole view of the whole image: crop the images to the part "
+                          "within that angle")
     return new_K
 
 
@@ -211,17 +213,17 @@ def read_image(path: Path) -> np.ndarray:
 
 
 def write_png(path: Path, pixels: np.ndarray, fix: str) -> None:
-    """Encode uint8 or uint16 pixels, channels in RGB order (grey is written as it is), as a PNG; the inverse of
+    """Encode uint8 or uint16 pixels, channels in RGB(A) order (grey is written as it is), as a PNG; the inverse of
     `read_image`, so every PNG splatu writes has its channels the same way round. A refused write is one line,
     ending in `fix`. Python writes the file: cv2.imwrite crashed the process (a segfault) on a path that is not
     UTF-8, such as a run folder named after a scene folder with a Latin-1 name."""
-    if pixels.ndim == 3 and pixels.shape[2] == 3:
-        pixels = np.ascontiguousarray(pixels[..., ::-1])
+    if pixels.ndim == 3 and pixels.shape[2] in (3, 4):  # OpenCV stores BGR(A)
+        pixels = np.ascontiguousarray(pixels[..., [2, 1, 0, 3][: pixels.shape[2]]])
     data = cv2.imencode(".png", pixels)[1].tobytes()
     try:
         path.write_bytes(data)
     except OSError as err:
-        raise SplatuError(f"could not write an image ({err.strerror})", f"in {path}", fix) from None
+        raise unwritable(path, err, fix) from None
 
 
 def _read_depth(recipe: PixelRecipe) -> np.ndarray:

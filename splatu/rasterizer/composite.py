@@ -29,6 +29,7 @@ from torch import Tensor
 
 from splatu.rasterizer.footprint import BlockEntries
 from splatu.rasterizer.kernels import LOG_T_MIN, kernel
+from splatu.rasterizer.projection import conic_rows
 
 COMPACT_AT_MOST_LIVE = 0.8
 """A chunk's live entries (≥ 1 kept pair) are gathered into compact arrays only when at most this fraction of
@@ -53,8 +54,7 @@ class GaussianParams:
         reading a (Q, 3) conic's columns loads them one by one at stride 3, inside its loop over the block's pixels:
         the backward's entry_gradients took 9.9 against 6.2 ms per trained-model render for that alone (a scratch
         timing)."""
-        log_a, shear, log_q = self.log_conics.t()
-        return torch.stack([log_a.exp(), shear, log_q.exp()]).to(self.means2d.dtype)
+        return conic_rows(self.log_conics, self.means2d.dtype)
 
 
 @dataclass

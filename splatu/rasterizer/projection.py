@@ -98,11 +98,18 @@ def unit_quaternions(quats: Tensor) -> Tensor:
         exponent = torch.where(largest > 0, -torch.floor(torch.log2(largest)), 0.0)
         half = torch.floor(exponent / 2)
         scaled = quats * torch.exp2(half) * torch.exp2(exponent - half)
-        norm = scaled.norm(dim=-1, keepdim=True)  # in [1, 4) unless q = 0
-        unit = scaled / norm.clamp_min(1.0)
+        norm = scaled.norm(dim=-1, keepdim=True)  # in [1, 4) unless q = 0 (or just under 1 where log2 rounded up)
+        unit = scaled / norm.clamp_min(0.5)  # the clamp only keeps q = 0 at 0
         length = norm * torch.exp2(-half) * torch.exp2(half - exponent)  # |q|: may round to 0 or inf, both safe below
     tangent = (quats - quats.detach()) / length.clamp_min(MIN_QUATERNION_NORM)  # 0, but its gradient is 1 / |q|
     return unit + tangent - unit * (unit * tangent).sum(-1, keepdim=True)
+
+
+def conic_rows(log_conics: Tensor, dtype: torch.dtype) -> Tensor:
+    """(3, N): the sheared conic's rows A, S, Q in the render's dtype, from the float64 (ln A, S, ln Q) that the
+    projection hands on (module docstring); A and Q are rounded once, from float64."""
+    log_a, shear, log_q = log_conics.t()
+    return torch.stack([log_a.exp(), shear, log_q.exp()]).to(dtype)
 
 
 def project_gaussians(

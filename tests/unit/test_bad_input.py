@@ -510,6 +510,9 @@ def test_an_eval_list_that_is_not_utf8_is_one_line(tmp_path):
     listed.write_bytes("images/fram\xe9_000.png\n".encode("latin-1"))
     error = load_error(root, tmp_path, eval_split="list", eval_list=listed)
     assert error.what == "eval list is not UTF-8 text (byte 11)" and error.where == f"in {listed}"
+    listed.write_bytes(b"\xef\xbb\xbf" + "images/fram\xe9_000.png\n".encode("latin-1"))  # a mark, then the byte
+    error = load_error(root, tmp_path, eval_split="list", eval_list=listed)
+    assert error.what == "eval list is not UTF-8 text (byte 14)"  # counted from the file's start, as an editor does
 
 
 def test_an_eval_list_with_a_byte_order_mark_reads_its_first_name(tmp_path):

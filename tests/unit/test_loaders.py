@@ -711,11 +711,14 @@ def test_write_png_is_read_back_in_rgb_order(tmp_path, dtype):
     rgb[1, 2] = (1, 2, 3)
     images.write_png(tmp_path / "red.png", rgb, "fix it")
     np.testing.assert_array_equal(images.read_image(tmp_path / "red.png"), rgb)
+    rgba = np.concatenate([rgb, np.full((2, 3, 1), 7, dtype)], axis=-1)
+    images.write_png(tmp_path / "rgba.png", rgba, "fix it")
+    np.testing.assert_array_equal(images.read_image(tmp_path / "rgba.png"), rgba)
     grey = np.arange(6, dtype=dtype).reshape(2, 3)
     images.write_png(tmp_path / "grey.png", grey, "fix it")
     np.testing.assert_array_equal(images.read_image(tmp_path / "grey.png"), grey)
 
 
 def test_write_png_refusal_is_one_line_with_the_callers_fix(tmp_path):
-    with pytest.raises(SplatuError, match=r"could not write an image.*no_such_folder.*free some space"):
+    with pytest.raises(SplatuError, match=r"could not write a.png.*no_such_folder.*free some space"):
         images.write_png(tmp_path / "no_such_folder" / "a.png", np.zeros((2, 2, 3), np.uint8), "free some space")

@@ -461,6 +461,17 @@ def test_a_zero_quaternion_draws_the_identity_rotation_with_a_zero_gradient(fast
     assert (params["quats"].grad[:4] == 0).all() and params["quats"].grad[4:].abs().max() > 0
 
 
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_a_quaternion_just_below_a_power_of_two_is_made_unit(dtype):
+    """Its largest component's log2 rounds up to the power, so the prescaled quaternion's norm is just under 1; a
+    clamp of the norm at 1 left it unnormalised (norm 1 − 6e-8 in float32)."""
+    from splatu.rasterizer.projection import unit_quaternions
+
+    eps = torch.finfo(dtype).eps
+    q = torch.tensor([[2.0**100 * (1 - eps / 2), 0.0, 0.0, 0.0], [0.0, 0.5 * (1 - eps / 2), 0.0, 0.0]], dtype=dtype)
+    assert (unit_quaternions(q).norm(dim=-1) == 1.0).all()
+
+
 def test_a_footprint_1e19_px_wide_seen_from_4e18_px_away_has_finite_gradients_in_float32(fast):
     """A Gaussian just past the near plane and far to the side (x/z = 4·10¹⁶), with a scale to match, covers the image
     from 4·10¹⁸ px away. Its conic's A and Q are ~10⁻³⁸, and dL/dA = ½Σ gσ·t² ~ 10³⁹ was inf in float32, so every
@@ -485,8 +496,9 @@ def test_a_footprint_1e19_px_wide_seen_from_4e18_px_away_has_finite_gradients_in
 @pytest.mark.parametrize("antialiased", [False, True])
 def test_a_footprint_beyond_1e77_px_is_a_finite_veil(fast, dtype, antialiased):
     """A focal length of 1e30 px and a mean 1e-20 in front of the camera with scales of 1e30 (the largest): the
-    footprint matrix T = J W R S is ~1e80 px, and det(T Tᵀ) ~ |T|⁴ overflowed float64 to inf, so every gradient was
-    NaN. Such a footprint is scaled down whole to 2²⁵⁰ px: over the image it is as flat as before, α = o."""
+    footprint matrix T = J W R S is ~1e80 px, and det(T Tᵀ) ~ |T|⁴ overflows float64 to inf. With opacities scaled
+    (antialiased) every gradient was NaN; without, the ln A / ln Q conic (whose log of inf / inf is NaN) needs the
+    same guard. Such a footprint is scaled down whole to 2²⁵⁰ px: over the image it is as flat as before, α = o."""
     scene = scene_at_origin([[0.0, 0.0, 1e-20], [0.0, 0.0, 2.0]], [[1e30, 5e29, 2e30], [0.05, 0.02, 0.08]],
                             [0.8, 0.5], focal=1e30)
     scene.near = 1e-30
