@@ -37,11 +37,20 @@ class ProcessImagesConfig:
     single_camera: bool = True
     """All photos share one camera (one phone or video); False estimates intrinsics per photo."""
     max_image_size: int = 1600
-    """Photos are downscaled to at most this many pixels on their longer side for feature extraction."""
+    """Photos are downscaled to at most this many pixels on their longer side for feature extraction (at least 1;
+    one at least their longer side keeps them at full size)."""
     overwrite: bool = False
     """Replace an existing database.db and sparse/0 in the output folder."""
     colmap_log: bool = False
     """Also show COLMAP's own (verbose) log lines."""
+
+    def validate(self) -> None:
+        """Refuse an option COLMAP would not take as given, before any work: it reads a max_image_size of 0 or
+        below as its own default, 3200 px, so such a value silently extracted at another size than asked."""
+        if self.max_image_size < 1:
+            raise SplatuError(f"--max-image-size must be a positive number of pixels (got {self.max_image_size})",
+                              "in the options", "pass e.g. --max-image-size 1600 (the default), or one at least the "
+                              "photos' longer side to extract features at full size")
 
 
 def default_output(images: Path) -> Path:
@@ -167,6 +176,7 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
 def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
     """Run SfM on cfg.images and return the scene folder holding sparse/0; a failed run leaves nothing behind."""
     console = console or Console(stderr=True)
+    cfg.validate()
     names = _photos(cfg.images)
     output = cfg.output or default_output(cfg.images)
     database, sparse = output / "database.db", output / "sparse" / "0"

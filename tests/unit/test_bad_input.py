@@ -765,3 +765,18 @@ def test_a_pose_whose_rotation_is_scaled_or_sheared_names_the_frame(tmp_path, di
     edit_transforms(root, deform)
     error = load_error(root, tmp_path)
     assert error.what == "pose rotation is not a rotation matrix" and cameras[1].name in error.where
+
+
+@pytest.mark.parametrize("size", [0, -1])
+def test_process_images_max_image_size_below_1_is_refused_before_the_sfm(tmp_path, monkeypatch, size):
+    """COLMAP reads 0 or below as its own default, 3200 px: neither "no limit" nor the size asked for."""
+    from splatu.data import process_images as P
+
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    monkeypatch.setattr(P, "_reconstruct", lambda *args: pytest.fail("the SfM ran"))
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out", max_image_size=size))
+    assert caught.value.what == f"--max-image-size must be a positive number of pixels (got {size})"
+    assert "--max-image-size 1600" in caught.value.fix and not (tmp_path / "out").exists()
