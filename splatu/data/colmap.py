@@ -165,17 +165,53 @@ def _is_pose(tokens: list[str]) -> bool:
 
 
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
-    """(line number, tokens) of each non-comment, non-blank line of a COLMAP text file."""
+    """(line number, tokens) of each non-comment, non-blank line of a COLMAP text file; COLMAP's reader trims a line
+    before it looks for the # of a comment, so an indented comment is one."""
     with path.open(encoding="utf-8", errors="replace") as lines:
         for number, line in enumerate(lines, start=1):
-            if line.strip() and not line.startswith("#"):
-                yield number, line.split()
+            if (tokens := line.split()) and not tokens[0].startswith("#"):
+                yield number, tokens
 
 
-def first_bad_line(path: Path, name: str) -> tuple[int, str] | None:
-    """(line number, line) of the first data line of a COLMAP text file that cannot be parsed, if any."""
-    return next(((number, " ".join(tokens)) for number, tokens in _data_lines(path)
-                 if not _valid_text_line(name, tokens)), None)
+ID_FIELDS = {"cameras": ((0, "CAMERA_ID"),), "images": ((0, "IMAGE_ID"), (8, "CAMERA_ID")),
+             "points3D": ((0, "POINT3D_ID"),)}
+"""The ids that lead each kind of line (an images.txt pose line's CAMERA_ID too), by field index and name."""
+
+
+def _bad_id(name: str, tokens: list[str]) -> str | None:
+    """Which leading id of a line that does not parse is a number but no id (1.5, -1, 1e3), said by its field's name,
+    since a quoted pose line is cut before its CAMERA_ID. COLMAP's reader took 1.5 as id 1 followed by a field ".5",
+    so an images.txt CAMERA_ID of 1.5 loaded the photo named ".5", and an IMAGE_ID of 1.5 one named "1"."""
+    if name == "images" and (len(tokens) < 10 or _is_number(tokens[9])):  # a points line: no NAME in field 10
+        return None
+    limit = (1 << 64) - 1 if name == "points3D" else ID_LIMIT
+    return next((f"{field} {tokens[index]} is not an id, a whole number from 0 to {limit - 1}"
+                 for index, field in ID_FIELDS[name]
+                 if index < len(tokens) and _is_number(tokens[index]) and not _is_id(tokens[index], limit)), None)
+
+
+def _text_line_error(path: Path, name: str, number: int, tokens: list[str]) -> SplatuError | None:
+    """The error for one data line of a COLMAP text file that COLMAP's reader would refuse or misread, if any."""
+    if not _valid_text_line(name, tokens):
+        reason = _bad_id(name, tokens) or repr(" ".join(tokens)[:60])
+        return SplatuError(f"cannot parse {path.name} line {number} ({reason})", f"in {path}",
+                           "fix that line or export the model from COLMAP again")
+    if name == "points3D" and not all(0 <= int(value) <= 255 for value in tokens[4:7]):
+        return SplatuError(f"point {tokens[0]}'s colour ({', '.join(tokens[4:7])}) is not RGB from 0 to 255",
+                           f"in {path} line {number}", "give R, G and B as whole numbers from 0 to 255")
+    return None
+
+
+def text_model_error(files: dict[str, Path]) -> SplatuError | None:
+    """The first line of a text model that COLMAP's reader would refuse (naming no line), or misread without a word:
+    an id written 1.5 shifts the rest of its line, and a colour of 300 wrapped round to 44. None for a .bin model."""
+    if files["cameras"].suffix != ".txt":
+        return None
+    for name, path in files.items():
+        for number, tokens in _data_lines(path):
+            if (error := _text_line_error(path, name, number, tokens)) is not None:
+                return error
+    return None
 
 
 def pose_line_in_place_of_points(path: Path) -> int | None:
@@ -202,8 +238,11 @@ def name_with_space(path: Path) -> tuple[int, str] | None:
 
 
 def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
-    """The model through pycolmap; a text file it cannot parse, or would misread, is named with its line."""
+    """The model through pycolmap; a text file it cannot parse, or would misread, is named with its line (checked
+    first: pycolmap reads some bad lines without a word)."""
     files = model_files(sparse_dir)
+    if (error := text_model_error(files)) is not None:
+        raise error
     try:
         reconstruction = pycolmap.Reconstruction(str(sparse_dir))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on unreadable models
@@ -262,13 +301,8 @@ def _poses_and_point_counts(images: Path) -> Iterator[tuple[int, list[str], int]
 
 
 def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:
-    """The error for a model pycolmap could not read: a text file's first bad line or broken reference, else
-    pycolmap's reason."""
-    for name, path in files.items():
-        bad = first_bad_line(path, name) if path.suffix == ".txt" else None
-        if bad is not None:
-            return SplatuError(f"cannot parse {path.name} line {bad[0]} ({bad[1][:60]!r})", f"in {path}",
-                               "fix that line or export the model from COLMAP again")
+    """The error for a model pycolmap could not read though every text line parses: a text model's broken
+    reference, else pycolmap's reason."""
     if all(path.suffix == ".txt" for path in files.values()) and (error := broken_reference(files)) is not None:
         return error
     reason = re.sub(r"^\[[^]]*\]\s*", "", (str(err).strip().splitlines() or [type(err).__name__])[0])

@@ -780,3 +780,30 @@ def test_process_images_max_image_size_below_1_is_refused_before_the_sfm(tmp_pat
         process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out", max_image_size=size))
     assert caught.value.what == f"--max-image-size must be a positive number of pixels (got {size})"
     assert "--max-image-size 1600" in caught.value.fix and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("colour", ["300 0 0", "0 -1 0", "0 0 256"])
+def test_a_colmap_point_colour_outside_0_to_255_names_the_point_and_line(tmp_path, colour):
+    """pycolmap wrapped it round silently (300 read as 44, -1 as 255)."""
+    sparse = write_colmap(tmp_path / "scene", points=f"7 0.5 0.5 2 255 0 0 0.1\n8 1 1 2 {colour} 0.1\n")
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == f"point 8's colour ({colour.replace(' ', ', ')}) is not RGB from 0 to 255"
+    assert error.where == f"in {sparse / 'points3D.txt'} line 2"
+
+
+@pytest.mark.parametrize(("file", "edit", "line", "field"), [
+    ("images.txt", lambda text: text.replace("0 0 1 a.png", "0 0 1.5 a.png"), 1, "CAMERA_ID 1.5"),  # image '.5'
+    ("images.txt", lambda text: text.replace("2 1 0 0 0", "2.5 1 0 0 0"), 3, "IMAGE_ID 2.5"),  # image named '2'
+    ("images.txt", lambda text: text.replace("0 0 1 b.png", "0 0 -1 b.png"), 3, "CAMERA_ID -1"),
+    ("points3D.txt", lambda text: "7.5 0.5 0.5 2 255 0 0 0.1\n", 1, "POINT3D_ID 7.5"),  # x read as 0.5, y as 0.5...
+    ("cameras.txt", lambda text: text.replace("1 PINHOLE", "1.5 PINHOLE"), 2, "CAMERA_ID 1.5"),
+])
+def test_a_colmap_text_id_that_is_not_a_whole_number_names_the_field_and_line(tmp_path, file, edit, line, field):
+    """pycolmap read 1.5 as id 1 followed by a field ".5", and shifted the rest of the line: an image loaded as the
+    photo named ".5", silently. A quoted pose line is cut before its CAMERA_ID, so the field is named."""
+    path = write_colmap(tmp_path / "scene") / file
+    path.write_text(edit(path.read_text()))
+    error = load_error(tmp_path / "scene", tmp_path)
+    limit = 2**64 - 2 if file == "points3D.txt" else 2**32 - 2
+    assert error.what == f"cannot parse {file} line {line} ({field} is not an id, a whole number from 0 to {limit})"
+    assert error.where == f"in {path}"

@@ -722,3 +722,17 @@ def test_write_png_is_read_back_in_rgb_order(tmp_path, dtype):
 def test_write_png_refusal_is_one_line_with_the_callers_fix(tmp_path):
     with pytest.raises(SplatuError, match=r"could not write a.png.*no_such_folder.*free some space"):
         images.write_png(tmp_path / "no_such_folder" / "a.png", np.zeros((2, 2, 3), np.uint8), "free some space")
+
+
+def test_colmap_text_lines_are_checked_as_colmap_reads_them_indented_comments_and_crlf_too(tmp_path):
+    """Every line of a text model is now checked before pycolmap reads it (pycolmap misread some bad lines without a
+    word), so the check must accept all that COLMAP accepts: it trims a line before looking for a comment's #."""
+    cameras = ring_cameras(5, 40, 30)
+    _write_colmap_text(tmp_path / "plain", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    _write_colmap_text(tmp_path / "edited", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    for path in (tmp_path / "edited" / "sparse" / "0").iterdir():
+        path.write_bytes(b"  # an indented comment\r\n" + path.read_bytes().replace(b"\n", b"\r\n"))
+    plain, edited = (load_scene(config(tmp_path / name, tmp_path, eval_split="every-n", eval_every=3))
+                     for name in ("plain", "edited"))
+    assert edited.train.names == plain.train.names
+    assert torch.equal(edited.points, plain.points) and torch.equal(edited.point_colors, plain.point_colors)
