@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, Frame, RawScene
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, Frame, RawScene, refuse_implausible_focal
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
@@ -107,6 +107,8 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
         raise SplatuError(f"camera parameters {p} need a positive, finite focal length", where,
                           "fix the camera's parameters in the model, or re-run the reconstruction")
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    refuse_implausible_focal(K, camera.width, camera.height, where,
+                             "give the camera's focal length in pixels (not mm), or re-run the reconstruction")
     distortion = Distortion("OPENCV", coeffs) if any(coeffs) else None
     return K, distortion
 

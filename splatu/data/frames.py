@@ -6,6 +6,7 @@ Loaders only parse their format; splitting, normalisation and decoding are share
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +23,14 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_IMAGE_SIDE = 1 << 16
 """Larger than any camera's image side: pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19, and
 OpenCV's undistortion takes 32-bit sizes, so a nerfstudio w of 3e9 was an OpenCV traceback."""
+
+MAX_FIELD_OF_VIEW = 179.0
+"""Degrees. The widest rectilinear lenses see about 120-130 degrees across (fisheyes are undistorted to a narrower
+pinhole); at 179 the image's edge pixels look within half a degree of the image plane, so a wider field of view is
+a focal length in other units than pixels (a phone's 4.3 mm for a 4000 px photo gives 179.8), or a typo."""
+MAX_FOCAL_PER_SIDE = 1e4
+"""The longest telephoto and telescope cameras have focal lengths of tens to about a thousand times their image's
+larger side; 1e4 times is a field of view of 0.006 degrees, which no real capture has."""
 
 
 @dataclass
@@ -74,6 +83,25 @@ def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
     if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) <= 0:
         raise SplatuError("pose rotation is not a rotation matrix", where, fix)
     return matrix
+
+
+def field_of_view(focal: float, side: int) -> float:
+    """Degrees across `side` pixels with the principal point at the centre: a measure of the focal length alone,
+    since an off-centre principal point with a focal length of 1e-30 spans anything from 0 to 180 degrees."""
+    return math.degrees(2 * math.atan(0.5 * side / focal))
+
+
+def refuse_implausible_focal(K: np.ndarray, width: int, height: int, where: str, fix: str) -> None:
+    """One line for a positive pinhole focal length no camera has (a field of view of nearly 180 or nearly 0
+    degrees, as from a focal length of 1e-30 or 1e30 px): such a camera trained silently into garbage."""
+    fov = (field_of_view(K[0, 0], width), field_of_view(K[1, 1], height))
+    shown = f"focal length {K[0, 0]:.3g} x {K[1, 1]:.3g} px for a {width}x{height} image"
+    if max(fov) >= MAX_FIELD_OF_VIEW:
+        raise SplatuError(f"{shown} gives a field of view of {fov[0]:.4g} x {fov[1]:.4g} degrees, wider than any "
+                          f"camera's (below {MAX_FIELD_OF_VIEW:g})", where, fix)
+    if max(K[0, 0], K[1, 1]) > MAX_FOCAL_PER_SIDE * max(width, height):
+        raise SplatuError(f"{shown} is over {MAX_FOCAL_PER_SIDE:g} times the image's larger side (a field of view "
+                          f"of {fov[0]:.2g} x {fov[1]:.2g} degrees), longer than any camera's", where, fix)
 
 
 def world_to_camera_from_opengl(camera_to_world_gl: np.ndarray) -> np.ndarray:

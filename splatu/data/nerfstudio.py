@@ -1,9 +1,9 @@
 """nerfstudio / instant-ngp `transforms.json`: parse it into frames, and write it.
 
-Intrinsics (fl_x, fl_y, cx, cy, w, h) and distortion may be global or per frame; poses are
-OpenGL camera-to-world. Images with distortion are undistorted to OpenCV's alpha=0 pinhole K
-(see splatu/data/images.py). Frames are sorted by file path, as nerfstudio does, so
-contiguous eval blocks follow the capture order of numbered video frames.
+Intrinsics (fl_x, fl_y, cx, cy, w, h) and distortion may be global or per frame, the focal lengths also as
+instant-ngp's camera_angle_x / camera_angle_y (radians); poses are OpenGL camera-to-world. Images with distortion
+are undistorted to OpenCV's alpha=0 pinhole K (see splatu/data/images.py). Frames are sorted by file path, as
+nerfstudio does, so contiguous eval blocks follow the capture order of numbered video frames.
 
 `applied_transform` is accepted and not applied: nerfstudio writes `ply_file_path` points in
 the same frame as the poses, and the transform only maps both back to the original COLMAP
@@ -12,6 +12,7 @@ frame.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
@@ -27,6 +28,7 @@ from splatu.data.frames import (
     Frame,
     RawScene,
     checked_matrix,
+    refuse_implausible_focal,
     world_to_camera_from_opengl,
 )
 from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
@@ -73,23 +75,48 @@ def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: s
     return float(value)
 
 
+def _focal(frame: Mapping[str, Any], top: Mapping[str, Any], axis: str, side: int, where: str) -> float | None:
+    """The focal length along `axis` in pixels: fl_x (fl_y), or instant-ngp's camera_angle_x (camera_angle_y),
+    the field of view in radians across the image's `side` pixels. As in instant-ngp, a frame's own values
+    override the file's, and fl_ wins over camera_angle_ where one place gives both."""
+    for source in (frame, top):
+        focal = _number(source, {}, f"fl_{axis}", where)
+        if focal is not None:
+            return focal
+        angle = _number(source, {}, f"camera_angle_{axis}", where)
+        if angle is not None:
+            if not 0 < angle < math.pi:  # tan(angle / 2) must be positive and finite
+                raise SplatuError(f"camera_angle_{axis} must be an angle in (0, pi) radians (got {angle!r})", where,
+                                  f"fix camera_angle_{axis}, or give fl_{axis} in pixels instead")
+            return 0.5 * side / math.tan(0.5 * angle)
+    return None
+
+
 def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> tuple[np.ndarray, int, int]:
-    values = {key: _number(frame, top, key, where) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h")}
-    missing = [key for key in ("fl_x", "w", "h") if values[key] is None]
+    values = {key: _number(frame, top, key, where) for key in ("cx", "cy", "w", "h")}
+    missing = [key for key in ("w", "h") if values[key] is None]
     if missing:
         raise SplatuError(f"missing intrinsics {', '.join(missing)}", where,
-                          "give fl_x, fl_y, cx, cy, w, h at the top level or per frame")
+                          "give w and h (and fl_x or camera_angle_x) at the top level or per frame")
     width, height = round(values["w"]), round(values["h"])
-    fx = values["fl_x"]
-    fy = values["fl_y"] if values["fl_y"] is not None else fx
-    cx = values["cx"] if values["cx"] is not None else width / 2
-    cy = values["cy"] if values["cy"] is not None else height / 2
     if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
         raise SplatuError(f"image size {width}x{height} is not a plausible image size", where,
                           "give w and h in pixels")
+    fx = _focal(frame, top, "x", width, where)
+    if fx is None:
+        raise SplatuError("missing intrinsics fl_x (or camera_angle_x)", where,
+                          "give fl_x in pixels, or instant-ngp's camera_angle_x in radians, at the top level or "
+                          "per frame")
+    fy = _focal(frame, top, "y", height, where)
+    fy = fx if fy is None else fy
+    cx = values["cx"] if values["cx"] is not None else width / 2
+    cy = values["cy"] if values["cy"] is not None else height / 2
     if fx <= 0 or fy <= 0:
         raise SplatuError("focal lengths must be positive", where, "fix fl_x and fl_y")
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width, height
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    refuse_implausible_focal(K, width, height, where,
+                             "give fl_x and fl_y in pixels (not mm), or camera_angle_x and camera_angle_y in radians")
+    return K, width, height
 
 
 def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:

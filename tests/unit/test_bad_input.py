@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 
@@ -807,3 +808,63 @@ def test_a_colmap_text_id_that_is_not_a_whole_number_names_the_field_and_line(tm
     limit = 2**64 - 2 if file == "points3D.txt" else 2**32 - 2
     assert error.what == f"cannot parse {file} line {line} ({field} is not an id, a whole number from 0 to {limit})"
     assert error.where == f"in {path}"
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    (0.0, "camera_angle_x must be an angle in (0, pi) radians (got 0.0)"),
+    (-0.5, "camera_angle_x must be an angle in (0, pi) radians (got -0.5)"),
+    (math.pi, f"camera_angle_x must be an angle in (0, pi) radians (got {math.pi})"),
+    (float("nan"), "intrinsic camera_angle_x must be a finite number within float32's range (got nan)"),
+])
+def test_an_instant_ngp_camera_angle_outside_0_to_pi_names_the_frame(tmp_path, value, message):
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(fl_x=None, camera_angle_x=value) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == message and error.where == f"in frame {cameras[0].name!r} of {root / 'transforms.json'}"
+
+
+def test_a_missing_focal_length_names_camera_angle_x_too(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.pop("fl_x") for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == "missing intrinsics fl_x (or camera_angle_x)" and "camera_angle_x in radians" in error.fix
+
+
+@pytest.mark.parametrize(("intrinsics", "message"), [
+    ({"fl_x": 1e-30, "fl_y": 1e-30}, "focal length 1e-30 x 1e-30 px for a 40x30 image gives a field of view of 180 x "
+     "180 degrees, wider than any camera's (below 179)"),
+    ({"fl_x": 0.04, "fl_y": 0.04}, "focal length 0.04 x 0.04 px for a 40x30 image gives a field of view of 179.8 x "
+     "179.7 degrees, wider than any camera's (below 179)"),  # a focal length in mm
+    ({"fl_x": 1e30, "fl_y": 1e30}, "focal length 1e+30 x 1e+30 px for a 40x30 image is over 10000 times the image's "
+     "larger side (a field of view of 2.3e-27 x 1.7e-27 degrees), longer than any camera's"),
+    ({"fl_x": None, "fl_y": None, "camera_angle_x": 1e-30}, "focal length 4e+31 x 4e+31 px for a 40x30 image is over "
+     "10000 times the image's larger side (a field of view of 5.7e-29 x 4.3e-29 degrees), longer than any camera's"),
+])
+def test_a_nerfstudio_focal_length_no_camera_has_names_the_frame(tmp_path, intrinsics, message):
+    """A pinhole camera with a ~180 or ~0 degree field of view trained silently into garbage."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(intrinsics) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == message and error.where == f"in frame {cameras[0].name!r} of {root / 'transforms.json'}"
+
+
+@pytest.mark.parametrize(("camera", "message"), [
+    ("1 PINHOLE 8 6 1e-30 5 4 3", "focal length 1e-30 x 5 px for a 8x6 image gives a field of view of 180 x 61.93 "
+     "degrees, wider than any camera's (below 179)"),
+    ("1 SIMPLE_PINHOLE 8 6 1e30 4 3", "focal length 1e+30 x 1e+30 px for a 8x6 image is over 10000 times the image's "
+     "larger side (a field of view of 4.6e-28 x 3.4e-28 degrees), longer than any camera's"),
+])
+def test_a_colmap_focal_length_no_camera_has_names_the_camera(tmp_path, camera, message):
+    sparse = write_colmap(tmp_path / "scene", camera=camera)
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == message and error.where == f"in {sparse / 'cameras.txt'} (camera 1)"
+
+
+def test_a_nerf_synthetic_camera_angle_no_camera_has_is_refused(tmp_path):
+    write_blender(tmp_path / "lego", ["./train/r_0", "./train/r_1"], ["./test/r_0"], angle=1e-30)
+    error = load_error(tmp_path / "lego", tmp_path)
+    assert "times the image's larger side" in error.what and "camera_angle_x" in error.fix
+    assert error.where == f"in {tmp_path / 'lego' / 'transforms_train.json'}"

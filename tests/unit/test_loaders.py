@@ -736,3 +736,32 @@ def test_colmap_text_lines_are_checked_as_colmap_reads_them_indented_comments_an
                      for name in ("plain", "edited"))
     assert edited.train.names == plain.train.names
     assert torch.equal(edited.points, plain.points) and torch.equal(edited.point_colors, plain.point_colors)
+
+
+@pytest.mark.parametrize("where", ["per frame, x and y", "top level, x only"])
+def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path, where):
+    """instant-ngp's transforms.json may give the field of view in radians, camera_angle_x (and _y), instead of fl_x
+    (and fl_y): it was refused as "missing intrinsics fl_x". fl = ½w / tan(½angle); without camera_angle_y, fl_y is
+    fl_x; cx, cy stay as given."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=3)
+    content = json.loads((root / "transforms.json").read_text())
+    if where == "top level, x only":
+        for frame in content["frames"]:
+            frame["fl_y"] = frame["fl_x"]
+    (root / "transforms.json").write_text(json.dumps(content))
+    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    for frame in content["frames"]:
+        fl_x, fl_y = frame.pop("fl_x"), frame.pop("fl_y")
+        if where == "top level, x only":
+            content["camera_angle_x"] = 2 * math.atan(frame["w"] / 2 / fl_x)
+        else:
+            frame.update(camera_angle_x=2 * math.atan(frame["w"] / 2 / fl_x),
+                         camera_angle_y=2 * math.atan(frame["h"] / 2 / fl_y))
+    (root / "transforms.json").write_text(json.dumps(content))
+    angled = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    assert [f.name for f in angled.frames] == [f.name for f in given.frames]
+    for a, b in zip(angled.frames, given.frames, strict=True):
+        torch.testing.assert_close(a.camera.K, b.camera.K, rtol=1e-12, atol=0)
+        assert torch.equal(a.camera.world_to_camera, b.camera.world_to_camera)
+        assert (a.camera.width, a.camera.height) == (b.camera.width, b.camera.height)
