@@ -3,7 +3,7 @@
 A checkpoint is written to a temporary file in the same directory and moved into place with
 os.replace, so a crash mid-write leaves the previous checkpoint untouched. It holds the model,
 the optimizer and density-controller state, the step, every RNG state and the config, which is
-what an exact resume needs. Only the newest `KEEP_CHECKPOINTS` are kept: a 3DGS checkpoint with
+what an exact resume needs. Only the newest few are kept (`--keep-checkpoints`): a 3DGS checkpoint with
 Adam moments is tens of MB.
 """
 
@@ -34,18 +34,17 @@ MODEL_KEYS = ("step", "config", "model", "num_gaussians")
 RESUME_KEYS = (*MODEL_KEYS, "optimizers", "density", "rng", "scene_extent", "nonfinite_streak", "train_seconds")
 """What `--resume` needs of what the trainer writes (trainer._checkpoint_state); `world_transform` and
 `uncertainty_rng` are read when present (older checkpoints lack them)."""
-KEEP_CHECKPOINTS = 2
 
 
 def checkpoint_path(run_dir: Path, step: int) -> Path:
     return run_dir / CHECKPOINT_DIR / f"step-{step:07d}.pt"
 
 
-def save_checkpoint(run_dir: Path, step: int, state: dict[str, Any]) -> Path:
-    """Write the checkpoint for `step` (completed steps) atomically; prune older ones."""
+def save_checkpoint(run_dir: Path, step: int, state: dict[str, Any], keep: int = 2) -> Path:
+    """Write the checkpoint for `step` (completed steps) atomically, then delete all but the newest `keep`."""
     path = checkpoint_path(run_dir, step)
     atomic_write(path, lambda f: torch.save({"format": FORMAT, "step": step, **state}, f))
-    for old in list_checkpoints(run_dir)[:-KEEP_CHECKPOINTS]:
+    for old in list_checkpoints(run_dir)[:-keep]:
         old.unlink(missing_ok=True)
     return path
 

@@ -49,11 +49,18 @@ def load_number_array(path: Path, what: str, fix: str) -> np.ndarray:
     return array
 
 
-def writable_dir(path: Path, option: str) -> Path:
-    """Create `path` if needed and prove it writable now, so a bad output folder fails before any work is done."""
+def creatable_dir(path: Path, option: str) -> Path:
+    """Prove now that `path` is, or could be made, a writable folder, without making it: a command refused later
+    (a missing scene, a bad option) then leaves no empty folders behind. The probe is a temporary file in `path`,
+    or in its nearest existing ancestor."""
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise SplatuError(f"cannot write the output folder ({existing} is a file)", f"in {path}",
+                          f"pass a writable {option}")
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
+        with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as err:
         raise SplatuError(f"cannot write the output folder ({err.strerror or type(err).__name__})", f"in {path}",

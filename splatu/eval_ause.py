@@ -20,7 +20,7 @@ from rich.table import Table
 from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.checkpoint import run_folder
-from splatu.errors import FREE_AND_RERUN, SplatuError, writable_dir
+from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir
 from splatu.figures import plot_sparsification
 from splatu.interrupts import finish_first
 from splatu.maps import MapEntry, entry_names, read_entry
@@ -32,7 +32,8 @@ class EvalAuseConfig:
     """Options of `splatu eval-ause`."""
 
     load: Path | None = None
-    """A training run directory: render its eval views with --method, then score them."""
+    """A training run directory, or one of its checkpoint files: render its eval views with --method, then score
+    them."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """With --load: what to render and score (a maps directory already holds its one uncertainty)."""
     maps: Path | None = None
@@ -93,7 +94,7 @@ def checked_output(output: Path) -> Path:
     if output.with_suffix(".png").is_dir():
         raise SplatuError("the curve plot's path is a folder (eval-ause writes the plot beside the JSON, as .png)",
                           f"in {output.with_suffix('.png')}", "move that folder, or pass another --output")
-    writable_dir(output.parent, "--output (a .json path in a writable folder)")
+    creatable_dir(output.parent, "--output (a .json path in a writable folder)")
     return output
 
 

@@ -38,10 +38,10 @@ from splatu.data.scene import Views
 from splatu.errors import (
     FREE_AND_RERUN,
     SplatuError,
+    creatable_dir,
     os_error_behind,
     require_at_least,
     unwritable_folder,
-    writable_dir,
 )
 from splatu.figures import (
     DEPTH_CMAP,
@@ -66,7 +66,7 @@ class RenderUncertaintyConfig:
     """Options of `splatu render-uncertainty`."""
 
     load: Path = Path("outputs/poster/splatu/latest")
-    """A training run directory (an ensemble run for --method ensemble)."""
+    """A training run directory, or one of its checkpoint files (an ensemble run for --method ensemble)."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """Which uncertainty to render, and the options that change its maps."""
     views: ViewSet = "eval"
@@ -293,10 +293,10 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     run = _load(load, options)
     if root is None:
         root = run_folder(load) / "uncertainty" / f"{options.label(load)}-eval" / "maps"
-        writable_dir(root.parent, "run folder (eval-ause --load writes the maps it scores there), or pass "
+        creatable_dir(root.parent, "run folder (eval-ause --load writes the maps it scores there), or pass "
                                   "--output elsewhere to write them beside it")
     else:
-        writable_dir(root.parent, "--output folder")
+        creatable_dir(root.parent, "--output folder")
     scene, built = _setup(run, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
@@ -324,7 +324,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     options.check()
     run_info = _load(config.load, options)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    out = writable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
+    out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
                        f"{config.views}",
                        "--output folder")
     refuse_foreign_output(out, config.output is None)
@@ -343,7 +343,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise unwritable_folder(out, err) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    Console().print(f"rendered {len(views)} {config.views} views with {options.method} "
+    Console().print(f"rendered {len(views)} {config.views} view{'' if len(views) == 1 else 's'} with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
 
 

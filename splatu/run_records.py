@@ -4,6 +4,7 @@ older checkpoint abandons."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +70,8 @@ class MetricsLog:
 
 
 ABANDONED_DIR = "abandoned"
+CHECKPOINT_IN_LABEL = re.compile(r"-step-(\d+)")
+"""How an output label names the checkpoint file it was made of (`UncertaintyOptions.label`)."""
 
 
 def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
@@ -88,12 +91,22 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
     moved = [choice] if stale_choice else []
     if later:  # with the model they came from: its summary, export, renders and scores
-        moved += [*later, run_dir / "summary.json", run_dir / "splat.ply", *run_dir.glob("ause_*"),
-                  run_dir / "uncertainty"]
+        moved += [*later, run_dir / "summary.json", run_dir / "splat.ply"]
+        moved += [p for p in (*run_dir.glob("ause_*"), *run_dir.glob("uncertainty/*")) if _made_after(p.name, step)]
     for path in moved:
-        if path.exists():
-            path.replace(folder / path.name)
+        if path.exists():  # renders keep their uncertainty/; checkpoints go straight in (refuse_set_aside_checkpoint)
+            target = folder / "uncertainty" if path.parent == run_dir / "uncertainty" else folder
+            target.mkdir(exist_ok=True)
+            path.replace(target / path.name)
     return folder
+
+
+def _made_after(name: str, step: int) -> bool:
+    """Whether a render or AUSE report was made of a model after `step`: one made of a checkpoint file names it
+    (`ause_ours-step-0000020.json`, `uncertainty/ours-step-0000020-eval`), and one that names none was made of the
+    run's newest model, which the resume abandons."""
+    named = CHECKPOINT_IN_LABEL.search(name)
+    return named is None or int(named.group(1)) > step
 
 
 def remove_torn_checkpoints(run_dir: Path) -> None:

@@ -27,7 +27,7 @@ from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
 from splatu.degree_choice import held_out_block, with_choice_heads
 from splatu.ensemble_training import ensemble_config, ensemble_members, train_ensemble
-from splatu.errors import SplatuError, writable_dir
+from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import uncertainty_heads
@@ -94,7 +94,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)
-    writable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
+    creatable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     scene = load_scene(config.data)
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)

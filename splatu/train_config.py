@@ -86,6 +86,9 @@ class TrainConfig:
     """Append a training line to metrics.jsonl every this many steps."""
     checkpoint_every: int = 1000
     """Write a checkpoint every this many steps (and always at the end); 0: only at the end."""
+    keep_checkpoints: int = 2
+    """Keep the newest this many checkpoints, deleting older ones as new ones are written: one with its Adam moments
+    is tens of MB. Two, so that a checkpoint is always whole while the next is written."""
     output_dir: Path = Path("outputs")
     """Runs go to <output_dir>/<scene>/<method>/<timestamp>/, with a `latest` symlink beside them."""
     seed: int = 0
@@ -109,7 +112,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         self.data = absolute_data(self.data)
         positive = {"steps": self.steps, "resolution_interval": self.resolution_interval,
-                    "log_every": self.log_every, "ensemble": self.ensemble,
+                    "log_every": self.log_every, "ensemble": self.ensemble, "keep_checkpoints": self.keep_checkpoints,
                     "max_nonfinite_steps": self.max_nonfinite_steps}
         for name, value in positive.items():
             require_at_least(value, 1, f"--{name.replace('_', '-')}")

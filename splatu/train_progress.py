@@ -22,8 +22,8 @@ def progress_bar(enabled: bool) -> Progress:
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
         BarColumn(),
-        TextColumn("loss {task.fields[loss]:.4f}  train PSNR {task.fields[psnr]:5.2f}  #G {task.fields[gaussians]:>7}"
-                   "  {task.fields[rate]:5.2f} it/s"),
+        TextColumn("loss {task.fields[loss]:.4f}  train PSNR (EMA) {task.fields[psnr]:5.2f}"
+                   "  #G {task.fields[gaussians]:>7}  {task.fields[rate]:5.2f} it/s"),
         TimeRemainingColumn(),
         console=console,
         disable=not enabled,
@@ -42,8 +42,8 @@ def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: in
     rich draws no bar until the end."""
     left = round((steps - step) / rate) if rate > 0 else None
     eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
-    return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR {psnr:5.2f}  #G {gaussians:>7}  {rate:5.2f} it/s"
-            f"  ETA {eta}")
+    return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR (EMA) {psnr:5.2f}  #G {gaussians:>7}"
+            f"  {rate:5.2f} it/s  ETA {eta}")
 
 
 RATE_WINDOW = 50

@@ -217,7 +217,7 @@ def _save(state: TrainState, config: TrainConfig, run_dir: Path, log: MetricsLog
     """Write the checkpoint of `state.step`, the log's lines up to it made durable first: after a machine crash a
     resume from that checkpoint still finds every line of the steps it covers."""
     log.sync()
-    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config))
+    save_checkpoint(run_dir, state.step, _checkpoint_state(state, config), config.keep_checkpoints)
 
 
 def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog,

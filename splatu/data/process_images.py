@@ -19,7 +19,7 @@ import tyro
 from rich.console import Console
 
 from splatu.data.pycolmap_quiet import pycolmap
-from splatu.errors import SplatuError, writable_dir
+from splatu.errors import SplatuError, creatable_dir
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 
@@ -29,7 +29,8 @@ class ProcessImagesConfig:
     images: tyro.conf.Positional[Path]
     """Folder of photos of one static scene."""
     output: Path | None = None
-    """Scene folder to write (sparse/0, images link, database.db); None: the parent of a folder named images."""
+    """Scene folder to write (sparse/0, images link, database.db); None: the parent of a folder named images, else
+    <folder>-colmap beside the photos' folder."""
     matcher: Literal["exhaustive", "sequential"] = "exhaustive"
     """exhaustive: all pairs (best for < ~200 photos); sequential: neighbours in file order (video frames)."""
     camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
@@ -185,7 +186,7 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
                           "pass --overwrite or choose another --output")
     link = _images_link(cfg.images, output)
     created = [path for path in (output, output / "sparse") if not path.exists()] + [database, sparse]
-    writable_dir(output, "--output")  # a file there raised FileExistsError
+    creatable_dir(output, "--output").mkdir(parents=True, exist_ok=True)  # a file there raised FileExistsError
     database.unlink(missing_ok=True)
     if sparse.exists():
         shutil.rmtree(sparse)

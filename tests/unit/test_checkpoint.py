@@ -50,9 +50,21 @@ def test_only_the_newest_checkpoints_are_kept_and_the_newest_is_resolved(tmp_pat
     for step in (10, 20, 30):
         ckpt.save_checkpoint(tmp_path, step, state)
     names = [p.name for p in ckpt.list_checkpoints(tmp_path)]
-    assert len(names) == ckpt.KEEP_CHECKPOINTS and names[-1] == "step-0000030.pt"
+    assert names == ["step-0000020.pt", "step-0000030.pt"]  # the default keeps two
     assert ckpt.resolve_checkpoint(tmp_path) == ckpt.checkpoint_path(tmp_path, 30)
     assert ckpt.run_dir_of(ckpt.checkpoint_path(tmp_path, 30)) == tmp_path.resolve()
+    for step in (40, 50, 60):
+        ckpt.save_checkpoint(tmp_path, step, state, keep=4)
+    assert [p.name for p in ckpt.list_checkpoints(tmp_path)] == [f"step-00000{s}.pt" for s in (30, 40, 50, 60)]
+
+
+def test_keeping_no_checkpoint_is_refused(tmp_path):
+    from splatu.cli import main
+
+    with pytest.raises(SplatuError, match="--keep-checkpoints"):
+        TrainConfig(keep_checkpoints=0)
+    with pytest.raises(SplatuError, match="--keep-checkpoints"):
+        main(["train", "--keep-checkpoints", "0", "--output-dir", str(tmp_path)], False)
 
 
 def test_a_users_copy_in_the_checkpoint_folder_is_not_a_checkpoint(tmp_path):

@@ -229,3 +229,25 @@ def test_help_into_a_closed_pipe_is_no_traceback():
     err = child.stderr.read()
     assert child.wait(timeout=120) == 1
     assert "Traceback" not in err and err == ""
+
+
+def test_a_refused_command_leaves_no_empty_output_folders(tmp_path, capsys):
+    """The output folders were made (empty) to prove them writable before the scene or run was read, so a mistyped
+    path left `outputs/` or an `--output` folder behind; they are now proven writable without being made."""
+    for args in (["train", "--data", str(tmp_path / "no_scene"), "--output-dir", str(tmp_path / "runs")],
+                 ["eval-ause", "--load", str(tmp_path / "no_run"), "--output", str(tmp_path / "scores" / "a.json")],
+                 ["render-uncertainty", "--load", str(tmp_path / "no_run"), "--output", str(tmp_path / "maps")]):
+        with pytest.raises(SystemExit) as exc:
+            entrypoint(args)
+        assert exc.value.code == 2, args
+        assert capsys.readouterr().err.startswith("error: ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_an_output_folder_under_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "taken").write_text("a file")
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--data", "poster", "--output-dir", str(tmp_path / "taken" / "runs")])
+    assert exc.value.code == 2
+    line = capsys.readouterr().err.strip()
+    assert "cannot write the output folder" in line and "is a file" in line and "--output-dir" in line

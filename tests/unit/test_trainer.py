@@ -656,7 +656,7 @@ def test_evaluation_composites_rgba_targets_on_the_render_background():
     assert metrics["psnr"] == pytest.approx(-10 * math.log10((rgb * alpha) ** 2), abs=1e-3)
 
 
-PROGRESS_LINE = re.compile(r"step +(\d+)/(\d+)  loss \d\.\d{4}  train PSNR ")
+PROGRESS_LINE = re.compile(r"step +(\d+)/(\d+)  loss \d\.\d{4}  train PSNR \(EMA\) ")
 
 
 @pytest.mark.parametrize("force_color", [None, "1"])
@@ -689,7 +689,7 @@ def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
 
 def test_progress_and_eval_lines_read_plainly():
     assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
-        "step    500/2000  loss 0.0512  train PSNR 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
+        "step    500/2000  loss 0.0512  train PSNR (EMA) 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
     assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
     assert train_progress.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
     metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
@@ -1059,10 +1059,10 @@ def test_a_resume_logs_the_evaluation_that_a_stop_skipped_as_an_uninterrupted_ru
 def test_a_stop_during_the_final_checkpoint_lets_it_finish_and_a_resume_finishes_the_run(tmp_path, scene, monkeypatch):
     real_save = trainer.save_checkpoint
 
-    def sigint_during_the_last_save(run_dir, step, state):
+    def sigint_during_the_last_save(run_dir, step, state, keep):
         if step == 12:
             os.kill(os.getpid(), signal.SIGINT)
-        return real_save(run_dir, step, state)
+        return real_save(run_dir, step, state, keep)
 
     monkeypatch.setattr(trainer, "save_checkpoint", sigint_during_the_last_save)
     with pytest.raises(interrupts.TrainingInterrupted, match=r"interrupted at step 12, saved .*step-0000012\.pt"):
@@ -1077,10 +1077,10 @@ def test_a_stop_during_the_final_checkpoint_lets_it_finish_and_a_resume_finishes
 def test_a_second_stop_during_the_save_names_the_checkpoint_before(tmp_path, scene, monkeypatch):
     real_save = trainer.save_checkpoint
 
-    def second_ctrl_c_while_saving_step_7(run_dir, step, state):
+    def second_ctrl_c_while_saving_step_7(run_dir, step, state, keep):
         if step == 7:
             raise KeyboardInterrupt
-        return real_save(run_dir, step, state)
+        return real_save(run_dir, step, state, keep)
 
     def ctrl_c_at_7(step, state):
         if step == 7:
@@ -1123,14 +1123,14 @@ def test_the_stop_message_while_finishing_says_where_to_resume_from(tmp_path, sc
 def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_earlier_checkpoint(tmp_path, scene, monkeypatch):
     real_save = trainer.save_checkpoint
 
-    def full_disk_at_step_12(run_dir, step, state):
+    def full_disk_at_step_12(run_dir, step, state, keep):
         if step < 12:
-            return real_save(run_dir, step, state)
+            return real_save(run_dir, step, state, keep)
         import resource
         limits = resource.getrlimit(resource.RLIMIT_FSIZE)
         resource.setrlimit(resource.RLIMIT_FSIZE, (4096, limits[1]))  # Python ignores SIGXFSZ: writes fail, EFBIG
         try:
-            return real_save(run_dir, step, state)
+            return real_save(run_dir, step, state, keep)
         finally:
             resource.setrlimit(resource.RLIMIT_FSIZE, limits)
 
@@ -1269,12 +1269,12 @@ def test_a_second_stop_during_a_periodic_save_aborts_it_instead_of_saving_again(
     real_save = trainer.save_checkpoint
     saves = []
 
-    def two_ctrl_cs_while_saving_step_6(run_dir, step, state):
+    def two_ctrl_cs_while_saving_step_6(run_dir, step, state, keep):
         saves.append(step)
         if step == 6:
             os.kill(os.getpid(), signal.SIGINT)  # the first: finish, then stop
             os.kill(os.getpid(), signal.SIGINT)  # the second: now
-        return real_save(run_dir, step, state)
+        return real_save(run_dir, step, state, keep)
 
     monkeypatch.setattr(trainer, "save_checkpoint", two_ctrl_cs_while_saving_step_6)
     with pytest.raises(interrupts.TrainingInterrupted) as stop:
@@ -1341,9 +1341,9 @@ def test_the_metrics_log_is_fsynced_before_each_checkpoint_and_the_summary(tmp_p
         if metrics.exists() and os.path.samestat(os.fstat(fd), metrics.stat()):
             events.append(("synced", metrics.stat().st_size))
 
-    def recording_save(run_dir, step, state):
+    def recording_save(run_dir, step, state, keep):
         events.append(("checkpoint", metrics.stat().st_size))
-        return real_save(run_dir, step, state)
+        return real_save(run_dir, step, state, keep)
 
     def recording_write(path, text):
         if path.name == "summary.json":
@@ -1447,3 +1447,30 @@ def test_a_degree_choice_the_resume_would_make_again_or_cannot_date_is_set_aside
     assert (folder is not None) == set_aside and choice.exists() != set_aside
     if set_aside:
         assert (folder / run_records.DEGREE_CHOICE_FILE).read_text() == record
+
+
+def test_a_resume_sets_aside_only_the_reports_of_later_models(tmp_path):
+    """Renders and AUSE reports made of a checkpoint file name it; those of the kept checkpoint (or an earlier one)
+    stay with it, and only those of later checkpoints or of the run's newest model go to abandoned/ (all of them
+    went, a user's walkthrough found)."""
+    checkpoints = tmp_path / "checkpoints"
+    checkpoints.mkdir()
+    for step in (10, 20, 30):
+        (checkpoints / f"step-{step:07d}.pt").write_bytes(b"x")
+    (tmp_path / "metrics.jsonl").write_text("")
+    names = ["ause_ours.json", "ause_ours-step-0000010.json", "ause_ours-step-0000020.json",
+             "ause_ours-step-0000030.json", "uncertainty/ours-eval", "uncertainty/ours-step-0000020-eval",
+             "uncertainty/fisher-step-0000030-4-probes-eval"]
+    for name in names:
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).mkdir() if "uncertainty/" in name else (tmp_path / name).write_text("{}")
+    folder = run_records.set_aside_later_work(tmp_path, 20)
+    kept = {n for n in names if (tmp_path / n).exists()}
+    assert kept == {"ause_ours-step-0000010.json", "ause_ours-step-0000020.json", "uncertainty/ours-step-0000020-eval"}
+    assert {n for n in names if (folder / n).exists()} == set(names) - kept
+    assert (folder / "step-0000030.pt").exists() and not (checkpoints / "step-0000030.pt").exists()
+
+
+def test_a_training_keeps_as_many_checkpoints_as_asked(tmp_path, scene):
+    run_dir = train_command.train(tiny_config(tmp_path, checkpoint_every=3, keep_checkpoints=3))
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000006.pt", "step-0000009.pt", "step-0000012.pt"]
