@@ -9,6 +9,8 @@ from splatu.data.process_images import ProcessImagesConfig
 from splatu.data.process_images import run as run_process_images
 from splatu.eval_ause import EvalAuseConfig
 from splatu.eval_ause import run as run_eval_ause
+from splatu.export import ExportConfig
+from splatu.export import run as run_export
 from splatu.render_uncertainty import RenderUncertaintyConfig
 from splatu.render_uncertainty import run as run_render_uncertainty
 from splatu.train_command import run_command as run_train
@@ -20,6 +22,8 @@ COMMANDS: dict[str, Command] = {
                                   lambda argv: RenderUncertaintyConfig(), run_render_uncertainty),
     "eval-ause": Command("Score uncertainty maps with sparsification curves and AUSE.",
                          lambda argv: EvalAuseConfig(), run_eval_ause),
+    "export": Command("Write a run's model, or any checkpoint of it, as a standard 3DGS PLY.",
+                      lambda argv: ExportConfig(), run_export),
     "process-images": Command("Run structure from motion (pycolmap, CPU) on a folder of photos.",
                               lambda argv: ProcessImagesConfig(images=Path("images")), run_process_images),
 }

@@ -536,3 +536,21 @@ def test_eval_ause_never_replaces_a_folder_it_did_not_write(tiny_run, tmp_path, 
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(lines) == 1 and "holds something else" in lines[0] and str(theirs) in lines[0]
     assert (theirs / "notes.txt").read_text() == "mine" and not (tmp_path / "ause.json").exists()
+
+
+def test_export_of_the_last_checkpoint_is_the_runs_own_ply_and_an_earlier_one_goes_to_exports(tiny_run, tmp_path,
+                                                                                             capsys):
+    """`splatu export` writes what training writes at its end, for any checkpoint: a run stopped early, or an earlier
+    step, can be opened in a viewer too."""
+    from splatu.checkpoint import list_checkpoints
+
+    out = tmp_path / "final.ply"
+    entrypoint(["export", "--load", str(tiny_run), "--output", str(out)])
+    assert out.read_bytes() == (tiny_run / "splat.ply").read_bytes()
+    assert "wrote" in capsys.readouterr().out
+    checkpoints = list_checkpoints(tiny_run)
+    entrypoint(["export", "--load", str(checkpoints[-1])])
+    assert (tiny_run / "exports" / f"splat-{checkpoints[-1].stem}.ply").read_bytes() == out.read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["export", "--load", str(tiny_run), "--output", str(tmp_path / "model.txt")])
+    assert exc.value.code == 2 and "--output must name a .ply file" in capsys.readouterr().err

@@ -147,7 +147,7 @@ def test_version(capsys):
     (["render-uncertainty", "--views", "bogus"], "invalid choice 'bogus' for argument '--views'",
      "see `splatu render-uncertainty --help`"),
     (["train", "--steps"], "missing value for argument '--steps'", "see `splatu train --help`"),
-    ([], "expected one of {train, render-uncertainty, eval-ause, process-images}", "see `splatu --help`"),
+    ([], "expected one of {train, render-uncertainty, eval-ause, export, process-images}", "see `splatu --help`"),
 ])
 def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
     """tyro draws a parse error as a box of up to 15 lines; like every other user error, it is one line."""

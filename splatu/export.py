@@ -1,0 +1,46 @@
+"""`splatu export`: any checkpoint of a run as the standard 3DGS PLY that training writes at its end, so a run
+stopped early, or an earlier step of a finished one, can be opened in a viewer too."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+
+from splatu.checkpoint import checkpoint_step, load_run, resolve_checkpoint, run_folder
+from splatu.errors import SplatuError, creatable_dir
+from splatu.ply import save_ply
+
+
+@dataclass
+class ExportConfig:
+    """Options of `splatu export`."""
+
+    load: Path = Path("outputs/poster/splatu/latest")
+    """A training run directory (its newest checkpoint is exported) or one of its checkpoint files."""
+    output: Path | None = None
+    """The .ply to write; default: <run>/exports/splat-step-<step>.ply (a finished run's own splat.ply is the
+    export of its last step)."""
+
+
+def export_path(load: Path, checkpoint: Path, output: Path | None) -> Path:
+    """Where the PLY goes, refused in one line before anything is read if it cannot be written there."""
+    path = output or run_folder(load) / "exports" / f"splat-{checkpoint.stem}.ply"
+    if path.suffix != ".ply" or path.is_dir():
+        raise SplatuError("--output must name a .ply file", f"in {path}",
+                          f"pass a path such as {path.with_suffix('.ply')}")
+    creatable_dir(path.parent, "--output (a .ply path in a writable folder)")
+    return path
+
+
+def run(config: ExportConfig) -> None:
+    checkpoint = resolve_checkpoint(config.load)
+    output = export_path(config.load, checkpoint, config.output)
+    trained = load_run(checkpoint)
+    if trained.frame is None:
+        raise SplatuError("this checkpoint predates the record of the scene's normalisation, so its Gaussians cannot "
+                          "be put back in the data's coordinates", f"in {checkpoint}", "retrain the run to export it")
+    save_ply(trained.model, output, trained.frame)
+    Console().print(f"wrote {output} ({len(trained.model):,} Gaussians, step {checkpoint_step(checkpoint)})",
+                    soft_wrap=True)
