@@ -78,6 +78,22 @@ def _parse(config_type: Any, argv: Sequence[str], help_command: str, debug: bool
             sys.stderr.write(captured.getvalue())
 
 
+def _run(args: list[str], debug: bool) -> None:
+    """The command, then its output flushed: a reader that left (`splatu --version | true`) is then a
+    BrokenPipeError for `entrypoint` to end on quietly, not Python's own at exit ("Exception ignored", status 120),
+    which it was wherever the whole output fitted in stdout's buffer."""
+    try:
+        if args == ["--version"]:
+            from splatu import __version__
+
+            print(f"splatu {__version__}")
+            return
+        keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
+        main(args, debug)
+    finally:
+        sys.stdout.flush()
+
+
 def entrypoint(argv: Sequence[str] | None = None) -> None:
     for stream in (sys.stdout, sys.stderr):  # help texts hold λ, σ, ≈…: an ASCII-only console shows "?", not a crash
         if hasattr(stream, "reconfigure"):
@@ -85,14 +101,8 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args or os.environ.get("SPLATU_DEBUG", "") not in ("", "0")
     args = [a for a in args if a != "--debug"]
-    if args == ["--version"]:
-        from splatu import __version__
-
-        print(f"splatu {__version__}")
-        return
-    keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
     try:
-        main(args, debug)
+        _run(args, debug)
     except SplatuError as err:
         if debug:
             raise

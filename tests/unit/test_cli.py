@@ -220,15 +220,31 @@ def test_an_ascii_only_console_gets_help_and_one_line_errors_not_a_crash():
         "(see `splatu train --help`)"]
 
 
-def test_help_into_a_closed_pipe_is_no_traceback():
-    """`splatu train --help | head -1`: the reader leaves before the help is written, which was a BrokenPipeError
-    traceback; the command now just ends."""
-    child = subprocess.Popen([sys.executable, "-m", "splatu", "train", "--help"], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
-    child.stdout.close()  # before the child has imported torch, let alone written its help
+def _into_a_closed_pipe(*args: str) -> tuple[int, str]:
+    """Exit status and stderr of `splatu ARGS` whose reader left before it wrote anything; stdout block-buffered,
+    as it is for a user (PYTHONUNBUFFERED would write every print at once)."""
+    env = {name: value for name, value in os.environ.items() if name != "PYTHONUNBUFFERED"}
+    child = subprocess.Popen([sys.executable, "-m", "splatu", *args], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env=env)
+    child.stdout.close()  # before the child has imported torch, let alone written anything
     err = child.stderr.read()
-    assert child.wait(timeout=120) == 1
-    assert "Traceback" not in err and err == ""
+    return child.wait(timeout=120), err
+
+
+@pytest.mark.parametrize("args", [("train", "--help"), ("eval-ause", "--help"), ("--version",)])
+def test_output_into_a_closed_pipe_is_no_traceback(args):
+    """`splatu train --help | head -1`: the reader leaves before the output is written, which was a BrokenPipeError
+    traceback, or, for an output that fits stdout's buffer (eval-ause's help, the version), Python's "Exception
+    ignored" at exit with status 120; the command now just ends."""
+    status, err = _into_a_closed_pipe(*args)
+    assert status == 1
+    assert err == ""
+
+
+def test_a_closed_pipe_with_debug_shows_its_traceback():
+    status, err = _into_a_closed_pipe("--debug", "--version")
+    assert status != 0
+    assert "BrokenPipeError" in err
 
 
 def test_a_refused_command_leaves_no_empty_output_folders(tmp_path, capsys):
