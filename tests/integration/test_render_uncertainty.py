@@ -6,6 +6,7 @@ import json
 import math
 import os
 import shutil
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from splatu import render_uncertainty
 from splatu.camera import Camera, look_at
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
+from splatu.interrupts import Terminated, sigterm_as_ctrl_c
 from splatu.orbit import capture_frame, orbit_cameras
 from splatu.render_uncertainty import (
     SWAPPING,
@@ -328,6 +330,51 @@ def test_a_render_replaces_what_the_folder_holds_when_it_swaps_in(tmp_path):
     assert _folder_names(out) == {"maps/rgb/new.png", "render.json"}  # and no SWAPPING marker left
 
 
+def _staged_over_an_earlier_render(tmp_path: Path) -> tuple[Path, Path]:
+    """(staging, out): a new render of two files staged inside `out`, which holds an earlier one."""
+    out, staging = tmp_path / "out", tmp_path / "out" / ".render.tmp"
+    (out / "png").mkdir(parents=True)
+    (out / "png" / "old.png").write_bytes(b"old")
+    (out / "render.json").write_text("earlier")
+    (staging / "png").mkdir(parents=True)
+    (staging / "png" / "new.png").write_bytes(b"new")
+    (staging / "render.json").write_text("new")
+    return staging, out
+
+
+def test_no_moment_of_a_swap_has_a_render_json_beside_files_it_does_not_list(tmp_path, monkeypatch):
+    """A kill may land between any two renames: the earlier render.json must be gone before the first, and the new
+    one must come in with the last."""
+    staging, out = _staged_over_an_earlier_render(tmp_path)
+    moves, replace = [], os.replace
+
+    def watched(src, dst):
+        moves.append((Path(src).name, (out / "render.json").exists()))
+        replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", watched)
+    swap_in(staging, out)
+    assert moves == [("png", False), ("render.json", False)]
+    assert (out / "render.json").read_text() == "new"
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_the_swap_waits_for_its_end(tmp_path, monkeypatch, stop):
+    staging, out = _staged_over_an_earlier_render(tmp_path)
+    replace = os.replace
+
+    def stopped_midway(src, dst):
+        replace(src, dst)
+        if Path(dst).name == "png":  # the first of the two renames
+            os.kill(os.getpid(), stop)
+
+    monkeypatch.setattr(os, "replace", stopped_midway)
+    with pytest.raises(KeyboardInterrupt) as exc, sigterm_as_ctrl_c():  # as the command runs it
+        swap_in(staging, out)
+    assert isinstance(exc.value, Terminated) == (stop == signal.SIGTERM)
+    assert _folder_names(out) == {"png/new.png", "render.json"}  # whole, and no SWAPPING marker left
+
+
 def test_a_folder_left_half_swapped_is_still_known_as_a_render(tmp_path):
     """A second Ctrl-C (or a kill) during the swap leaves neither render whole and no render.json: the same command
     must be able to render there again, not refuse the folder as another tool's."""
@@ -466,6 +513,8 @@ def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty
             "--output", str(tmp_path / "aware"))
     record = json.loads((tmp_path / "plain" / "render.json").read_text())
     assert record["train_seconds"] == 12.5
+    assert (record["method"], record["density_aware"]) == ("ensemble", False)
+    assert json.loads((tmp_path / "aware" / "render.json").read_text())["density_aware"] is True
     for view in record["per_view"]:
         plain = np.load(tmp_path / "plain" / "npy" / f"{view['name']}_uncertainty.npy")
         aware = np.load(tmp_path / "aware" / "npy" / f"{view['name']}_uncertainty.npy")

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from splatu.atomic import atomic_write, atomic_write_text
+from splatu.atomic import atomic_write, atomic_write_text, leftover_temporaries, temporary_sibling
 from splatu.checkpoint import list_checkpoints, read_checkpoint, save_checkpoint
 from splatu.errors import SplatuError
 
@@ -45,3 +45,13 @@ def test_a_folder_that_is_a_file_is_one_line(tmp_path):
     (tmp_path / "run").write_text("not a folder")
     with pytest.raises(SplatuError, match=r"could not write summary\.json"):
         atomic_write_text(tmp_path / "run" / "summary.json", "{}")
+
+
+def test_a_killed_writers_temporary_is_found_and_nothing_else_is(tmp_path):
+    """What a writer killed outright leaves is found by name, and only that: the render's `.render-swapping` marker,
+    which a leftover search for `.render*` would also delete, says a folder is a render's."""
+    leftover = temporary_sibling(tmp_path / "step-1.pt")
+    assert leftover.name.startswith(".") and leftover.parent == tmp_path  # hidden, beside the file it becomes
+    for path in (leftover, tmp_path / "step-1.pt", tmp_path / ".step-1.pt.bak", tmp_path / ".step-1.pt-swapping"):
+        path.write_text("x")
+    assert leftover_temporaries(tmp_path, "step-*.pt") == [leftover]

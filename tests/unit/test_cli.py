@@ -9,6 +9,7 @@ from splatu.cli import entrypoint
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
 from splatu.methods import METHODS
+from splatu.train_config import MAX_SEED
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -120,6 +121,8 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["train", "--densify.warmup-length", "-1"],
     ["render-uncertainty", "--orbit-frames", "4"], ["render-uncertainty", "--density-aware"],
     ["render-uncertainty", "--method", "random", "--fisher-probes", "4"], ["eval-ause", "--density-aware"],
+    ["eval-ause", "--method", "fisher", "--fisher-probes", "0"],
+    ["render-uncertainty", "--method", "random", "--seed", str(MAX_SEED)],
 ])
 def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tmp_path, argv):
     """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a NaN blamed on

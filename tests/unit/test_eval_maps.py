@@ -280,6 +280,14 @@ def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     assert label(data="elsewhere") == "ours"
 
 
+def test_the_recorded_options_are_every_option_including_the_scene():
+    """render.json and the scores' JSON keep what made their maps, --data too: the label leaves it out, so the
+    record is the one place that says which scene the maps were rendered on."""
+    options = UncertaintyOptions(data="elsewhere", method="fisher", fisher_probes=4, seed=1)
+    assert options.record() == {"data": "elsewhere", "method": "fisher", "head": None, "density_aware": False,
+                                "fisher_probes": 4, "seed": 1}
+
+
 def _rewrite_maps(root: Path, entries: list[MapEntry], tag: str, times: int) -> None:
     for _ in range(times):
         maps.write_maps_dir(root, entries, {"writer.txt": tag})

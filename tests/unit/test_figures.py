@@ -6,9 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib.image as mpimg
+import matplotlib.pyplot as plt
 import numpy as np
+import pytest
 
 from splatu.ause import FRACTIONS, Curves
+from splatu.errors import SplatuError
 from splatu.figures import SpeedPoint, distinct_oracles, method_lines, plot_sparsification, plot_speed_against_error
 
 # as the study writes them: a method measured in one budget only, baselines with no PSNR of their own
@@ -47,3 +50,15 @@ def test_a_method_scored_on_its_own_renders_gets_its_own_oracle(tmp_path: Path) 
     path = tmp_path / "curves.png"
     plot_sparsification(path, curves, "poster", "mae")
     assert min(mpimg.imread(path).shape[:2]) > 100
+
+
+def test_every_figure_is_closed_once_written_or_refused(tmp_path: Path) -> None:
+    """pyplot keeps a figure it is not told to close: the study plots one per method and budget, and each held on
+    to its memory (matplotlib warns past 20 open figures)."""
+    plt.close("all")
+    curves = {"ours": Curves(1.0 - FRACTIONS, 0.9 * (1.0 - FRACTIONS))}
+    plot_sparsification(tmp_path / "curves.png", curves, "poster", "mae")
+    (tmp_path / "taken.png").mkdir()  # a folder where the plot goes: the write is refused
+    with pytest.raises(SplatuError):
+        plot_sparsification(tmp_path / "taken.png", curves, "poster", "mae")
+    assert plt.get_fignums() == []
