@@ -17,6 +17,7 @@ import pytest
 from splatu.cli import entrypoint
 from splatu.data.assemble import assemble, refuse_split_flags_the_scene_overrides
 from splatu.data.config import DataConfig
+from splatu.data.frames import refuse_implausible_focal
 from splatu.data.images import ImageCache
 from splatu.data.process_images import ProcessImagesConfig, process_images
 from splatu.data.resolve import load_scene, read_scene_files
@@ -209,6 +210,9 @@ def test_colmap_model_missing_a_file_names_it(tmp_path, missing):
     # ids too large for COLMAP's integers: numpy's finiteness test raised a TypeError on them
     ("cameras.txt", lambda text: text.replace("1 PINHOLE", f"{10 ** 30} PINHOLE"), 2),
     ("images.txt", lambda text: text.replace("2 1 0 0 0", f"{10 ** 30} 1 0 0 0"), 3),
+    ("cameras.txt", lambda text: text.replace("1 PINHOLE", f"{2 ** 32 - 1} PINHOLE"), 2),  # COLMAP's "invalid" id
+    ("cameras.txt", lambda text: text.replace("5 5 4 3", "5 5 4 3 0"), 2),  # one parameter too many
+    ("points3D.txt", lambda text: "1 0.5 0.5 2 255 0 0 0.1 1 0.5\n", 1),  # a track's 2D point index is an id
 ])
 def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, file, edit, line):
     path = write_colmap(tmp_path / "scene") / file
@@ -550,6 +554,15 @@ def test_a_nerf_synthetic_training_image_listed_again_is_refused(tmp_path, train
     assert error.where == f"in {tmp_path / 'lego' / file}"
 
 
+def test_a_nerf_synthetic_held_out_image_in_val_and_test_is_no_leak(tmp_path):
+    """Only a training image listed again is refused: one held out twice was never trained on."""
+    root = tmp_path / "lego"
+    write_blender(root, ["./train/r_0", "./train/r_1"], ["./test/r_0"])
+    (root / "transforms_val.json").write_text((root / "transforms_test.json").read_text())
+    assert [frame.name for frame in read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames] == [
+        "train/r_0", "train/r_1", "test/r_0", "test/r_0"]
+
+
 def test_a_nerf_synthetic_camera_angle_that_is_a_bool_is_refused(tmp_path):
     """true was read as 1 radian."""
     write_blender(tmp_path / "lego", ["./train/r_0", "./train/r_1"], ["./test/r_0"], angle=True)
@@ -718,6 +731,19 @@ def test_a_nerfstudio_image_width_beyond_opencv_s_sizes_names_the_frame(tmp_path
     assert error.what == "image size 3000000000x30 is not a plausible image size" and cameras[0].name in error.where
 
 
+@pytest.mark.parametrize(("w", "h", "plausible"), [(2**16, 30, True), (40, 2**16 + 1, False)])
+def test_a_nerfstudio_image_side_may_reach_the_limit_and_not_pass_it(tmp_path, w, h, plausible):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(w=w, h=h, fl_x=3e4, fl_y=3e4) for frame in c["frames"]])
+    if plausible:
+        assert read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.width == w
+        return
+    with pytest.raises(SplatuError) as caught:
+        read_scene_files(root, 1, (1.0, 1.0, 1.0))
+    assert caught.value.what == f"image size {w}x{h} is not a plausible image size"
+
+
 def test_two_frames_with_the_same_file_path_are_refused(tmp_path):
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=4)
@@ -808,6 +834,79 @@ def test_a_colmap_text_id_that_is_not_a_whole_number_names_the_field_and_line(tm
     limit = 2**64 - 2 if file == "points3D.txt" else 2**32 - 2
     assert error.what == f"cannot parse {file} line {line} ({field} is not an id, a whole number from 0 to {limit})"
     assert error.where == f"in {path}"
+
+
+@pytest.mark.parametrize(("file", "edit", "line", "shown"), [
+    # a 2D points line: its first fields are coordinates, not the IMAGE_ID and CAMERA_ID of a pose line
+    ("images.txt", lambda text: text.replace("a.png\n\n", "a.png\n1.5 2.5 -1 3.5 4.5 -1 5.5 6.5 -1 7.5\n"), 2,
+     "'1.5 2.5 -1 3.5 4.5 -1 5.5 6.5 -1 7.5'"),
+    ("cameras.txt", lambda text: text.replace("1 PINHOLE", "x PINHOLE"), 2, "'x PINHOLE 8 6 5 5 4 3'"),  # no number
+])
+def test_a_colmap_line_that_is_bad_but_not_for_an_id_is_quoted(tmp_path, file, edit, line, shown):
+    """Only a number where an id belongs is named by its field; any other bad line is quoted as it is."""
+    path = write_colmap(tmp_path / "scene") / file
+    path.write_text(edit(path.read_text()))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == f"cannot parse {file} line {line} ({shown})"
+
+
+def test_a_colmap_track_past_an_images_2d_points_names_the_point(tmp_path):
+    """An images.txt points line holds X Y POINT3D_ID triples: one point is three fields, not three points."""
+    sparse = write_colmap(tmp_path / "scene", points="1 0.5 0.5 2 255 0 0 0.1 1 1\n")
+    images = sparse / "images.txt"
+    images.write_text(images.read_text().replace("a.png\n\n", "a.png\n1.5 2.5 -1\n"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == "point 1's track names 2D point 1 of image 1, which has 1 in images.txt"
+    assert error.where == f"in {sparse / 'points3D.txt'} line 1"
+
+
+def _focal_for(degrees: float, side: int) -> float:
+    """The focal length that sees `degrees` across `side` pixels."""
+    return 0.5 * side / math.tan(math.radians(degrees) / 2)
+
+
+@pytest.mark.parametrize(("fx", "fy", "refused"), [
+    (36.0, 36.0, None),
+    (36.0, _focal_for(179.5, 30), "wider than any camera's"),  # fl_y alone: a camera of no height in rays
+    (_focal_for(179.1, 40), 36.0, "wider than any camera's"),
+    (_focal_for(178.9, 40), 36.0, None),
+    (36.0, 4.1e5, "longer than any camera's"),  # fl_y alone
+    (3.9e5, 3.9e5, None),  # 1e4 times the larger side is 4e5 px, whatever the smaller one
+])
+def test_a_focal_length_is_judged_on_both_axes_against_the_larger_side(fx, fy, refused):
+    K = np.array([[fx, 0.0, 20.0], [0.0, fy, 15.0], [0.0, 0.0, 1.0]])
+    if refused is None:
+        refuse_implausible_focal(K, 40, 30, "here", "fix it")
+        return
+    with pytest.raises(SplatuError) as caught:
+        refuse_implausible_focal(K, 40, 30, "here", "fix it")
+    assert refused in caught.value.what
+
+
+@pytest.mark.parametrize(("cx", "cy", "zoom_x", "zoom_y", "usable"), [
+    (20.0, 15.0, 1.0, 1.0, True),
+    (20.0, 15.0, 10.0, 0.1, True),  # the limits themselves
+    (-0.5, 15.0, 1.0, 1.0, False),  # the principal point off the image, either way
+    (20.0, 30.5, 1.0, 1.0, False),
+    (20.0, 15.0, 0.09, 0.09, False),  # the lens's focal length cut, or stretched, over ten times
+    (20.0, 15.0, 1.0, 11.0, False),  # along y alone
+])
+def test_an_undistorted_camera_must_keep_its_principal_point_and_focal_length_near(monkeypatch, cx, cy, zoom_x,
+                                                                                     zoom_y, usable):
+    """OpenCV's optimal matrix is checked, not trusted: absurd coefficients gave one 2e-6 or 4e29 times the lens."""
+    from splatu.data import images
+
+    K = np.array([[36.0, 0.0, 20.0], [0.0, 36.0, 15.0], [0.0, 0.0, 1.0]])
+    found = np.array([[36.0 * zoom_x, 0.0, cx - 0.5], [0.0, 36.0 * zoom_y, cy - 0.5], [0.0, 0.0, 1.0]])  # OpenCV's
+
+    monkeypatch.setattr(images.cv2, "getOptimalNewCameraMatrix", lambda *args: (found, None))
+    distortion = images.Distortion("OPENCV", (0.1, 0.0, 0.0, 0.0))
+    if usable:
+        np.testing.assert_allclose(images.undistorted_intrinsics(K, distortion, 40, 30, "here")[:2, :2],
+                                   found[:2, :2])
+        return
+    with pytest.raises(SplatuError, match="has no usable undistorted camera"):
+        images.undistorted_intrinsics(K, distortion, 40, 30, "here")
 
 
 @pytest.mark.parametrize(("value", "message"), [

@@ -738,6 +738,45 @@ def test_colmap_text_lines_are_checked_as_colmap_reads_them_indented_comments_an
     assert torch.equal(edited.points, plain.points) and torch.equal(edited.point_colors, plain.point_colors)
 
 
+def test_colmap_text_images_with_2d_points_load_as_without(tmp_path):
+    """COLMAP writes each image's 2D points on the line after its pose: a long line of numbers, not an image name
+    with spaces in it."""
+    cameras = ring_cameras(5, 40, 30)
+    _write_colmap_text(tmp_path / "plain", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    _write_colmap_text(tmp_path / "points", "PINHOLE", [36.0, 36.0, 20.0, 15.0], cameras)
+    images_txt = tmp_path / "points" / "sparse" / "0" / "images.txt"
+    four_points = "1.0 2.0 -1 3.0 4.0 -1 5.0 6.0 -1 7.0 8.0 -1"
+    images_txt.write_text(images_txt.read_text().replace(".png\n\n", f".png\n{four_points}\n"))
+    plain, points = (load_scene(config(tmp_path / name, tmp_path, eval_split="every-n", eval_every=3))
+                     for name in ("plain", "points"))
+    assert points.train.names == plain.train.names and points.eval.names == plain.eval.names
+
+
+def test_colmap_text_point_ids_may_pass_32_bits(tmp_path):
+    """Camera and image ids are 32-bit in COLMAP, 3D point ids 64-bit: a large model's point ids pass 2³²."""
+    _write_colmap_text(tmp_path / "scene", "PINHOLE", [36.0, 36.0, 20.0, 15.0], ring_cameras(5, 40, 30))
+    points_txt = tmp_path / "scene" / "sparse" / "0" / "points3D.txt"
+    points_txt.write_text(f"{2**32} 10.0 -3.0 2.0 255 0 128 0.5\n{2**40} 10.5 -3.0 2.5 0 255 0 0.5\n")
+    scene = load_scene(config(tmp_path / "scene", tmp_path, eval_split="every-n", eval_every=3))
+    assert scene.points.shape[0] == 2
+
+
+@pytest.mark.parametrize("given", ["in the frame and the file", "as fl_x and camera_angle_x"])
+def test_a_frames_own_focal_length_wins_and_fl_x_wins_over_camera_angle_x(tmp_path, given):
+    """As in instant-ngp: a frame's own value overrides the file's, and in one place fl_x overrides camera_angle_x."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=3)  # fl_x = 36 in every frame
+    content = json.loads((root / "transforms.json").read_text())
+    wide = 2 * math.atan(20 / 10)  # a focal length of 10 px across the 40 px
+    if given == "in the frame and the file":
+        content["camera_angle_x"] = wide
+    else:
+        for frame in content["frames"]:
+            frame["camera_angle_x"] = wide
+    (root / "transforms.json").write_text(json.dumps(content))
+    assert {float(frame.camera.K[0, 0]) for frame in load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames} == {36.0}
+
+
 @pytest.mark.parametrize("where", ["per frame, x and y", "top level, x only"])
 def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path, where):
     """instant-ngp's transforms.json may give the field of view in radians, camera_angle_x (and _y), instead of fl_x
