@@ -70,6 +70,9 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     if not target.is_dir():
         raise SplatuError("run directory or checkpoint not found", f"at {target}",
                           "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
+    if (target / "ensemble.json").is_file():
+        raise SplatuError("this is an ensemble run; it has one model per member", f"in {target}",
+                          "load each run listed in its ensemble.json")
     if not (target / CHECKPOINT_DIR).is_dir() and not (target / "config.yml").is_file():  # a run saves its config first
         raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}",
                           "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
@@ -188,10 +191,7 @@ def load_run(run_dir: Path, head: str | None = None) -> TrainedRun:
     """A run's config, trained model (its newest checkpoint) and frame, for rendering and evaluation; with
     `head`, as if the run had trained only that extra uncertainty head (see `select_head`)."""
     run_dir = Path(run_dir)
-    if (run_dir / "ensemble.json").is_file():
-        raise SplatuError("this is an ensemble run; it has one model per member", f"in {run_dir}",
-                          "load each run listed in its ensemble.json")
-    state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)
+    state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)  # an ensemble run is refused there
     config = from_dict(state["config"], str(run_dir))
     model = model_from_state(state, config)
     if head is not None:

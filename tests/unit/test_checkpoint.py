@@ -193,3 +193,18 @@ def test_a_checkpoint_older_than_the_frame_record_and_the_blur_option_loads_as_i
     assert frame is None
     assert loaded_config.model.screen_blur == 0.3 and loaded_config.model.antialiased is False
     assert loaded_config.steps == 7 and len(model) == state["num_gaussians"]
+
+
+def test_an_ensemble_run_is_named_as_one_wherever_a_single_run_is_expected(tmp_path, capsys):
+    """Its folder holds one run per member and no checkpoint of its own: "no checkpoint in this run directory,
+    train it first" would send the user the wrong way."""
+    from splatu.cli import entrypoint
+
+    (tmp_path / "ensemble.json").write_text("{}")
+    (tmp_path / "config.yml").write_text("steps: 3\n")
+    for load in (ckpt.resolve_checkpoint, ckpt.load_run):
+        with pytest.raises(SplatuError, match="this is an ensemble run"):
+            load(tmp_path)
+    with pytest.raises(SystemExit):
+        entrypoint(["export", "--load", str(tmp_path)])
+    assert "this is an ensemble run" in capsys.readouterr().err
