@@ -87,11 +87,13 @@ def _run(args: list[str], debug: bool) -> None:
             from splatu import __version__
 
             print(f"splatu {__version__}")
-            return
-        keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
-        main(args, debug)
-    finally:
+        else:
+            keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
+            main(args, debug)
+    except SystemExit:  # --help: tyro prints it, then exits
         sys.stdout.flush()
+        raise
+    sys.stdout.flush()  # not in a `finally`: a refused flush would replace the command's own error or stop
 
 
 def entrypoint(argv: Sequence[str] | None = None) -> None:

@@ -54,8 +54,11 @@ def creatable_dir(path: Path, option: str) -> Path:
     (a missing scene, a bad option) then leaves no empty folders behind. The probe is a temporary file in `path`,
     or in its nearest existing ancestor."""
     existing = path
-    while not existing.exists() and existing != existing.parent:
+    while not existing.exists() and not existing.is_symlink() and existing != existing.parent:
         existing = existing.parent
+    if existing.is_symlink() and not existing.exists():
+        raise SplatuError(f"cannot write the output folder ({existing} is a broken link)", f"in {path}",
+                          f"remove or repoint the link, or pass another {option}")
     if not existing.is_dir():
         raise SplatuError(f"cannot write the output folder ({existing} is a file)", f"in {path}",
                           f"pass a writable {option}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from splatu.checkpoint import checkpoint_step, load_run, resolve_checkpoint, run_folder
+from splatu.checkpoint import load_run, resolve_checkpoint, run_folder
 from splatu.errors import SplatuError, creatable_dir
 from splatu.ply import save_ply
 
@@ -20,8 +20,8 @@ class ExportConfig:
     load: Path = Path("outputs/poster/splatu/latest")
     """A training run directory (its newest checkpoint is exported) or one of its checkpoint files."""
     output: Path | None = None
-    """The .ply to write; default: <run>/exports/splat-step-<step>.ply (a finished run's own splat.ply is the
-    export of its last step)."""
+    """The .ply to write; default: <run>/exports/splat-<checkpoint's name>.ply, e.g. splat-step-0001000.ply (a finished
+    run's own splat.ply is the export of its last step)."""
 
 
 def export_path(load: Path, checkpoint: Path, output: Path | None) -> Path:
@@ -42,5 +42,4 @@ def run(config: ExportConfig) -> None:
         raise SplatuError("this checkpoint predates the record of the scene's normalisation, so its Gaussians cannot "
                           "be put back in the data's coordinates", f"in {checkpoint}", "retrain the run to export it")
     save_ply(trained.model, output, trained.frame)
-    Console().print(f"wrote {output} ({len(trained.model):,} Gaussians, step {checkpoint_step(checkpoint)})",
-                    soft_wrap=True)
+    Console().print(f"wrote {output} ({len(trained.model):,} Gaussians, from {checkpoint.name})", soft_wrap=True)

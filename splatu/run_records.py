@@ -92,19 +92,21 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     moved = [choice] if stale_choice else []
     if later:  # with the model they came from: its summary, export, renders and scores
         moved += [*later, run_dir / "summary.json", run_dir / "splat.ply"]
-        moved += [p for p in (*run_dir.glob("ause_*"), *run_dir.glob("uncertainty/*")) if _made_after(p.name, step)]
+        reports = (*run_dir.glob("ause_*"), *run_dir.glob("uncertainty/*"), *run_dir.glob("exports/*"))
+        moved += [p for p in reports if _made_after(p.name, step)]
     for path in moved:
-        if path.exists():  # renders keep their uncertainty/; checkpoints go straight in (refuse_set_aside_checkpoint)
-            target = folder / "uncertainty" if path.parent == run_dir / "uncertainty" else folder
+        if path.exists():  # renders and exports keep their folder; checkpoints go straight in (see refuse_set_aside…)
+            kept_folder = path.parent in (run_dir / "uncertainty", run_dir / "exports")
+            target = folder / path.parent.name if kept_folder else folder
             target.mkdir(exist_ok=True)
             path.replace(target / path.name)
     return folder
 
 
 def _made_after(name: str, step: int) -> bool:
-    """Whether a render or AUSE report was made of a model after `step`: one made of a checkpoint file names it
-    (`ause_ours-step-0000020.json`, `uncertainty/ours-step-0000020-eval`), and one that names none was made of the
-    run's newest model, which the resume abandons."""
+    """Whether a render, AUSE report or export was made of a model after `step`: one made of a checkpoint file names it
+    (`ause_ours-step-0000020.json`, `uncertainty/ours-step-0000020-eval`, `exports/splat-step-0000020.ply`), and one
+    that names none was made of the run's newest model, which the resume abandons."""
     named = CHECKPOINT_IN_LABEL.search(name)
     return named is None or int(named.group(1)) > step
 

@@ -88,7 +88,8 @@ class TrainConfig:
     """Write a checkpoint every this many steps (and always at the end); 0: only at the end."""
     keep_checkpoints: int = 2
     """Keep the newest this many checkpoints, deleting older ones as new ones are written: one with its Adam moments
-    is tens of MB. Two, so that a checkpoint is always whole while the next is written."""
+    is tens of MB. A checkpoint is written whole before the one before it goes, whatever this is; two keep an earlier
+    point to resume from."""
     output_dir: Path = Path("outputs")
     """Runs go to <output_dir>/<scene>/<method>/<timestamp>/, with a `latest` symlink beside them."""
     seed: int = 0

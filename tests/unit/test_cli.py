@@ -270,3 +270,13 @@ def test_an_output_folder_under_a_file_is_one_line(tmp_path, capsys):
     assert exc.value.code == 2
     line = capsys.readouterr().err.strip()
     assert "cannot write the output folder" in line and "is a file" in line and "--output-dir" in line
+
+
+def test_an_output_folder_through_a_broken_link_is_one_line(tmp_path, capsys):
+    """A dangling link passed the writability probe (made in its parent) and the later mkdir raised FileExistsError."""
+    (tmp_path / "gone").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--data", "poster", "--output-dir", str(tmp_path / "gone" / "runs")])
+    assert exc.value.code == 2
+    line = capsys.readouterr().err.strip()
+    assert "is a broken link" in line and "--output-dir" in line

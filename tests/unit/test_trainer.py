@@ -1460,13 +1460,15 @@ def test_a_resume_sets_aside_only_the_reports_of_later_models(tmp_path):
     (tmp_path / "metrics.jsonl").write_text("")
     names = ["ause_ours.json", "ause_ours-step-0000010.json", "ause_ours-step-0000020.json",
              "ause_ours-step-0000030.json", "uncertainty/ours-eval", "uncertainty/ours-step-0000020-eval",
-             "uncertainty/fisher-step-0000030-4-probes-eval"]
+             "uncertainty/fisher-step-0000030-4-probes-eval", "exports/splat-step-0000020.ply",
+             "exports/splat-step-0000030.ply"]
     for name in names:
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).mkdir() if "uncertainty/" in name else (tmp_path / name).write_text("{}")
     folder = run_records.set_aside_later_work(tmp_path, 20)
     kept = {n for n in names if (tmp_path / n).exists()}
-    assert kept == {"ause_ours-step-0000010.json", "ause_ours-step-0000020.json", "uncertainty/ours-step-0000020-eval"}
+    assert kept == {"ause_ours-step-0000010.json", "ause_ours-step-0000020.json", "uncertainty/ours-step-0000020-eval",
+                    "exports/splat-step-0000020.ply"}
     assert {n for n in names if (folder / n).exists()} == set(names) - kept
     assert (folder / "step-0000030.pt").exists() and not (checkpoints / "step-0000030.pt").exists()
 
