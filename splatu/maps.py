@@ -18,11 +18,10 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-import cv2
 import numpy as np
 
 from splatu.atomic import temporary_sibling
-from splatu.data.images import write_png
+from splatu.data.images import read_image, write_png
 from splatu.errors import SplatuError, load_number_array, os_error_behind, require_file, unwritable_folder
 
 FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
@@ -58,17 +57,10 @@ def file_stems(names: list[str]) -> list[str]:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    """An 8- or 16-bit PNG as float64 in [0, 1], RGB(A); decoded from its bytes, since cv2.imread crashed the
-    process (a segfault) on a path that is not UTF-8."""
-    data = require_file(path, "image", "write it or remove the view from every folder").read_bytes()
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if image is None:
-        raise SplatuError("image could not be decoded", f"in {path}", "re-export it as an 8- or 16-bit PNG")
-    scale = 65535.0 if image.dtype == np.uint16 else 255.0
-    image = image.astype(np.float64) / scale
-    if image.ndim == 3 and image.shape[2] >= 3:  # OpenCV stores BGR(A)
-        image = np.concatenate([image[..., 2::-1], image[..., 3:]], axis=-1)
-    return image
+    """An 8- or 16-bit PNG as float64 in [0, 1], RGB(A)."""
+    fix = "remove the view from every folder"
+    image = read_image(require_file(path, "image", f"write it or {fix}"), or_else=fix)
+    return image.astype(np.float64) / (65535.0 if image.dtype == np.uint16 else 255.0)
 
 
 def _read_rgb(path: Path) -> np.ndarray:

@@ -15,7 +15,13 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import Frame, RawScene, refuse_implausible_focal, world_to_camera_from_opengl
+from splatu.data.frames import (
+    Frame,
+    RawScene,
+    focal_from_angle,
+    refuse_implausible_focal,
+    world_to_camera_from_opengl,
+)
 from splatu.data.images import PixelRecipe, read_image
 from splatu.data.nerfstudio import frame_entry
 from splatu.errors import SplatuError
@@ -63,7 +69,7 @@ def load_blender(root: Path, downscale: int, background: tuple[float, float, flo
                 trained.add(path)
             if index == 0:  # the format stores no image size: all frames of a file share the first one's
                 height, width = read_image(path).shape[:2]
-                focal = 0.5 * width / math.tan(0.5 * angle)
+                focal = focal_from_angle(angle, width)
                 K = np.array([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]])
                 refuse_implausible_focal(K, width, height, f"in {json_path}",
                                          "fix camera_angle_x: the field of view across the image, in radians")

@@ -298,7 +298,7 @@ def _poses_and_point_counts(images: Path) -> Iterator[tuple[int, list[str], int]
         lines = list(file)
     for number, (line, after) in enumerate(zip(lines, [*lines[1:], ""], strict=True), start=1):
         tokens = line.split()
-        if not line.startswith("#") and _is_pose(tokens):
+        if _is_pose(tokens):  # a comment's first token starts with #, so it is no IMAGE_ID
             yield number, tokens, len(after.split()) // 3
 
 

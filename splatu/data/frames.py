@@ -91,6 +91,12 @@ def field_of_view(focal: float, side: int) -> float:
     return math.degrees(2 * math.atan(0.5 * side / focal))
 
 
+def focal_from_angle(angle: float, side: int) -> float:
+    """The focal length in pixels of a field of view of `angle` radians across `side` pixels (instant-ngp's and
+    NeRF-synthetic's camera_angle_x), the inverse of `field_of_view`."""
+    return 0.5 * side / math.tan(0.5 * angle)
+
+
 def refuse_implausible_focal(K: np.ndarray, width: int, height: int, where: str, fix: str) -> None:
     """One line for a positive pinhole focal length no camera has (a field of view of nearly 180 or nearly 0
     degrees, as from a focal length of 1e-30 or 1e30 px): such a camera trained silently into garbage."""

@@ -186,10 +186,10 @@ def truncated_format(data: bytes) -> str | None:
     return None
 
 
-def read_image(path: Path) -> np.ndarray:
-    """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order. A folder where the image should
-    be is said to be one: "not found" sent the user looking for a path that exists (an empty file_path names the
-    scene folder itself)."""
+def read_image(path: Path, or_else: str = "remove its frame") -> np.ndarray:
+    """Decode an image file as stored (no EXIF rotation), channels in RGB(A) order; `or_else` ends the fix of a
+    truncated or corrupt file (what else the user may do). A folder where the image should be is said to be one:
+    "not found" sent the user looking for a path that exists (an empty file_path names the scene folder itself)."""
     if not path.is_file():
         what = "image path is a folder, not an image file" if path.is_dir() else "image not found"
         raise SplatuError(what, f"in {path}", "check the file path in the scene description")
@@ -200,11 +200,11 @@ def read_image(path: Path) -> np.ndarray:
     kind = truncated_format(data)
     if kind is not None:
         raise SplatuError(f"cannot decode image (truncated {kind}: the file ends before its end marker)",
-                          f"in {path}", "copy or export the file again in full, or remove its frame")
+                          f"in {path}", f"copy or export the file again in full, or {or_else}")
     pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if pixels is None:
         raise SplatuError("cannot decode image (corrupt or unsupported format)", f"in {path}",
-                          "replace the file with a valid PNG/JPEG or remove its frame")
+                          f"replace the file with a valid PNG/JPEG, or {or_else}")
     if pixels.ndim == 3 and pixels.shape[2] == 4:
         return cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGBA)
     if pixels.ndim == 3 and pixels.shape[2] == 3:

@@ -28,6 +28,7 @@ from splatu.data.frames import (
     Frame,
     RawScene,
     checked_matrix,
+    focal_from_angle,
     refuse_implausible_focal,
     world_to_camera_from_opengl,
 )
@@ -88,7 +89,7 @@ def _focal(frame: Mapping[str, Any], top: Mapping[str, Any], axis: str, side: in
             if not 0 < angle < math.pi:  # tan(angle / 2) must be positive and finite
                 raise SplatuError(f"camera_angle_{axis} must be an angle in (0, pi) radians (got {angle!r})", where,
                                   f"fix camera_angle_{axis}, or give fl_{axis} in pixels instead")
-            return 0.5 * side / math.tan(0.5 * angle)
+            return focal_from_angle(angle, side)
     return None
 
 
