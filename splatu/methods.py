@@ -52,6 +52,13 @@ def method_help() -> str:
     return f"Registered method; it sets defaults before the other flags. {listed}"
 
 
+def method_of(config: TrainConfig) -> str:
+    """The registered method `config` trains: the one it names unless a flag undid it (`--uncertainty.off` makes
+    `splatu` plain splatfacto), so a run is filed and summarised as what it is, not as what it was called."""
+    candidates = [config.method, *(name for name in METHODS if name != config.method)]
+    return next((name for name in candidates if METHODS[name].configure(config) == config), config.method)
+
+
 def get_method(name: str) -> Method:
     if name not in METHODS:
         raise SplatuError(f"unknown method {name!r}", "in --method", f"use one of {', '.join(METHODS)}")

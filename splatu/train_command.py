@@ -31,6 +31,7 @@ from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import uncertainty_heads
+from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
 from splatu.train_config import DEFAULT_PRESET, TrainConfig, from_dict, load_config, preset_config
@@ -78,6 +79,16 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
     return saved
 
 
+def filed_as_trained(config: TrainConfig) -> TrainConfig:
+    """`config` named after the method it trains, saying so when a flag changed it: `--uncertainty.off` trains
+    plain splatfacto, and its run belongs beside splatfacto's, not among runs with an uncertainty to score."""
+    method = method_of(config)
+    if method != config.method:
+        console.print(f"note: these options train --method {method}, not {config.method}; the run is filed under "
+                      f"{method}/", soft_wrap=True)
+    return dataclasses.replace(config, method=method)
+
+
 def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
     wall_start = time.perf_counter()
@@ -91,6 +102,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
         with training_lock(run_dir):  # then choose again: a training that just ended may have pruned it or saved one
             return _resume_run(config, _resume_point(config.resume), run_dir, wall_start, hooks)
+    config = filed_as_trained(config)
     if config.degree_choice.on:
         config = with_choice_heads(config)
     check_options(config)

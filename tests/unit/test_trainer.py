@@ -28,7 +28,7 @@ from splatu.densify import DensifyConfig, DensityController
 from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
 from splatu.errors import SplatuError
 from splatu.losses import photometric_loss
-from splatu.methods import METHODS, get_method
+from splatu.methods import METHODS, get_method, method_of
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
@@ -430,6 +430,24 @@ def test_methods_registry():
     assert METHODS["ensemble"].configure(base).ensemble == 10
     with pytest.raises(SplatuError):
         get_method("nerf")
+
+
+def test_a_run_is_named_after_the_method_its_options_train():
+    splatu, ensemble = preset_config("fast"), preset_config("fast", "ensemble")
+    assert method_of(splatu) == "splatu" and method_of(ensemble) == "ensemble"
+    assert method_of(METHODS["splatfacto"].configure(splatu)) == "splatfacto"  # --uncertainty.off
+    assert method_of(METHODS["splatu"].configure(preset_config("fast", "splatfacto"))) == "splatu"
+    assert method_of(dataclasses.replace(ensemble, ensemble=1)) == "splatfacto"  # one member is one plain run
+    assert method_of(dataclasses.replace(ensemble, ensemble=3)) == "ensemble"
+
+
+def test_uncertainty_off_files_the_run_under_splatfacto(tmp_path, scene):
+    config = tiny_config(tmp_path, steps=2, checkpoint_every=0)
+    config = dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=True))
+    run_dir = train_command.train(config)
+    assert run_dir.parent == tmp_path / "outputs" / "tiny" / "splatfacto"
+    assert load_config(run_dir / "config.yml").method == "splatfacto"
+    assert json.loads((run_dir / "summary.json").read_text())["method"] == "splatfacto"
 
 
 def test_presets_blur_less_than_3dgs_and_runs_saved_before_keep_its_blur():
