@@ -6,8 +6,10 @@ the CLI prints it on one line and exits 2. Everything else is a bug and keeps it
 
 from __future__ import annotations
 
+import contextlib
 import io
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +71,24 @@ def creatable_dir(path: Path, option: str) -> Path:
         raise SplatuError(f"cannot write the output folder ({err.strerror or type(err).__name__})", f"in {path}",
                           f"pass a writable {option}") from None
     return path
+
+
+@contextlib.contextmanager
+def no_empty_folders_left(path: Path) -> Iterator[None]:
+    """Remove, when the block ends, the folders on the way to `path` (itself included) that it made and left empty:
+    `creatable_dir` made none before the command could fail, and a write that fails later (a full disk, Ctrl-C)
+    must not leave them either. A folder that existed before is never removed."""
+    made = []
+    for folder in (path, *path.parents):
+        if folder.exists() or folder.is_symlink():
+            break
+        made.append(folder)  # deepest first, so each one is empty when its turn comes
+    try:
+        yield
+    finally:
+        for folder in made:
+            with contextlib.suppress(OSError):  # not empty (the command's output), or already gone
+                folder.rmdir()
 
 
 def os_error_behind(err: BaseException) -> OSError | None:

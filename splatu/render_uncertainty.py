@@ -39,6 +39,7 @@ from splatu.errors import (
     FREE_AND_RERUN,
     SplatuError,
     creatable_dir,
+    no_empty_folders_left,
     os_error_behind,
     require_at_least,
     unwritable_folder,
@@ -314,6 +315,10 @@ ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_f
 
 
 def run(config: RenderUncertaintyConfig) -> None:
+    """Render the views, then write them. A command that fails while writing (a full disk, Ctrl-C) leaves the output
+    folder as it found it: an earlier render whole, a folder that existed as it was, and no folder it made itself.
+    The views it had written by then are deleted with its staging folder, not kept: their colour scales were fitted
+    to every view, and `eval-ause --maps` would score a part of the views as if it were the whole render."""
     orbit_only = [f"--{n.replace('_', '-')}" for n in ORBIT_OPTIONS
                   if getattr(config, n) != getattr(RenderUncertaintyConfig, n)]  # the class holds the defaults
     if orbit_only and config.views != "orbit":
@@ -331,11 +336,21 @@ def run(config: RenderUncertaintyConfig) -> None:
     scene, built = _setup(run_info, options)
     spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
     views, seconds = render_views(built.source, spec)
+    with no_empty_folders_left(out):
+        record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
+    Console().print(f"rendered {len(views)} {config.views} view{'' if len(views) == 1 else 's'} with {options.method} "
+                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
+
+
+def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
+                   train_seconds: float | None, setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
+    """Write the render into a staging folder inside `out`, then swap it in whole (see `swap_in`); the staging
+    folder is removed whatever happens. Returns what render.json holds."""
     remove(leftover_temporaries(out, STAGING))  # a render killed outright (SIGKILL, OOM) left its staging
-    staging = temporary_sibling(out / STAGING)  # written whole before it replaces anything: see swap_in
+    staging = temporary_sibling(out / STAGING)
     try:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
-            record = write_render(staging, views, config, run_info.train_seconds, built.setup_seconds, seconds)
+            record = write_render(staging, views, config, train_seconds, setup_seconds, seconds)
             swap_in(staging, out)
     except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
         if os_error_behind(err) is None:
@@ -343,8 +358,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise unwritable_folder(out, err) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    Console().print(f"rendered {len(views)} {config.views} view{'' if len(views) == 1 else 's'} with {options.method} "
-                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
+    return record
 
 
 def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig, train_seconds: float | None,

@@ -437,6 +437,34 @@ def test_a_full_disk_while_the_maps_are_written_names_the_output_folder(tiny_run
     assert exc.value.code == 2 and f"in {out}," in line and ".render.tmp" not in line, line
 
 
+def test_a_write_refused_midway_leaves_no_folder_the_render_made_and_keeps_one_that_was_there(tiny_run, tmp_path,
+                                                                                             monkeypatch, capsys):
+    """The render made its output folder (and the missing ones above it) to write into, and left them empty when a
+    write failed after some views' files were written."""
+    save_panel, panels = render_uncertainty.save_panel, []
+
+    def disk_full_at_the_second_panel(path, *args):
+        panels.append(path)
+        if len(panels) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        save_panel(path, *args)
+
+    monkeypatch.setattr(render_uncertainty, "save_panel", disk_full_at_the_second_panel)
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    for out in (tmp_path / "new" / "render", existing):
+        panels.clear()
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exc:
+            _render(tiny_run, "--output", str(out))
+        err = capsys.readouterr().err
+        errors = [line for line in err.splitlines() if line.startswith("error")]  # after the stand-in's line
+        assert exc.value.code == 2 and len(errors) == 1 and "Traceback" not in err, err
+        assert "No space left on device" in errors[0] and f"in {out}," in errors[0]
+        assert len(panels) == 2  # it failed after writing the first view's files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"] and not list(existing.iterdir())
+
+
 def _one_line(capsys, argv: list[str]) -> str:
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
