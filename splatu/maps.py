@@ -22,7 +22,14 @@ import numpy as np
 
 from splatu.atomic import temporary_sibling
 from splatu.data.images import read_image, write_png
-from splatu.errors import SplatuError, load_number_array, os_error_behind, require_file, unwritable_folder
+from splatu.errors import (
+    SplatuError,
+    load_number_array,
+    no_empty_folders_left,
+    os_error_behind,
+    require_file,
+    unwritable_folder,
+)
 
 FOLDERS = ("rgb", "gt", "uncertainty", "mask", "unobserved")
 
@@ -174,27 +181,29 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
                    ) -> list[MapEntry]:
     """Write a whole maps directory beside `root`, then put it in place of any earlier one: a crash mid-write
     leaves the earlier directory or none, never one with views missing or lacking their masks, which
-    `eval-ause --maps` would score without complaint. `extra_files` (name → text) go in with the views.
+    `eval-ause --maps` would score without complaint; a write refused (a full disk) leaves no folder made for it.
+    `extra_files` (name → text) go in with the views.
 
     Returns the views as stored (read back before the swap), which is what `eval-ause --maps` reads: a caller
     scores those rather than `root`, which another process may replace at any time.
     """
     staging = temporary_sibling(root)
     shutil.rmtree(staging, ignore_errors=True)
-    try:
-        staging.mkdir(parents=True)
-        for entry in entries:
-            write_entry(staging, entry)
-        for name, text in (extra_files or {}).items():
-            (staging / name).write_text(text, encoding="utf-8")
-        stored = [read_entry(staging, name) for name in entry_names(staging)]
-        _swap_in(staging, root)
-    except OSError as err:
-        if os_error_behind(err) is None:
-            raise
-        raise unwritable_folder(root, err) from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    with no_empty_folders_left(root.parent):  # made for the staging folder, and empty again if it fails
+        try:
+            staging.mkdir(parents=True)
+            for entry in entries:
+                write_entry(staging, entry)
+            for name, text in (extra_files or {}).items():
+                (staging / name).write_text(text, encoding="utf-8")
+            stored = [read_entry(staging, name) for name in entry_names(staging)]
+            _swap_in(staging, root)
+        except OSError as err:
+            if os_error_behind(err) is None:
+                raise
+            raise unwritable_folder(root, err) from None
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
     return stored
 
 

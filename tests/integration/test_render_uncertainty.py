@@ -465,6 +465,18 @@ def test_a_write_refused_midway_leaves_no_folder_the_render_made_and_keeps_one_t
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"] and not list(existing.iterdir())
 
 
+def test_eval_ause_leaves_no_folder_it_made_when_its_maps_cannot_be_written(tiny_run, tmp_path, monkeypatch, capsys):
+    """eval-ause --load writes the maps it scores beside its --output: the folder made for them was left empty."""
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "save", disk_full)
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["eval-ause", "--load", str(tiny_run), "--output", str(tmp_path / "new" / "scores.json")])
+    assert exc.value.code == 2 and "No space left on device" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def _one_line(capsys, argv: list[str]) -> str:
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
