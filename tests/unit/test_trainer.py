@@ -43,6 +43,7 @@ from splatu.train_config import (
     preset_config,
     preset_path,
 )
+from splatu.world_frame import model_to_world
 from tests.synthetic_scenes import noise_image, write_rgb
 
 W, H = 32, 24
@@ -618,6 +619,22 @@ def test_splat_ply_is_in_the_data_frame_and_resume_refuses_a_moved_normalisation
     (run_dir / "summary.json").unlink()  # as if killed during its final evaluation: resume would finish it
     with pytest.raises(SplatuError, match="normalisation"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+
+
+def test_export_of_an_earlier_checkpoint_is_that_checkpoints_model_not_the_final_one(tmp_path, scene, capsys):
+    """`splatu export` takes any checkpoint of a run; only the last one, whose PLY training writes too, was tested."""
+    scene.center, scene.scale = torch.tensor([5.0, -1.0, 2.0]), 0.25  # so the export must apply the run's frame
+    run_dir = train_command.train(tiny_config(tmp_path, steps=12, checkpoint_every=6, keep_checkpoints=2))
+    earlier, _ = list_checkpoints(run_dir)
+    entrypoint(["export", "--load", str(earlier)])
+    assert f"from {earlier.name}" in capsys.readouterr().out
+    exported_path = run_dir / "exports" / f"splat-{earlier.stem}.ply"
+    assert exported_path.read_bytes() != (run_dir / "splat.ply").read_bytes()
+    exported, trained = load_ply(exported_path, ModelConfig()), load_run(earlier)
+    expected = model_to_world(trained.model, trained.frame)
+    assert len(exported) == len(expected) != len(load_ply(run_dir / "splat.ply", ModelConfig()))
+    torch.testing.assert_close(exported.means, expected.means)
+    torch.testing.assert_close(exported.log_scales, expected.log_scales)
 
 
 def _write_rgba_blender(root) -> None:
