@@ -14,7 +14,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 import tyro
 
@@ -96,6 +96,25 @@ def _run(args: list[str], debug: bool) -> None:
     sys.stdout.flush()  # not in a `finally`: a refused flush would replace the command's own error or stop
 
 
+def _drop_unread_output() -> None:
+    """Point stdout at /dev/null, which could not take the output (its reader left): the exit's own flush must not
+    fail too, which Python reports as "Exception ignored ... BrokenPipeError" with status 120, in place of the
+    command's own."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _end(status: int, line: str) -> NoReturn:
+    """Exit with `status` after saying why on stderr. What the command printed goes first (so a log of both streams
+    keeps their order), or nowhere if stdout cannot take it (its reader left, a full disk): the line and the status
+    are what still matter."""
+    try:
+        sys.stdout.flush()
+    except OSError:
+        _drop_unread_output()
+    print(line, file=sys.stderr)
+    sys.exit(status)
+
+
 def entrypoint(argv: Sequence[str] | None = None) -> None:
     for stream in (sys.stdout, sys.stderr):  # help texts hold λ, σ, ≈…: an ASCII-only console shows "?", not a crash
         if hasattr(stream, "reconfigure"):
@@ -108,13 +127,11 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
     except SplatuError as err:
         if debug:
             raise
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+        _end(2, f"error: {err}")
     except KeyboardInterrupt as stop:
-        print("interrupted", file=sys.stderr)
-        sys.exit(exit_code(stop))
+        _end(exit_code(stop), "interrupted")
     except BrokenPipeError:  # `splatu train --help | head`: the reader left, so there is no one to tell
         if debug:
             raise
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's own flush must not fail too
+        _drop_unread_output()
         sys.exit(1)

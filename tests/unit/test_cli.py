@@ -223,11 +223,11 @@ def test_an_ascii_only_console_gets_help_and_one_line_errors_not_a_crash():
         "(see `splatu train --help`)"]
 
 
-def _into_a_closed_pipe(*args: str) -> tuple[int, str]:
-    """Exit status and stderr of `splatu ARGS` whose reader left before it wrote anything; stdout block-buffered,
-    as it is for a user (PYTHONUNBUFFERED would write every print at once)."""
+def _into_a_closed_pipe(*args: str, program: tuple[str, ...] = ("-m", "splatu")) -> tuple[int, str]:
+    """Exit status and stderr of `splatu ARGS` (or of `python PROGRAM ARGS`) whose reader left before it wrote
+    anything; stdout block-buffered, as it is for a user (PYTHONUNBUFFERED would write every print at once)."""
     env = {name: value for name, value in os.environ.items() if name != "PYTHONUNBUFFERED"}
-    child = subprocess.Popen([sys.executable, "-m", "splatu", *args], stdout=subprocess.PIPE,
+    child = subprocess.Popen([sys.executable, *program, *args], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True, env=env)
     child.stdout.close()  # before the child has imported torch, let alone written anything
     err = child.stderr.read()
@@ -242,6 +242,31 @@ def test_output_into_a_closed_pipe_is_no_traceback(args):
     status, err = _into_a_closed_pipe(*args)
     assert status == 1
     assert err == ""
+
+
+PRINTS_THEN_FAILS = """
+import sys
+from splatu import cli
+from splatu.errors import SplatuError
+
+def prints_then_fails(args, debug):
+    print("a first result")
+    raise {"user error": SplatuError("thing broke", "in /some/file", "do the fix"),
+            "ctrl-c": KeyboardInterrupt()}[args[0]]
+
+cli.main = prints_then_fails
+cli.entrypoint(sys.argv[1:])
+"""
+"""A command that prints to stdout, then fails: no command does so yet (each prints its result last), so a
+stand-in one, run through the real entry point."""
+
+
+@pytest.mark.parametrize(("failure", "status", "line"), [
+    ("user error", 2, "error: thing broke, in /some/file, do the fix"), ("ctrl-c", 130, "interrupted")])
+def test_a_command_that_printed_then_failed_into_a_closed_pipe_still_says_why(failure, status, line):
+    """Its output still in stdout's buffer, the command's error was printed and then the exit's own flush failed:
+    Python's "Exception ignored ... BrokenPipeError" after the line, and status 120 instead of the error's."""
+    assert _into_a_closed_pipe(failure, program=("-c", PRINTS_THEN_FAILS)) == (status, line + "\n")
 
 
 def test_a_closed_pipe_with_debug_shows_its_traceback():
