@@ -90,8 +90,11 @@ def _run(args: list[str], debug: bool) -> None:
         else:
             keep_freed_memory()  # every command renders: no step should page-fault its buffers back in
             main(args, debug)
-    except SystemExit:  # --help: tyro prints it, then exits
-        sys.stdout.flush()
+    except SystemExit as done:
+        if done.code in (0, None):  # --help: tyro prints it, then exits; a reader that left is entrypoint's to end
+            sys.stdout.flush()
+        else:  # a stopped training's 130 or 143 says more than a closed pipe's 1
+            _flush_or_drop()
         raise
     sys.stdout.flush()  # not in a `finally`: a refused flush would replace the command's own error or stop
 
@@ -103,14 +106,19 @@ def _drop_unread_output() -> None:
     os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
-def _end(status: int, line: str) -> NoReturn:
-    """Exit with `status` after saying why on stderr. What the command printed goes first (so a log of both streams
-    keeps their order), or nowhere if stdout cannot take it (its reader left, a full disk): the line and the status
-    are what still matter."""
+def _flush_or_drop() -> None:
+    """Write out what the command printed, or drop it if stdout cannot take it (its reader left, a full disk)."""
     try:
         sys.stdout.flush()
     except OSError:
         _drop_unread_output()
+
+
+def _end(status: int, line: str) -> NoReturn:
+    """Exit with `status` after saying why on stderr. What the command printed goes first (so a log of both streams
+    keeps their order), or nowhere if stdout cannot take it (its reader left, a full disk): the line and the status
+    are what still matter."""
+    _flush_or_drop()
     print(line, file=sys.stderr)
     sys.exit(status)
 

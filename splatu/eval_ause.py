@@ -20,7 +20,7 @@ from rich.table import Table
 from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.checkpoint import run_folder
-from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir
+from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir, no_empty_folders_left
 from splatu.figures import plot_sparsification
 from splatu.interrupts import finish_first
 from splatu.maps import MapEntry, entry_names, read_entry
@@ -76,7 +76,8 @@ def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncert
     report["options"] = options or {"maps": str(maps_dir)}
     output = checked_output(output or maps_dir / "ause.json")
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
-    with finish_first():  # a stop between the two would pair the new scores with the earlier plot
+    # a full disk leaves no folder made for the two files; a stop between them would pair new scores with an old plot
+    with no_empty_folders_left(output.parent), finish_first():
         plot_sparsification(output.with_suffix(".png"), curves, f"{label}: {A.CAPTION}, curves / O(0)", metric)
         atomic_write_text(output, json.dumps(report, indent=2), FREE_AND_RERUN)
     return report

@@ -251,6 +251,9 @@ from splatu.errors import SplatuError
 
 def prints_then_fails(args, debug):
     print("a first result")
+    if args[0] == "stop":  # as `splatu train` ends a stopped training: its line, then its status
+        print("stopped; resume it", file=sys.stderr)
+        raise SystemExit(130)
     raise {"user error": SplatuError("thing broke", "in /some/file", "do the fix"),
             "ctrl-c": KeyboardInterrupt()}[args[0]]
 
@@ -262,7 +265,8 @@ stand-in one, run through the real entry point."""
 
 
 @pytest.mark.parametrize(("failure", "status", "line"), [
-    ("user error", 2, "error: thing broke, in /some/file, do the fix"), ("ctrl-c", 130, "interrupted")])
+    ("user error", 2, "error: thing broke, in /some/file, do the fix"), ("ctrl-c", 130, "interrupted"),
+    ("stop", 130, "stopped; resume it")])
 def test_a_command_that_printed_then_failed_into_a_closed_pipe_still_says_why(failure, status, line):
     """Its output still in stdout's buffer, the command's error was printed and then the exit's own flush failed:
     Python's "Exception ignored ... BrokenPipeError" after the line, and status 120 instead of the error's."""

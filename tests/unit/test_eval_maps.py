@@ -231,6 +231,20 @@ def test_a_full_disk_while_the_plot_is_written_is_one_line(tmp_path, capsys, mon
     line = _one_line_error(capsys, "--maps", str(tmp_path / "maps"))
     assert "could not write ause.png (No space left on device)" in line and "free space" in line
 
+
+def test_scores_that_cannot_be_written_leave_no_folder_made_for_them(tmp_path, capsys, monkeypatch):
+    """--output's folders are made for the JSON and plot: a full disk there left them empty."""
+    from matplotlib.figure import Figure
+
+    _tiny_maps(tmp_path / "maps", n=1)
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", disk_full)
+    _one_line_error(capsys, "--maps", str(tmp_path / "maps"), "--output", str(tmp_path / "new" / "deep" / "a.json"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["maps"]
+
 def test_an_rgba_mask_is_read_by_its_colour_or_by_its_alpha_when_the_colour_is_uniform(tmp_path):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
