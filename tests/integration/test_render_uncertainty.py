@@ -647,3 +647,66 @@ def test_export_of_the_last_checkpoint_is_the_runs_own_ply_and_an_earlier_one_go
     shutil.copy(checkpoints[-1], copy)
     entrypoint(["export", "--load", str(copy), "--output", str(tmp_path / "best.ply")])
     assert (tmp_path / "best.ply").read_bytes() == out.read_bytes() and "best (copy).pt" in capsys.readouterr().out
+
+
+def _data_frame_camera(camera: Camera, frame) -> np.ndarray:
+    """`camera` (in the model's normalised frame) as a data-frame world-to-camera, the inverse of the query's move:
+    x_norm = Rᵀ(x_data − t)/s, so p_cam = Rc·Rᵀ·x_data/s + (tc − Rc·Rᵀ·t/s), times s for the same pixels."""
+    rotation, translation = camera.world_to_camera[:3, :3].double(), camera.world_to_camera[:3, 3].double()
+    R, t, s = frame.rotation.double(), frame.translation.double(), frame.scale
+    w2c = torch.eye(4, dtype=torch.float64)
+    w2c[:3, :3] = rotation @ R.T
+    w2c[:3, 3] = s * translation - rotation @ R.T @ t
+    return w2c.numpy()
+
+
+def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_renders_it(tiny_run):
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    camera = load_scene(run_data(load_any_run(tiny_run))).eval.cameras[0]
+    assert run.frame.scale != 1.0 and run.frame.translation.abs().max() > 0  # the frames differ, so this tests a move
+    view = run.render(_data_frame_camera(camera, run.frame), camera.K.numpy(), camera.width, camera.height)
+    expected = run.model.render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
+    assert np.allclose(view.rgb, expected.rgb.detach().numpy(), atol=1e-5)
+    assert np.allclose(view.alpha, expected.alpha.detach().numpy(), atol=1e-5)
+    assert np.allclose(view.uncertainty, expected.uncertainty.detach().numpy(), atol=1e-5)
+    assert np.allclose(view.depth, expected.depth.detach().double().numpy() * run.frame.scale, rtol=1e-5, atol=1e-6)
+    assert view.uncertainty.min() >= 0 and view.uncertainty.max() <= 1 and view.alpha.max() > 0.5
+    assert view.mean_uncertainty == pytest.approx(float(view.uncertainty.mean()))
+    away = _data_frame_camera(dataclasses.replace(camera, world_to_camera=look_at(
+        torch.tensor([0.0, 0.0, -50.0]), torch.tensor([0.0, 0.0, -100.0]), torch.tensor([0.0, 1.0, 0.0]))), run.frame)
+    empty = run.render(away, camera.K.numpy(), camera.width, camera.height)  # looking into empty space
+    assert empty.mean_uncertainty == pytest.approx(1.0) and view.mean_uncertainty < empty.mean_uncertainty
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda w2c, K: (w2c * np.nan, K), "NaN or Inf"),
+    (lambda w2c, K: (w2c * 2.0, K), "not a rigid motion"),
+    (lambda w2c, K: (w2c[:3], K), "needs world_to_camera (4, 4)"),
+    (lambda w2c, K: (w2c, -K), "focal lengths must be positive"),
+    (lambda w2c, K: (w2c, K * 1e9), "longer than any camera"),
+])
+def test_a_bad_candidate_camera_is_one_clear_error(tiny_run, change, message):
+    from splatu.query import open_run
+
+    K = np.array([[40.0, 0.0, 24.0], [0.0, 40.0, 40.0], [0.0, 0.0, 1.0]])
+    with pytest.raises(SplatuError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        open_run(tiny_run).render(*change(np.eye(4), K), 48, 80)
+
+
+def test_the_readmes_python_example_runs(tiny_run):
+    """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    example = readme.split("### Python:", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    assert 'open_run("outputs/poster/splatu/latest")' in example
+    camera = load_scene(run_data(load_any_run(tiny_run))).eval.cameras[0]
+    names = {"world_to_camera": _data_frame_camera(camera, open_run(tiny_run).frame)}
+    exec(example.replace("outputs/poster/splatu/latest", str(tiny_run)), names)
+    assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0

@@ -131,3 +131,20 @@ def test_frames_that_differ_only_in_scale_do_not_match():
     with pytest.raises(SplatuError, match="normalisation"):
         require_same_frame(trained, moved, "in run", "start a new run")
     require_same_frame(None, moved, "in run", "start a new run")  # checkpoints older than the record pass
+
+
+def test_a_data_frame_camera_moved_into_the_model_frame_sees_the_same_pixels_at_scaled_depths():
+    """What `splatu.query` renders: a candidate camera in the data's frame, moved into the normalised one."""
+    from splatu.camera import look_at
+    from splatu.query import normalised_world_to_camera
+
+    frame = WorldTransform(random_rotation(7), torch.tensor([3.0, -2.0, 5.0], dtype=torch.float64), 4.5)
+    K = torch.tensor([[100.0, 0.0, 32.0], [0.0, 90.0, 24.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    data_w2c = look_at(torch.tensor([10.0, 4.0, -3.0], dtype=torch.float64), frame.translation,
+                       torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    points = torch.randn(30, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 0.3
+    uv_data, z_data = Camera(K, data_w2c, 64, 48).project(frame.points(points))
+    uv_model, z_model = Camera(K, normalised_world_to_camera(data_w2c, frame), 64, 48).project(points)
+    torch.testing.assert_close(uv_model, uv_data)
+    torch.testing.assert_close(z_model * frame.scale, z_data)
+    assert (z_data > 0).all() and not torch.allclose(z_model, z_data)  # in front, and the depths really scale
