@@ -11,30 +11,34 @@ from splatu.errors import SplatuError
 from splatu.losses import psnr, ssim
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
+from splatu.train_progress import view_progress
 
 
 @torch.no_grad()
-def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor) -> dict[str, float]:
-    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels.
+def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, background: torch.Tensor, name: str = "eval",
+                   progress: bool = True) -> dict[str, float]:
+    """Mean per-image PSNR and SSIM; with ground-truth `observed` masks also PSNR on observed pixels. `progress`
+    shows the set `name`'s views on a terminal (`view_progress`).
 
     Images with alpha are scored on `background` too, so render and target share one background. Pixels
     the scene's mask files exclude are left out of PSNR and are 0 in both images for SSIM, as in training.
     """
     psnrs, ssims, observed = [], [], []
-    for i, camera in enumerate(views.cameras):
-        rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
-        gt = views.target(i, background)
-        if views.mask_files is not None:
-            if not bool((views.mask_files[i] > 0).any()):
-                continue  # a view its mask file excludes entirely has nothing to score
-            rgb, gt = rgb * views.mask_files[i][..., None], gt * views.mask_files[i][..., None]
-        kept = None if views.mask_files is None else views.mask_files[i] > 0
-        psnrs.append(psnr(rgb, gt, mask=kept))
-        ssims.append(float(ssim(rgb, gt)))
-        if views.observed is not None:
-            seen = views.observed[i] if kept is None else views.observed[i] & kept
-            if bool(seen.any()):
-                observed.append(psnr(rgb, gt, mask=seen))
+    with view_progress(progress) as bar:
+        for i, camera in enumerate(bar.track(views.cameras, description=name)):
+            rgb = model.render(camera, sh_degree, background).rgb.clamp(0, 1)
+            gt = views.target(i, background)
+            if views.mask_files is not None:
+                if not bool((views.mask_files[i] > 0).any()):
+                    continue  # a view its mask file excludes entirely has nothing to score
+                rgb, gt = rgb * views.mask_files[i][..., None], gt * views.mask_files[i][..., None]
+            kept = None if views.mask_files is None else views.mask_files[i] > 0
+            psnrs.append(psnr(rgb, gt, mask=kept))
+            ssims.append(float(ssim(rgb, gt)))
+            if views.observed is not None:
+                seen = views.observed[i] if kept is None else views.observed[i] & kept
+                if bool(seen.any()):
+                    observed.append(psnr(rgb, gt, mask=seen))
     if not psnrs:
         raise SplatuError("every view of an evaluated set is excluded by its mask file", "in the scene's mask files",
                           "fix the masks, or hold out other views (--eval-split)")
@@ -47,7 +51,7 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
 def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
     """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
     sets = {"eval": scene.eval, **scene.extra_eval}
-    return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config))
+    return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config), name, config.progress)
             for name, views in sets.items()}
 
 

@@ -57,6 +57,7 @@ from splatu.figures import (
 from splatu.interrupts import finish_first, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
+from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
 
 ViewSet = Literal["eval", "train", "orbit"]
@@ -149,23 +150,26 @@ def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
 
 @torch.no_grad()
 def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[RenderedView], list[float]]:
-    """Render every view (no gradients); returns the views and the seconds each took."""
+    """Render every view (no gradients), showing progress on a terminal (`view_progress`: an ensemble's or a
+    baseline's views at full resolution take minutes); returns the views and the seconds each took."""
     rendered, seconds = [], []
-    for k, (camera, name) in enumerate(zip(spec.cameras, spec.names, strict=True)):
-        started = time.perf_counter()
-        maps = _numpy(source.render(camera), name)
-        seconds.append(time.perf_counter() - started)
-        view = RenderedView(name, maps)
-        if spec.views is not None and spec.indices is not None:
-            i = spec.indices[k]
-            view.gt = spec.views.target(i, source.background).double().numpy()
-            if spec.views.object_masks is not None:
-                view.mask = spec.views.object_masks[i].bool().numpy().reshape(view.gt.shape[:2])
-            if spec.views.observed is not None:
-                view.unobserved = ~spec.views.observed[i].bool().numpy().reshape(view.gt.shape[:2])
-        if spec.elevations is not None:
-            view.elevation_degrees = spec.elevations[k]
-        rendered.append(view)
+    with view_progress() as bar:
+        views = zip(spec.cameras, spec.names, strict=True)
+        for k, (camera, name) in enumerate(bar.track(views, total=len(spec.cameras), description="render")):
+            started = time.perf_counter()
+            maps = _numpy(source.render(camera), name)
+            seconds.append(time.perf_counter() - started)
+            view = RenderedView(name, maps)
+            if spec.views is not None and spec.indices is not None:
+                i = spec.indices[k]
+                view.gt = spec.views.target(i, source.background).double().numpy()
+                if spec.views.object_masks is not None:
+                    view.mask = spec.views.object_masks[i].bool().numpy().reshape(view.gt.shape[:2])
+                if spec.views.observed is not None:
+                    view.unobserved = ~spec.views.observed[i].bool().numpy().reshape(view.gt.shape[:2])
+            if spec.elevations is not None:
+                view.elevation_degrees = spec.elevations[k]
+            rendered.append(view)
     return rendered, seconds
 
 

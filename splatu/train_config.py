@@ -103,7 +103,8 @@ class TrainConfig:
     max_nonfinite_steps: int = 5
     """Stop when this many steps in a row have a non-finite loss or gradient (each one is skipped)."""
     progress: bool = True
-    """Show progress: a live bar (step, loss, PSNR, #Gaussians, it/s, ETA) on a terminal, plain lines off one."""
+    """Show progress: a live bar (step, loss, PSNR, #Gaussians, it/s, ETA) and a bar of each evaluation's views on a
+    terminal, plain lines off one."""
     compile_kernels: bool = False
     """Run the rasterizer's kernels through torch.compile: on in both presets (the poster main job took 4 min 59 s
     against 12 min 8 s eager at the old 1000-step schedule, on an earlier host and before later speed-ups; the

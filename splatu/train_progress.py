@@ -1,15 +1,22 @@
-"""What training prints: a live progress bar on a terminal, plain lines off one, one line per evaluation."""
+"""What training prints: a live progress bar on a terminal, plain lines off one, one line per evaluation; and the
+per-view bar of every evaluation and render."""
 
 from __future__ import annotations
 
 from collections import deque
 
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from splatu.data.scene import Scene
 
 console = Console(stderr=True)
+
+
+def on_terminal() -> bool:
+    """Whether the progress displays go to a terminal. Not console.is_terminal, which FORCE_COLOR (set by some CI)
+    fakes: a live display would write cursor codes into the log."""
+    return console.file.isatty()
 
 
 PLAIN_PROGRESS_LINES = 20
@@ -27,6 +34,22 @@ def progress_bar(enabled: bool) -> Progress:
         TimeRemainingColumn(),
         console=console,
         disable=not enabled,
+    )
+
+
+def view_progress(enabled: bool = True) -> Progress:
+    """A transient bar for an evaluation's or a render's views (`with view_progress() as bar: bar.track(...)`): at
+    full resolution one takes minutes. Shown on a terminal only, and not when `enabled` is off (--no-progress); off
+    one, the eval line or the command's closing line reports the result. During training it draws under the
+    training bar (rich nests live displays) and leaves nothing behind."""
+    return Progress(
+        TextColumn("{task.description} {task.completed:>4.0f}/{task.total:.0f} views"),
+        BarColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+        disable=not (enabled and on_terminal()),
     )
 
 

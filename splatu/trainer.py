@@ -76,6 +76,7 @@ from splatu.train_progress import (
     StepRate,
     console,
     eval_line,
+    on_terminal,
     progress_bar,
     progress_line,
 )
@@ -164,11 +165,11 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
         _log_eval(state, config, scene, log)
     smoothed_psnr = float("nan")
     step_rate = StepRate(time.perf_counter())
-    on_terminal = console.file.isatty()  # not console.is_terminal, which FORCE_COLOR (set by some CI) fakes
-    plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not on_terminal else 0
+    terminal = on_terminal()
+    plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not terminal else 0
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
-    with progress_bar(config.progress and on_terminal) as progress, deferred_interrupt() as interrupt:
+    with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
                                  gaussians=len(state.model), rate=0.0)
         in_step = False
