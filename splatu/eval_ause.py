@@ -65,15 +65,18 @@ def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, 
 
 def evaluate_maps(maps_dir: Path, metric: A.Metric = "mae", label: str = "uncertainty",
                   output: Path | None = None, options: dict[str, Any] | None = None,
-                  entries: list[MapEntry] | None = None) -> dict[str, Any]:
+                  entries: list[MapEntry] | None = None, stand_in: bool | None = None) -> dict[str, Any]:
     """Score a maps directory, write the JSON and the curve plot beside it, and return the report; `options`
-    (what rendered the maps) are recorded in it. `entries` are its views when the caller already holds them as
-    stored (write_maps_dir), so the directory is not read again."""
+    (what rendered the maps) are recorded in it, and `stand_in` when the scene is known (`Scene.stand_in`: numbers
+    of the built-in stand-in are not the real poster's). `entries` are its views when the caller already holds them
+    as stored (write_maps_dir), so the directory is not read again."""
     if entries is None:
         entries = [read_entry(maps_dir, name) for name in entry_names(maps_dir)]
     report, curves = score_entries(entries, metric)
     report["method"] = label
     report["options"] = options or {"maps": str(maps_dir)}
+    if stand_in is not None:
+        report["stand_in"] = stand_in
     output = checked_output(output or maps_dir / "ause.json")
     curves = {label if name == "uncertainty" else name: c for name, c in curves.items()}
     # a full disk leaves no folder made for the two files; a stop between them would pair new scores with an old plot
@@ -114,13 +117,15 @@ def _fmt(value: float | None) -> str:
 
 
 def print_report(report: dict[str, Any], metric: A.Metric) -> None:
-    """A rich table: one row per image and the mean, ours beside random and start-normalised."""
+    """A rich table: one row per image and the mean, ours beside random and start-normalised; its title names the
+    built-in stand-in when the scores are of it."""
     columns = (f"ause_{metric}", f"random_ause_{metric}", f"ause_{metric}_start_norm",
                f"random_ause_{metric}_start_norm", f"ausc_{metric}", f"random_ausc_{metric}",
                f"oracle_ausc_{metric}", "auroc_unobserved")
     headers = ("AUSE", "random", "AUSE start-norm", "random start-norm", "AUSC", "random AUSC", "oracle AUSC",
                "AUROC unobserved")
-    table = Table(title=f"AUSE-{metric.upper()} of {report['method']} ({report['caption']})")
+    scene = " on the built-in poster stand-in" if report.get("stand_in") else ""
+    table = Table(title=f"AUSE-{metric.upper()} of {report['method']}{scene} ({report['caption']})")
     table.add_column("image", overflow="fold")
     for header in headers:
         table.add_column(header, justify="right")
@@ -160,10 +165,10 @@ def run(config: EvalAuseConfig) -> None:
         maps_root = None
         if config.output is not None:  # before the render, so a bad --output costs nothing
             maps_root = maps_beside(checked_output(config.output))
-        maps_dir, entries = render_eval_maps(config.load, options, maps_root)
+        maps_dir, entries, stand_in = render_eval_maps(config.load, options, maps_root)
         label = options.label(config.load)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},
-                               entries)
+                               entries, stand_in)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

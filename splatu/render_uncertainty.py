@@ -291,10 +291,10 @@ def _setup(run, options: UncertaintyOptions):
 
 
 def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None = None
-                     ) -> tuple[Path, list[MapEntry]]:
+                     ) -> tuple[Path, list[MapEntry], bool]:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores), at `root` (default: the
-    run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files); returns it and the views as
-    stored there (see write_maps_dir)."""
+    run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files); returns it, the views as stored
+    there (see write_maps_dir) and whether the scene is the built-in stand-in (`Scene.stand_in`)."""
     run = _load(load, options)
     if root is None:
         root = run_folder(load) / "uncertainty" / f"{options.label(load)}-eval" / "maps"
@@ -312,7 +312,7 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     timing = {"train_seconds": run.train_seconds, "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored
-    return root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)})
+    return root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in
 
 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")

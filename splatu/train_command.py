@@ -133,6 +133,7 @@ def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wal
         return run_dir
     scene = load_scene(saved.data)
     refuse_unscorable_sets(scene)
+    console.print(scene_line(scene), soft_wrap=True)
     started = [found[-1] for found in map(list_checkpoints, members) if found]
     if started:  # members not yet started would otherwise train on whatever scene --data now names
         require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",

@@ -331,8 +331,8 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
     log = MetricsLog(run_dir / "metrics.jsonl")
     results = _log_eval(state, config, scene, log)
     save_ply(state.model, run_dir / "splat.ply", state.to_world)
-    summary = {"scene": scene.name, "method": config.method, "preset": config.preset, "steps": state.step,
-               "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
+    summary = {"scene": scene.name, "stand_in": scene.stand_in, "method": config.method, "preset": config.preset,
+               "steps": state.step, "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
                "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():

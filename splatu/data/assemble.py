@@ -169,6 +169,7 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
         scale=scale,
         extra_eval={name: views(indices) for name, indices in extras.items()},
         own_split=own,
+        stand_in=raw.stand_in,
     )
 
 

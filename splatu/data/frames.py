@@ -56,6 +56,13 @@ class RawScene:
     point_colors: np.ndarray | None = None  # (M, 3) in [0, 1]
     file_splits: dict[str, list[int]] = field(default_factory=dict)
     """Frame indices the file itself assigns: "train", "eval", and extra eval sets by name."""
+    stand_in: bool = False
+    """Whether this is the built-in poster stand-in (see `Scene.stand_in`)."""
+
+
+STANDIN_KEY = "splatu_standin"
+"""The block of the built-in stand-in's transforms.json that describes it, and marks it as the stand-in however it
+is loaded (`--data poster` or the path of its cached folder)."""
 
 
 def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:

@@ -25,6 +25,7 @@ from splatu.camera import Camera
 from splatu.data.frames import (
     FLOAT32_MAX,
     MAX_IMAGE_SIDE,
+    STANDIN_KEY,
     Frame,
     RawScene,
     checked_matrix,
@@ -231,7 +232,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     if top.get("ply_file_path"):
         points, colors = read_ply_points(root / str(top["ply_file_path"]))
     return RawScene(name=root.name, source=str(json_path), frames=frames, points=points, point_colors=colors,
-                    file_splits=_file_splits(top, [f.name for f in frames], json_path))
+                    file_splits=_file_splits(top, [f.name for f in frames], json_path), stand_in=STANDIN_KEY in top)
 
 
 def _listed_frames(value: object, key: str, index: Mapping[str, int], json_path: Path) -> list[int]:

@@ -9,7 +9,6 @@ or a COLMAP model (sparse/0, bin or txt).
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 from splatu.config_values import changed_options
@@ -67,10 +66,12 @@ def real_poster_capture() -> Path | None:
 
 
 def scene_path(cfg: DataConfig) -> Path:
-    """The folder or file `--data` names; for `poster`, the real capture or the generated stand-in."""
+    """The folder or file `--data` names; for `poster`, the real capture or the stand-in (built on first use, then
+    cached). Nothing is printed here: the loaded scene is marked `stand_in`, and `train` says so in its scene line,
+    once, rather than every command that loads it."""
     if cfg.data != POSTER:
         return Path(cfg.data).expanduser()
-    return real_poster_capture() or standin_path(cfg)
+    return real_poster_capture() or build_poster_standin(cfg.poster, cfg.cache_dir or default_cache_dir())
 
 
 def refuse_unused_poster_options(cfg: DataConfig) -> None:
@@ -97,13 +98,3 @@ def load_scene(cfg: DataConfig) -> Scene:
     if cfg.data == POSTER:
         raw.name = POSTER  # the real capture or the stand-in: either way, runs are filed under "poster"
     return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
-
-
-def standin_path(cfg: DataConfig) -> Path:
-    """Build (first time) or reuse the cached poster stand-in, saying so in one line."""
-    path = build_poster_standin(cfg.poster, cfg.cache_dir or default_cache_dir())
-    places = " or ".join(str(p) for p in real_poster_candidates())
-    print(f"--data poster: the real capture is not in {places}; using the built-in stand-in at {path} "
-          "(put nerfstudio's poster capture in data/nerfstudio/poster or $SPLATU_DATA/poster to use it)",
-          file=sys.stderr)
-    return path

@@ -91,3 +91,6 @@ class Scene:
     """More held-out sets, e.g. "interp": every 8th frame of the training path (built-in scene)."""
     own_split: bool = False
     """Whether the split is the scene file's own lists (not one made by --eval-split)."""
+    stand_in: bool = False
+    """Whether this is the built-in poster stand-in, not a real capture: `train` says so in its scene line, and its
+    summary.json and eval-ause's report record it, so its numbers are not read as the real poster's."""

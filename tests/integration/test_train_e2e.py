@@ -14,7 +14,7 @@ from splatu.train_config import preset_config
 TINY_POSTER = PosterConfig(width=32, height=48, frames=16, eval_block=3, interp_every=5, points=1000)
 
 
-def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
+def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SPLATU_CACHE", str(tmp_path / "cache"))
     base = preset_config("fast")
     config = dataclasses.replace(
@@ -39,3 +39,6 @@ def test_tiny_standin_trains_end_to_end_and_learns(tmp_path, monkeypatch):
     assert (tmp_path / "outputs" / "poster" / "splatu" / "latest" / "splat.ply").is_file()
     loaded_config, model, _ = load_run(run_dir)
     assert loaded_config == config and len(model) > 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "stand-in" in line]
+    assert len(said) == 1 and said[0].startswith("scene poster (the built-in stand-in, not nerfstudio's capture")
+    assert json.loads((run_dir / "summary.json").read_text())["stand_in"] is True

@@ -496,6 +496,18 @@ def test_real_poster_capture_is_preferred_when_present(tmp_path, monkeypatch):
     scene = load_scene(DataConfig(cache_dir=tmp_path / "cache"))
     assert scene.source == str(tmp_path / "datasets" / "poster" / "transforms.json")
     assert not list((tmp_path / "cache").glob("poster-standin-*"))
+    assert not scene.stand_in
+
+
+def test_the_stand_in_is_marked_however_it_is_loaded_and_loading_it_says_nothing(tmp_path, monkeypatch, capsys):
+    """`train` says so once, in its scene line; render-uncertainty and eval-ause, which load it again, did too."""
+    monkeypatch.chdir(tmp_path)  # no data/nerfstudio/poster here
+    monkeypatch.delenv("SPLATU_DATA", raising=False)
+    by_name = load_scene(DataConfig(cache_dir=tmp_path / "cache", poster=TINY_POSTER))
+    (folder,) = (tmp_path / "cache").glob("poster-standin-*")
+    by_path = load_scene(DataConfig(data=str(folder), cache_dir=tmp_path / "cache"))
+    assert by_name.stand_in and by_path.stand_in
+    assert capsys.readouterr() == ("", "")
 
 
 def test_poster_options_are_refused_where_they_would_shape_nothing(tmp_path, monkeypatch):

@@ -559,7 +559,7 @@ def _ensemble_config(root, **changes) -> TrainConfig:
     return get_method("ensemble").configure(config)
 
 
-def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_sessions(tmp_path, scene):
+def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_sessions(tmp_path, scene, capsys):
     full_dir = train_command.train(_ensemble_config(tmp_path / "a"))
     calls: list[int] = []
 
@@ -590,8 +590,10 @@ def test_resuming_an_interrupted_ensemble_finishes_every_member_and_sums_the_ses
             train_command.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)])
         assert resumed_steps == [] and sessions_file.read_text() == damaged
     sessions_file.write_text(good)
+    capsys.readouterr()
     assert train_command.train(resumed, hooks=[lambda step, state: resumed_steps.append(step)]) == run_dir
     assert resumed_steps == [3, 4, 1, 2, 3, 4]  # member 0 skipped, member 1 from step 2, member 2 from scratch
+    assert capsys.readouterr().err.splitlines().count(train_progress.scene_line(scene)) == 1  # as a single run's
     assert (run_dir / "members" / "0" / "summary.json").read_text() == member_0
     record = json.loads((run_dir / "ensemble.json").read_text())
     assert record["members"] == ["members/0", "members/1", "members/2"] and record["seeds"] == [0, 1, 2]
@@ -937,6 +939,9 @@ def test_the_run_starts_by_saying_what_it_trains_on_and_ends_with_its_folder_on_
     no_points = dataclasses.replace(scene, points=torch.zeros(0, 3), extra_eval={"interp": scene.eval})
     assert train_progress.scene_line(no_points) == (
         "scene tiny: 6 training and 2 eval + 2 interp views at 32x24, no point cloud, so random initial points")
+    assert train_progress.scene_line(dataclasses.replace(scene, stand_in=True)) == (
+        "scene tiny (the built-in stand-in, not nerfstudio's capture: put that in data/nerfstudio/poster or "
+        "$SPLATU_DATA/poster to train on it): 6 training and 2 eval views at 32x24, 300 initial points")
 
 
 @pytest.mark.parametrize("junk", [b"hello, not a checkpoint\n", b"PK\x03\x04" + b"\x00" * 64, b"\x80\x02K\x01."])

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from splatu.atomic import temporary_sibling
-from splatu.data.frames import opengl_camera_to_world
+from splatu.data.frames import STANDIN_KEY, opengl_camera_to_world
 from splatu.data.images import write_png
 from splatu.data.ply import write_ply_points
 from splatu.data.poster.config import PosterConfig
@@ -127,7 +127,7 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
         "val_filenames": [frames[i]["file_path"] for i in val],
         "test_filenames": [frames[i]["file_path"] for i in test],
         "ply_file_path": "points3D.ply",
-        "splatu_standin": {
+        STANDIN_KEY: {
             "generator_version": GENERATOR_VERSION,
             "config": asdict(cfg),
             "world": "metres, +z up; the chair stands at the origin facing +y",
