@@ -237,7 +237,7 @@ def score(run_dir: Path, method: UncertaintyMethod, scene: Scene, head: str | No
     """Render the eval block with `method` (and uncertainty `head`), score it, and time the render."""
     run = load_any_run(run_dir, head)
     built = build_method(method, run, scene)
-    spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=run_dir))
+    spec = view_spec(scene, "eval", RenderUncertaintyConfig(load=run_dir))
     views, seconds = render_views(built.source, spec)
     report, curves = score_entries(map_entries(views), "mae")
     psnrs = [psnr(torch.from_numpy(np.clip(v.maps["rgb"], 0.0, 1.0)), torch.from_numpy(v.gt)) for v in views]

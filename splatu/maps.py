@@ -51,14 +51,14 @@ def safe_name(name: str) -> str:
     return str(PurePosixPath(name.replace("\\", "/").strip("/")).with_suffix("")).replace("/", "_")
 
 
-def file_stems(names: list[str]) -> list[str]:
+def file_stems(names: list[str], where: str = "in the scene's image names") -> list[str]:
     """`safe_name` of each view, refusing two views that would share files (one would overwrite the other)."""
     stems = [safe_name(name) for name in names]
     first_of: dict[str, str] = {}
     for name, stem in zip(names, stems, strict=True):
         if stem in first_of:
             raise SplatuError(f"views {first_of[stem]!r} and {name!r} would both be written as {stem!r}",
-                              "in the scene's image names", "rename one of the two images")
+                              where, "rename one of the two")
         first_of[stem] = name
     return stems
 

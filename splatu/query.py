@@ -21,7 +21,7 @@ from splatu.data.frames import refuse_implausible_focal
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
-from splatu.world_frame import WorldTransform
+from splatu.world_frame import WorldTransform, normalised_world_to_camera
 
 
 @dataclass(frozen=True)
@@ -71,17 +71,6 @@ def open_run(path: str | Path, head: str | None = None) -> RunQuery:
         raise SplatuError("this run's checkpoint predates the record of its data frame, so a camera in the data's "
                           "frame cannot be placed", f"in {path}", "train the run again with this version")
     return RunQuery(run.config, run.model, run.frame)
-
-
-def normalised_world_to_camera(world_to_camera: Tensor, frame: WorldTransform) -> Tensor:
-    """The same camera in the model's frame, where x_data = s·R·x + t: p_cam = Rc(s·R·x + t) + tc, divided by s
-    (a camera's pixels do not change when its whole space is scaled; its depths are then in the model's units).
-    Float64 (4, 4)."""
-    rotation, translation = world_to_camera[:3, :3], world_to_camera[:3, 3]
-    normalised = torch.eye(4, dtype=torch.float64)
-    normalised[:3, :3] = rotation @ frame.rotation.double()
-    normalised[:3, 3] = (rotation @ frame.translation.double() + translation) / frame.scale
-    return normalised
 
 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,

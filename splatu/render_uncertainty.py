@@ -16,6 +16,7 @@ written in full, see `swap_in`):
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -34,7 +35,8 @@ from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
 from splatu.data.images import write_png
-from splatu.data.scene import Views
+from splatu.data.nerfstudio import read_cameras
+from splatu.data.scene import Scene, Views
 from splatu.errors import (
     FREE_AND_RERUN,
     SplatuError,
@@ -42,6 +44,7 @@ from splatu.errors import (
     no_empty_folders_left,
     os_error_behind,
     require_at_least,
+    require_file,
     unwritable_folder,
 )
 from splatu.figures import (
@@ -59,8 +62,9 @@ from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
+from splatu.world_frame import normalised_world_to_camera, scene_frame
 
-ViewSet = Literal["eval", "train", "orbit"]
+ViewSet = Literal["eval", "train", "orbit", "cameras"]
 
 
 @dataclass
@@ -72,7 +76,12 @@ class RenderUncertaintyConfig:
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """Which uncertainty to render, and the options that change its maps."""
     views: ViewSet = "eval"
-    """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below."""
+    """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below;
+    cameras: the candidate cameras of --cameras (render.json gives each view's mean uncertainty, to rank them by)."""
+    cameras: Path | None = None
+    """With --views cameras: a transforms.json-style file of cameras in the data's own frame (the scene's poses and
+    splat.ply's): per frame a file_path naming the view (no file need exist) and an OpenGL camera-to-world
+    transform_matrix; fl_x, fl_y, cx, cy, w and h at the top level or per frame, as nerfstudio writes them."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
@@ -124,8 +133,16 @@ def _evenly(count: int, limit: int) -> list[int]:
     return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)}) if limit > 1 else [0]
 
 
-def view_spec(scene_views: dict[str, Views], which: ViewSet, config: RenderUncertaintyConfig) -> ViewSpec:
-    """Cameras of the eval or train split (with their ground truth), or a generated orbit."""
+def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig) -> ViewSpec:
+    """Cameras of the eval or train split (with their ground truth), a generated orbit, or the --cameras file's."""
+    if which == "cameras":
+        assert config.cameras is not None  # run() refuses --views cameras without it
+        frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
+        cameras = [dataclasses.replace(c, world_to_camera=normalised_world_to_camera(c.world_to_camera, frame))
+                   for c in read_cameras(config.cameras)]
+        keep = _evenly(len(cameras), config.max_views)
+        return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"))
+    scene_views = {"eval": scene.eval, "train": scene.train}
     if which == "orbit":
         frames = orbit_cameras(scene_views["train"].cameras, config.orbit_frames, config.orbit_elevation,
                                config.orbit_radius_scale)
@@ -303,7 +320,7 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     else:
         creatable_dir(root.parent, "--output folder")
     scene, built = _setup(run, options)
-    spec = view_spec({"eval": scene.eval, "train": scene.train}, "eval", RenderUncertaintyConfig(load=load))
+    spec = view_spec(scene, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
     entries = map_entries(views)
     if not entries:
@@ -329,6 +346,11 @@ def run(config: RenderUncertaintyConfig) -> None:
         flags = " ".join(orbit_only)
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",
                           "in the command's options", f"drop {flags}, or pass --views orbit")
+    if (config.cameras is None) == (config.views == "cameras"):
+        raise SplatuError("--cameras FILE and --views cameras go together", "in the command's options",
+                          "pass both to render candidate cameras, or neither")
+    if config.cameras is not None:
+        require_file(config.cameras, "camera file", "pass the path of a transforms.json-style file of cameras")
     options = config.uncertainty
     options.check()
     run_info = _load(config.load, options)
@@ -338,12 +360,14 @@ def run(config: RenderUncertaintyConfig) -> None:
                        "--output folder")
     refuse_foreign_output(out, config.output is None)
     scene, built = _setup(run_info, options)
-    spec = view_spec({"eval": scene.eval, "train": scene.train}, config.views, config)
+    spec = view_spec(scene, config.views, config)
     views, seconds = render_views(built.source, spec)
     with no_empty_folders_left(out):
         record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
+    most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
     Console().print(f"rendered {len(views)} {config.views} view{'' if len(views) == 1 else 's'} with {options.method} "
-                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}", soft_wrap=True)
+                    f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
+                    f"{most['name']} (mean U {most['mean_uncertainty']:.3f})", soft_wrap=True)
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,

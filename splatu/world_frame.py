@@ -69,6 +69,17 @@ def scene_frame(scene: Scene) -> WorldTransform:
     return WorldTransform.from_normalization(scene.center, scene.scale)
 
 
+def normalised_world_to_camera(world_to_camera: Tensor, frame: WorldTransform) -> Tensor:
+    """The same camera in the model's frame, where x_data = s·R·x + t: p_cam = Rc(s·R·x + t) + tc, divided by s
+    (a camera's pixels do not change when its whole space is scaled; its depths are then in the model's units).
+    Float64 (4, 4)."""
+    rotation, translation = world_to_camera[:3, :3].double(), world_to_camera[:3, 3].double()
+    normalised = torch.eye(4, dtype=torch.float64)
+    normalised[:3, :3] = rotation @ frame.rotation.double()
+    normalised[:3, 3] = (rotation @ frame.translation.double() + translation) / frame.scale
+    return normalised
+
+
 def require_same_frame(saved: WorldTransform | None, scene: WorldTransform, where: str, fix: str) -> None:
     """Refuse a scene (its `scene_frame`) normalised unlike the one a model was trained in: its cameras would
     not fit the model, and every render would be silently wrong. `saved` is None for checkpoints older than

@@ -182,6 +182,36 @@ def _depth_unit(top: Mapping[str, Any], json_path: Path) -> float:
     return float(value)
 
 
+def _frame_camera(frame: Mapping[str, Any], top: Mapping[str, Any], where: str, name: str, c2w: np.ndarray,
+                  undistorted: dict[tuple, np.ndarray]) -> tuple[Camera, np.ndarray, Distortion | None]:
+    """A frame's pinhole camera at full resolution, with the intrinsics its images are undistorted to (computed once
+    per distinct camera, in `undistorted`), and the frame's own K and distortion."""
+    K, width, height = _intrinsics(frame, top, where)
+    distortion = _distortion(frame, top, where)
+    key = (K.tobytes(), width, height, distortion)
+    if key not in undistorted:
+        undistorted[key] = undistorted_intrinsics(K, distortion, width, height, where)
+    camera = Camera(K=torch.tensor(undistorted[key], dtype=torch.float64),
+                    world_to_camera=torch.tensor(world_to_camera_from_opengl(c2w), dtype=torch.float64),
+                    width=width, height=height, name=name)
+    return camera, K, distortion
+
+
+def read_cameras(path: Path) -> list[Camera]:
+    """The cameras a transforms.json-style file lists (poses and intrinsics as nerfstudio writes them; no image need
+    exist, file_path only names the view), as the loader would build them: candidate views in the data's frame."""
+    top = read_json(path)
+    frames_json = top.get("frames")
+    if not isinstance(frames_json, list) or not frames_json:
+        raise SplatuError("no frames listed", f"in {path}", "list the cameras under \"frames\"")
+    cameras: list[Camera] = []
+    undistorted: dict[tuple, np.ndarray] = {}
+    for index, frame in enumerate(frames_json):
+        name, where, c2w = frame_entry(frame, index, path)
+        cameras.append(_frame_camera(frame, top, where, name, c2w, undistorted)[0])
+    return cameras
+
+
 def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
     """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution."""
     json_path = path / "transforms.json" if path.is_dir() else path
@@ -200,24 +230,15 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
             raise SplatuError(f"frames {seen[name]} and {index} both have file_path {name!r}", f"in {json_path}",
                               "remove the duplicate frame")
         seen[name] = index
-        K, width, height = _intrinsics(frame, top, where)
-        distortion = _distortion(frame, top, where)
-        key = (K.tobytes(), width, height, distortion)
-        if key not in undistorted_cache:
-            undistorted_cache[key] = undistorted_intrinsics(K, distortion, width, height, where)
-        K_new = undistorted_cache[key]
-        camera = Camera(
-            K=torch.tensor(K_new, dtype=torch.float64),
-            world_to_camera=torch.tensor(world_to_camera_from_opengl(c2w), dtype=torch.float64),
-            width=width, height=height, name=name,
-        ).scaled(1.0 / downscale)
+        full, K, distortion = _frame_camera(frame, top, where, name, c2w, undistorted_cache)
+        camera = full.scaled(1.0 / downscale)
         source, source_downscale = _source_path(root, frame["file_path"], downscale)
 
         color = PixelRecipe(
-            path=source, kind="color", width=width, height=height,
+            path=source, kind="color", width=full.width, height=full.height,
             target_width=camera.width, target_height=camera.height,
             K=tuple(K.ravel()) if distortion else (), distortion=distortion,
-            K_undistorted=tuple(K_new.ravel()) if distortion else (),
+            K_undistorted=tuple(full.K.numpy().ravel()) if distortion else (),
             source_downscale=source_downscale, background=background,
         )
         frames.append(Frame(

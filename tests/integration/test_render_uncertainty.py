@@ -713,3 +713,47 @@ def test_the_readmes_python_example_runs(tiny_run):
     names = {"world_to_camera": _data_frame_camera(camera, open_run(tiny_run).frame)}
     exec(example.replace("outputs/poster/splatu/latest", str(tiny_run)), names)
     assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0
+
+
+def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny_run, tmp_path, capsys):
+    """`--views cameras`: poses straight from a transforms.json (the data's frame), here three of the stand-in's own
+    training frames, give the maps `--views train` gives those views."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.nerfstudio import frame_name
+    from splatu.data.resolve import load_scene
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    source = json.loads(Path(scene.source).read_text())
+    chosen = set(scene.train.names[::6])
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
+                                      "frames": [f for f in source["frames"] if frame_name(f["file_path"]) in chosen]}))
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "cameras"))
+    assert "the most uncertain is" in capsys.readouterr().out
+    _render(tiny_run, "--views", "train", "--output", str(tmp_path / "train"))
+    per_view = json.loads((tmp_path / "cameras" / "render.json").read_text())["per_view"]
+    assert len(per_view) == len(chosen) == 3
+    for view in per_view:
+        for key in ("rgb", "depth", "uncertainty"):
+            got = np.load(tmp_path / "cameras" / "npy" / f"{view['name']}_{key}.npy")
+            want = np.load(tmp_path / "train" / "npy" / f"{view['name']}_{key}.npy")
+            assert np.allclose(got, want, atol=1e-5), (view["name"], key)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("--views", "cameras"), "--cameras FILE and --views cameras go together"),
+    (("--cameras", "c.json"), "--cameras FILE and --views cameras go together"),
+    (("--views", "cameras", "--cameras", "missing.json"), "camera file not found"),
+])
+def test_candidate_camera_options_are_refused_in_one_line(tiny_run, tmp_path, capsys, args, message):
+    assert message in _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), *args,
+                                         "--output", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_camera_file_with_a_bad_frame_is_one_line(tiny_run, tmp_path, capsys):
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({"w": 48, "h": 80, "fl_x": 40.0, "frames": [{"file_path": "a"}]}))
+    line = _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), "--views", "cameras", "--cameras",
+                              str(candidates), "--output", str(tmp_path / "out")])
+    assert "no transform_matrix" in line and str(candidates) in line

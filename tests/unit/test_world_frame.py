@@ -14,7 +14,13 @@ from splatu.model import GaussianModel, ModelConfig
 from splatu.ply import load_ply, save_ply
 from splatu.rasterizer.projection import quaternion_to_rotation
 from splatu.sh import eval_sh, num_sh_bases
-from splatu.world_frame import WorldTransform, require_same_frame, rotation_to_quaternion, sh_rotation
+from splatu.world_frame import (
+    WorldTransform,
+    normalised_world_to_camera,
+    require_same_frame,
+    rotation_to_quaternion,
+    sh_rotation,
+)
 
 TURN = torch.tensor([[0.36, 0.48, -0.8], [-0.8, 0.6, 0.0], [0.48, 0.64, 0.6]], dtype=torch.float64)
 """A proper rotation (det +1) about a skew axis by about 110°."""
@@ -136,7 +142,6 @@ def test_frames_that_differ_only_in_scale_do_not_match():
 def test_a_data_frame_camera_moved_into_the_model_frame_sees_the_same_pixels_at_scaled_depths():
     """What `splatu.query` renders: a candidate camera in the data's frame, moved into the normalised one."""
     from splatu.camera import look_at
-    from splatu.query import normalised_world_to_camera
 
     frame = WorldTransform(random_rotation(7), torch.tensor([3.0, -2.0, 5.0], dtype=torch.float64), 4.5)
     K = torch.tensor([[100.0, 0.0, 32.0], [0.0, 90.0, 24.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
