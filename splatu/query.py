@@ -17,7 +17,7 @@ from torch import Tensor
 
 from splatu.camera import Camera
 from splatu.checkpoint import load_run
-from splatu.data.frames import refuse_implausible_focal
+from splatu.data.frames import ROTATION_TOLERANCE, refuse_implausible_focal
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
@@ -85,8 +85,9 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if not (w2c.isfinite().all() and intrinsics.isfinite().all()):
         raise SplatuError("the camera holds NaN or Inf", "in RunQuery.render", "pass a finite pose and K")
     rotation = w2c[:3, :3]
-    rigid = (torch.allclose(rotation @ rotation.T, torch.eye(3, dtype=torch.float64), atol=1e-6)
-             and abs(float(torch.linalg.det(rotation)) - 1.0) <= 1e-6
+    # as loose as the loaders (a pose from a file, rounded to a few decimals or stored in float32, trains there)
+    rigid = (float((rotation @ rotation.T - torch.eye(3, dtype=torch.float64)).abs().max()) <= ROTATION_TOLERANCE
+             and float(torch.linalg.det(rotation)) > 0
              and torch.equal(w2c[3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)))
     if not rigid:
         raise SplatuError("world_to_camera is not a rigid motion (its 3×3 block must be a rotation, its last row "

@@ -24,6 +24,10 @@ MAX_IMAGE_SIDE = 1 << 16
 """Larger than any camera's image side: pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19, and
 OpenCV's undistortion takes 32-bit sizes, so a nerfstudio w of 3e9 was an OpenCV traceback."""
 
+ROTATION_TOLERANCE = 1e-3
+"""How far Rᵀ·R of a pose may be from the identity: poses written with a few decimals, or in float32, are off by
+1e-7 to 1e-4 and render as intended; a scale of 1.001 or more (a similarity, not a pose) is refused."""
+
 MAX_FIELD_OF_VIEW = 179.0
 """Degrees. The widest rectilinear lenses see about 120-130 degrees across (fisheyes are undistorted to a narrower
 pinhole); at 179 the image's edge pixels look within half a degree of the image plane, so a wider field of view is
@@ -87,7 +91,7 @@ def checked_matrix(value: object, where: str, fix: str) -> np.ndarray:
     if np.abs(matrix[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:  # it would be ignored: a rigid pose is read as 3x4
         raise SplatuError(f"pose's last row is {matrix[3].tolist()}, not [0, 0, 0, 1]", where, fix)
     rotation = matrix[:3, :3]
-    if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) <= 0:
+    if np.abs(rotation.T @ rotation - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(rotation) <= 0:
         raise SplatuError("pose rotation is not a rotation matrix", where, fix)
     return matrix
 

@@ -700,6 +700,26 @@ def test_a_bad_candidate_camera_is_one_clear_error(tiny_run, change, message):
         open_run(tiny_run).render(*change(np.eye(4), K), 48, 80)
 
 
+def test_a_pose_as_a_file_rounds_it_renders_and_a_scaled_one_is_refused(tiny_run):
+    """A pose written with 5 decimals (R·Rᵀ off by ~1e-5, as a transforms.json or a float32 export gives it) is what
+    the loaders train with (they allow 1e-3), so the query renders it; a pose with a 1% scale is refused."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    camera = load_scene(run_data(load_any_run(tiny_run))).eval.cameras[0]
+    exact = _data_frame_camera(camera, run.frame)
+    rounded = np.round(exact, 5)
+    assert np.abs(rounded[:3, :3] @ rounded[:3, :3].T - np.eye(3)).max() > 1e-6  # beyond float64 noise
+    view, expected = (run.render(w2c, camera.K.numpy(), camera.width, camera.height) for w2c in (rounded, exact))
+    assert np.abs(view.rgb - expected.rgb).mean() < 1e-3
+    scaled = exact.copy()
+    scaled[:3, :3] *= 1.01
+    with pytest.raises(SplatuError, match="not a rigid motion"):
+        run.render(scaled, camera.K.numpy(), camera.width, camera.height)
+
+
 def test_the_readmes_python_example_runs(tiny_run):
     """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
     from splatu.baselines.load import load_any_run, run_data
