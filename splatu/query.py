@@ -9,6 +9,7 @@ model moved out, so the render is exactly what `splatu render-uncertainty` compu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Integral
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +53,7 @@ class RunQuery:
                height: int) -> ViewUncertainty:
         """Render a camera: world-to-camera (4, 4) in the data's frame with OpenCV axes (x right, y down, z
         forward), pinhole intrinsics K (3, 3) in pixels, and the image size."""
-        w2c, intrinsics = _checked_camera(world_to_camera, K, width, height)
+        w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height)
         camera = Camera(intrinsics, normalised_world_to_camera(w2c, self.frame), width, height)
         out = self.model.render(camera, self.config.model.sh_degree, eval_background(self.config),
                                 with_uncertainty=True)
@@ -74,9 +75,9 @@ def open_run(path: str | Path, head: str | None = None) -> RunQuery:
 
 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
-                    height: int) -> tuple[Tensor, Tensor]:
-    """The camera as float64 tensors, or one clear error: a wrong shape, a non-finite entry, a pose that is not a
-    rigid motion, or a bad size would otherwise render a wrong or blank image without a word."""
+                    height: int) -> tuple[Tensor, Tensor, int, int]:
+    """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
+    that is not a rigid motion, or a bad size would otherwise render a wrong or blank image without a word."""
     w2c = torch.as_tensor(np.asarray(world_to_camera, dtype=np.float64))
     intrinsics = torch.as_tensor(np.asarray(K, dtype=np.float64))
     if w2c.shape != (4, 4) or intrinsics.shape != (3, 3):
@@ -92,11 +93,13 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if not rigid:
         raise SplatuError("world_to_camera is not a rigid motion (its 3×3 block must be a rotation, its last row "
                           "0 0 0 1)", "in RunQuery.render", "pass an OpenCV world-to-camera pose without scale")
-    if not (isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0):
+    sizes = (width, height)  # any whole number (np.int64 from an array of sizes), but not a bool (True is 1)
+    if not all(isinstance(n, Integral) and not isinstance(n, bool) and n > 0 for n in sizes):
         raise SplatuError(f"the image size must be positive integers, got {width}×{height}", "in RunQuery.render",
                           "pass width and height in pixels")
     fix = "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels of this image size"
     if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)
+    width, height = int(width), int(height)
     refuse_implausible_focal(intrinsics.numpy(), width, height, "in RunQuery.render", fix)
-    return w2c, intrinsics
+    return w2c, intrinsics, width, height

@@ -720,6 +720,21 @@ def test_a_pose_as_a_file_rounds_it_renders_and_a_scaled_one_is_refused(tiny_run
         run.render(scaled, camera.K.numpy(), camera.width, camera.height)
 
 
+def test_an_image_size_as_numpy_gives_it_renders_and_a_bool_or_float_one_is_refused(tiny_run):
+    """Sizes read from an array of them (np.int64) are whole numbers and render; True (a 1) and 48.0 are not sizes."""
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    K = np.array([[40.0, 0.0, 24.0], [0.0, 40.0, 40.0], [0.0, 0.0, 1.0]])
+    width, height = np.array([48, 80])
+    assert isinstance(width, np.int64)
+    view = run.render(np.eye(4), K, width, height)
+    assert view.rgb.shape == (80, 48, 3) and np.array_equal(view.rgb, run.render(np.eye(4), K, 48, 80).rgb)
+    for size in ((True, True), (48.0, 80)):
+        with pytest.raises(SplatuError, match="the image size must be positive integers"):
+            run.render(np.eye(4), K, *size)
+
+
 def test_the_readmes_python_example_runs(tiny_run):
     """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
     from splatu.baselines.load import load_any_run, run_data
