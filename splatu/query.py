@@ -102,4 +102,11 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)
     width, height = int(width), int(height)
     refuse_implausible_focal(intrinsics.numpy(), width, height, "in RunQuery.render", fix)
+    # the rasterizer reads fx, fy, cx and cy alone, so any other entry would be dropped without a word
+    if float((intrinsics[2] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).abs().max()) > 1e-9:
+        raise SplatuError(f"K's last row is {intrinsics[2].tolist()}, not [0, 0, 1]", "in RunQuery.render",
+                          f"{fix} (for another image size, scale K's first two rows only)")
+    if max(abs(float(intrinsics[0, 1])), abs(float(intrinsics[1, 0]))) > 1e-9 * float(intrinsics[:2, :2].abs().max()):
+        raise SplatuError(f"K has a skew ({float(intrinsics[0, 1]):.3g}, {float(intrinsics[1, 0]):.3g}), which "
+                          "splatu's pinhole camera does not model", "in RunQuery.render", fix)
     return w2c, intrinsics, width, height
