@@ -4,13 +4,20 @@
 frame (the frame of the scene's poses and of the run's splat.ply, OpenCV axes), without reading the scene's
 images. The model lives in the normalised frame it was trained in; the camera is moved there rather than the
 model moved out, so the render is exactly what `splatu render-uncertainty` computes for that view.
+
+K is the pinhole the model saw, not the lens's: a distorted capture (COLMAP SIMPLE_RADIAL or OPENCV, nerfstudio
+OPENCV) trained on images undistorted to OpenCV's alpha=0 pinhole, which differs from the file's K by up to a few
+per cent, and --downscale N rounds each image side, so K scales by new side / old side, not by exactly 1/N.
+`RunQuery.scene_cameras()` gives every camera of the scene as the run saw it, in the data's frame.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from numbers import Integral
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -18,11 +25,14 @@ from torch import Tensor
 
 from splatu.camera import Camera
 from splatu.checkpoint import load_run
+from splatu.data.config import DataConfig
 from splatu.data.frames import ROTATION_TOLERANCE, refuse_implausible_focal
+from splatu.data.normalize import normalization
+from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
-from splatu.world_frame import WorldTransform, normalised_world_to_camera
+from splatu.world_frame import WorldTransform, normalised_world_to_camera, require_same_frame
 
 
 @dataclass(frozen=True)
@@ -40,6 +50,15 @@ class ViewUncertainty:
         return float(self.uncertainty.mean())
 
 
+class SceneCamera(NamedTuple):
+    """A camera of the run's scene as the run saw it, in the data's frame: `run.render(*camera)` renders it."""
+
+    world_to_camera: np.ndarray  # (4, 4) float64, OpenCV axes: the pose in the scene's files
+    K: np.ndarray  # (3, 3) float64: the pinhole its image was undistorted to, at the run's --downscale
+    width: int
+    height: int
+
+
 @dataclass(frozen=True)
 class RunQuery:
     """A trained run, ready to render candidate views in the data's frame."""
@@ -52,7 +71,9 @@ class RunQuery:
     def render(self, world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
                height: int) -> ViewUncertainty:
         """Render a camera: world-to-camera (4, 4) in the data's frame with OpenCV axes (x right, y down, z
-        forward), pinhole intrinsics K (3, 3) in pixels, and the image size."""
+        forward), pinhole intrinsics K (3, 3) in pixels, and the image size. Pixel (i, j) has its centre at
+        (j + 0.5, i + 0.5), as in COLMAP and nerfstudio (OpenCV's calibration puts it at (j, i): add 0.5 to its cx
+        and cy). For a distorted lens pass the pinhole the images were undistorted to (see `scene_cameras`)."""
         w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height)
         camera = Camera(intrinsics, normalised_world_to_camera(w2c, self.frame), width, height)
         out = self.model.render(camera, self.config.model.sh_degree, eval_background(self.config),
@@ -60,6 +81,12 @@ class RunQuery:
         assert out.uncertainty is not None  # with_uncertainty=True
         return ViewUncertainty(out.rgb.numpy(), (out.depth.double() * self.frame.scale).numpy(), out.alpha.numpy(),
                                out.uncertainty.numpy())
+
+    def scene_cameras(self, data: str | Path | None = None) -> dict[str, SceneCamera]:
+        """Every camera of the run's scene (training and held-out) by image name, as the run saw it: the pose from
+        the scene's files and the undistorted, downscaled K and size its images trained at. Reads the scene's
+        files, not its images; `data` is the scene's new location if it has moved."""
+        return scene_cameras(self.config.data, self.frame, data)
 
 
 def open_run(path: str | Path, head: str | None = None) -> RunQuery:
@@ -72,6 +99,23 @@ def open_run(path: str | Path, head: str | None = None) -> RunQuery:
         raise SplatuError("this run's checkpoint predates the record of its data frame, so a camera in the data's "
                           "frame cannot be placed", f"in {path}", "train the run again with this version")
     return RunQuery(run.config, run.model, run.frame)
+
+
+def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path | None = None) -> dict[str,
+                                                                                                    SceneCamera]:
+    """The cameras of the scene `recorded` names (at `data` if given) in the data's frame, as the loaders make them
+    for training; a scene that is missing, or normalised unlike `frame` (another scene), is one SplatuError line."""
+    config = recorded if data is None else dataclasses.replace(recorded, data=str(data))
+    path = scene_path(config)
+    where = "in RunQuery.scene_cameras"
+    if config.data != POSTER and not path.exists():
+        raise SplatuError(f"the run's scene is not at {path}", where, "pass data= with the scene's location")
+    raw = read_scene_files(path, config.downscale or 1, config.background)
+    center, scale = normalization(torch.stack([f.camera.center() for f in raw.frames]))
+    require_same_frame(frame, WorldTransform.from_normalization(center.float(), scale), f"in {path}",
+                       "pass data= with the scene this run was trained on")
+    return {f.name: SceneCamera(f.camera.world_to_camera.double().numpy().copy(), f.camera.K.double().numpy().copy(),
+                                f.camera.width, f.camera.height) for f in raw.frames}
 
 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,

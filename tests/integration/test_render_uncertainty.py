@@ -739,6 +739,31 @@ def test_an_image_size_as_numpy_gives_it_renders_and_a_bool_or_float_one_is_refu
             run.render(np.eye(4), K, *size)
 
 
+def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
+    """`scene_cameras` names every view with its data-frame pose, K and size, so `render(*camera)` is the run's own
+    render of it; a scene that is not there, or another one, is one line."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+    from tests.synthetic_scenes import write_nerfstudio_scene
+
+    run = open_run(tiny_run)
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    cameras = run.scene_cameras()
+    assert set(cameras) == set(scene.train.names) | set(scene.eval.names) | {
+        n for views in scene.extra_eval.values() for n in views.names}
+    camera = scene.eval.cameras[0]
+    view = run.render(*cameras[scene.eval.names[0]])
+    expected = run.model.render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
+    assert np.allclose(view.rgb, expected.rgb.detach().numpy(), atol=1e-5)
+    assert np.allclose(view.uncertainty, expected.uncertainty.detach().numpy(), atol=1e-5)
+    with pytest.raises(SplatuError, match="the run's scene is not at"):
+        run.scene_cameras(tmp_path / "gone")
+    write_nerfstudio_scene(tmp_path / "other")
+    with pytest.raises(SplatuError, match="normalisation differs"):
+        run.scene_cameras(tmp_path / "other")
+
+
 def test_the_readmes_python_example_runs(tiny_run):
     """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
     from splatu.baselines.load import load_any_run, run_data

@@ -153,3 +153,49 @@ def test_a_data_frame_camera_moved_into_the_model_frame_sees_the_same_pixels_at_
     torch.testing.assert_close(uv_model, uv_data)
     torch.testing.assert_close(z_model * frame.scale, z_data)
     assert (z_data > 0).all() and not torch.allclose(z_model, z_data)  # in front, and the depths really scale
+
+
+def test_scene_cameras_give_the_pose_from_the_file_and_the_undistorted_downscaled_K_the_run_trained_at(tmp_path):
+    """A distorted capture trains on images undistorted to OpenCV's alpha=0 pinhole, and --downscale rounds each
+    side: the K to query its views with is neither the file's K nor K / N. Only the scene's files are read."""
+    import numpy as np
+
+    from splatu.data.config import DataConfig
+    from splatu.data.frames import world_to_camera_from_opengl
+    from splatu.data.images import Distortion, undistorted_intrinsics
+    from splatu.data.normalize import normalization
+    from splatu.query import scene_cameras
+    from tests.synthetic_scenes import ring_cameras, write_transforms
+
+    cameras = ring_cameras(6, 41, 31)
+    write_transforms(tmp_path / "transforms.json", cameras, [c.name for c in cameras],
+                     top_extras={"k1": 0.08, "k2": -0.05})  # no image is written: none is read
+    center, scale = normalization(torch.stack([c.center() for c in cameras]))
+    frame = WorldTransform.from_normalization(center.float(), scale)
+    found = scene_cameras(DataConfig(data=str(tmp_path), downscale=2), frame)
+    assert list(found) == [c.name for c in cameras]
+    file_K = cameras[0].K.numpy()
+    K = undistorted_intrinsics(file_K, Distortion("OPENCV", (0.08, -0.05, 0.0, 0.0, 0.0)), 41, 31, "test")
+    K[0] *= 20 / 41  # 41 / 2 rounds to 20, 31 / 2 to 16
+    K[1] *= 16 / 31
+    for camera in cameras:
+        world_to_camera, got_K, width, height = found[camera.name]
+        assert (width, height) == (20, 16)
+        np.testing.assert_allclose(got_K, K, rtol=1e-12)
+        assert np.abs(got_K[:2, :2] - file_K[:2, :2] / 2).max() > 0.1  # not the file's K halved
+        np.testing.assert_allclose(world_to_camera, camera.world_to_camera.numpy(), atol=1e-12)
+        np.testing.assert_allclose(
+            world_to_camera, world_to_camera_from_opengl(np.array(_transform_matrix(tmp_path, camera.name))),
+            atol=1e-12)
+    elsewhere = WorldTransform.from_normalization(center.float() + 1.0, scale)
+    with pytest.raises(SplatuError, match="normalisation differs"):
+        scene_cameras(DataConfig(data=str(tmp_path), downscale=2), elsewhere)
+    with pytest.raises(SplatuError, match="the run's scene is not at"):
+        scene_cameras(DataConfig(data=str(tmp_path / "moved")), frame)
+
+
+def _transform_matrix(root, name: str) -> list[list[float]]:
+    import json
+
+    return next(f["transform_matrix"] for f in json.loads((root / "transforms.json").read_text())["frames"]
+                if f["file_path"] == name)
