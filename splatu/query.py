@@ -91,7 +91,15 @@ class RunQuery:
 
 def open_run(path: str | Path, head: str | None = None) -> RunQuery:
     """A single run's folder (or one of its checkpoints), optionally as one of its extra uncertainty heads."""
-    run = load_run(Path(path).expanduser(), head)
+    target = Path(path).expanduser()
+    if (target / "ensemble.json").is_file():  # its members trained without the uncertainty loss: no U to render
+        raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement, not a U that "
+                          "splatu.query renders", f"in {path}",
+                          "open a run trained with `splatu train --method splatu`")
+    try:
+        run = load_run(target, head)
+    except SplatuError as error:  # the CLI's advice, in the argument a Python caller passes
+        raise SplatuError(error.what, error.where, error.fix.replace("--head", "head=")) from None
     if run.config.uncertainty.off:
         raise SplatuError("this run was trained without the uncertainty loss, so it has no uncertainty to render",
                           f"in {path}", "open a run trained with `splatu train --method splatu`")

@@ -764,6 +764,22 @@ def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
         run.scene_cameras(tmp_path / "other")
 
 
+def test_open_run_errors_give_a_python_caller_a_way_on(tiny_run, tmp_path):
+    """An ensemble has no U of its own to render (its members trained without the loss), so it is refused pointing at
+    a splatu run, not at its members; an unknown head is named with the argument a Python caller passes, head=."""
+    from splatu.query import open_run
+
+    (tmp_path / "ensemble.json").write_text("{}")
+    with pytest.raises(SplatuError) as error:
+        open_run(tmp_path)
+    assert "ensemble" in error.value.what and "--method splatu" in error.value.fix and "ensemble.json" not in str(
+        error.value)
+    with pytest.raises(SplatuError, match="no uncertainty head 'kind=mean'") as error:
+        open_run(tiny_run, head="kind=mean")
+    assert "head=" in error.value.fix and "--head" not in error.value.fix and EXTRA_HEAD in error.value.fix
+    assert open_run(tiny_run, head=EXTRA_HEAD).config.model.u_sh_degree == 0
+
+
 def test_the_readmes_python_example_runs(tiny_run):
     """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
     from splatu.baselines.load import load_any_run, run_data
