@@ -130,8 +130,7 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
                     height: int) -> tuple[Tensor, Tensor, int, int]:
     """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
     that is not a rigid motion, or a bad size would otherwise render a wrong or blank image without a word."""
-    w2c = torch.as_tensor(np.asarray(world_to_camera, dtype=np.float64))
-    intrinsics = torch.as_tensor(np.asarray(K, dtype=np.float64))
+    w2c, intrinsics = _numbers(world_to_camera, "world_to_camera"), _numbers(K, "K")
     if w2c.shape != (4, 4) or intrinsics.shape != (3, 3):
         raise SplatuError(f"a camera needs world_to_camera (4, 4) and K (3, 3), got {tuple(w2c.shape)} and "
                           f"{tuple(intrinsics.shape)}", "in RunQuery.render", "pass the matrices in those shapes")
@@ -162,3 +161,12 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError(f"K has a skew ({float(intrinsics[0, 1]):.3g}, {float(intrinsics[1, 0]):.3g}), which "
                           "splatu's pinhole camera does not model", "in RunQuery.render", fix)
     return w2c, intrinsics, width, height
+
+
+def _numbers(value: object, name: str) -> Tensor:
+    """`value` as a float64 tensor, or one line for a ragged list or a non-number (numpy's ValueError or TypeError)."""
+    try:
+        return torch.as_tensor(np.asarray(value, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise SplatuError(f"{name} is not an array of numbers ({type(value).__name__})", "in RunQuery.render",
+                          "pass a numpy array, a tensor or nested lists of numbers") from None

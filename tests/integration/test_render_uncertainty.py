@@ -695,6 +695,8 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     # the rasterizer reads fx, fy, cx, cy only: a skew, or a K scaled as a whole (K / 8), rendered another view
     (lambda w2c, K: (w2c, K + np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])), "K has a skew"),
     (lambda w2c, K: (w2c, K / 8), "K's last row is [0.0, 0.0, 0.125]"),
+    (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "world_to_camera is not an array of numbers"),  # ragged
+    (lambda w2c, K: (w2c, "K"), "K is not an array of numbers"),
 ])
 def test_a_bad_candidate_camera_is_one_clear_error(tiny_run, change, message):
     from splatu.query import open_run
