@@ -23,6 +23,8 @@ PAPER_ENSEMBLE_SIZE = 10
 class Method:
     description: str
     configure: Callable[[TrainConfig], TrainConfig]
+    ensemble: bool = False
+    """Whether it trains several models (`--ensemble N`) rather than one: a run is named after it only if so."""
 
 
 def _splatu(config: TrainConfig) -> TrainConfig:
@@ -42,7 +44,8 @@ def _ensemble(config: TrainConfig) -> TrainConfig:
 METHODS: dict[str, Method] = {
     "splatu": Method("3DGS with the view-dependent SH uncertainty trained in the same step (the paper).", _splatu),
     "splatfacto": Method("Plain splatfacto-style 3DGS, no uncertainty loss.", _splatfacto),
-    "ensemble": Method("N plain 3DGS members differing only in seed; uncertainty = std across members.", _ensemble),
+    "ensemble": Method("N plain 3DGS members differing only in seed; uncertainty = std across members.", _ensemble,
+                       ensemble=True),
 }
 
 
@@ -54,9 +57,12 @@ def method_help() -> str:
 
 def method_of(config: TrainConfig) -> str:
     """The registered method `config` trains: the one it names unless a flag undid it (`--uncertainty.off` makes
-    `splatu` plain splatfacto), so a run is filed and summarised as what it is, not as what it was called."""
+    `splatu` plain splatfacto), so a run is filed and summarised as what it is, not as what it was called. A method
+    fits only as many models as it trains: an ensemble whose members keep the uncertainty loss is no splatu run
+    (its `latest` would be an ensemble that `render-uncertainty` refuses), so it keeps the name it was given."""
     candidates = [config.method, *(name for name in METHODS if name != config.method)]
-    return next((name for name in candidates if METHODS[name].configure(config) == config), config.method)
+    return next((name for name in candidates if METHODS[name].configure(config) == config
+                 and METHODS[name].ensemble == (config.ensemble > 1)), config.method)
 
 
 def get_method(name: str) -> Method:

@@ -440,6 +440,12 @@ def test_a_run_is_named_after_the_method_its_options_train():
     assert method_of(METHODS["splatu"].configure(preset_config("fast", "splatfacto"))) == "splatu"
     assert method_of(dataclasses.replace(ensemble, ensemble=1)) == "splatfacto"  # one member is one plain run
     assert method_of(dataclasses.replace(ensemble, ensemble=3)) == "ensemble"
+    # an ensemble is named by the ensemble method only: with the loss kept on it is no splatu run (one model),
+    # and plain members asked of splatfacto are exactly what --method ensemble trains
+    with_loss = dataclasses.replace(ensemble, uncertainty=dataclasses.replace(ensemble.uncertainty, off=False))
+    assert method_of(with_loss) == "ensemble"
+    assert method_of(dataclasses.replace(preset_config("fast", "splatfacto"), ensemble=3)) == "ensemble"
+    assert method_of(dataclasses.replace(splatu, ensemble=3)) == "splatu"  # no method trains it: its own name
 
 
 def test_uncertainty_off_files_the_run_under_splatfacto(tmp_path, scene):
