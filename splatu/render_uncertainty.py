@@ -5,7 +5,7 @@ writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any 
 maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new render is
 written in full, see `swap_in`):
 
-    npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps
+    npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps (depth in the data's units, as splatu.query's)
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
     colorbar_{uncertainty,depth,error}.png       the legends of those shared scales
     panels/NAME.png                              render | uncertainty | error (error when GT exists)
@@ -125,6 +125,9 @@ class ViewSpec:
     views: Views | None = None
     indices: list[int] | None = None
     elevations: list[float] | None = None
+    depth_unit: float = 1.0
+    """Data units per model unit: depths are written in the data's units (the frame of the scene's poses, of
+    --cameras and of splat.ply), as `splatu.query` gives them, not in the model's normalised ones."""
 
 
 def _evenly(count: int, limit: int) -> list[int]:
@@ -135,25 +138,27 @@ def _evenly(count: int, limit: int) -> list[int]:
 
 def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig) -> ViewSpec:
     """Cameras of the eval or train split (with their ground truth), a generated orbit, or the --cameras file's."""
+    frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
     if which == "cameras":
         assert config.cameras is not None  # run() refuses --views cameras without it
-        frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
         cameras = [dataclasses.replace(c, world_to_camera=normalised_world_to_camera(c.world_to_camera, frame))
                    for c in read_cameras(config.cameras)]
         keep = _evenly(len(cameras), config.max_views)
-        return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"))
+        return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
+                        depth_unit=frame.scale)
     scene_views = {"eval": scene.eval, "train": scene.train}
     if which == "orbit":
         frames = orbit_cameras(scene_views["train"].cameras, config.orbit_frames, config.orbit_elevation,
                                config.orbit_radius_scale)
         keep = _evenly(len(frames), config.max_views)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
-                        elevations=[frames[i].elevation_degrees for i in keep])
+                        elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale)
     views = scene_views[which]
     if len(views) == 0:
         raise SplatuError(f"the scene's {which} split is empty", "in the run's scene", "pick another --views")
     keep = _evenly(len(views), config.max_views)
-    return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep)
+    return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep,
+                    depth_unit=frame.scale)
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -176,6 +181,7 @@ def render_views(source: UncertaintySource, spec: ViewSpec) -> tuple[list[Render
             started = time.perf_counter()
             maps = _numpy(source.render(camera), name)
             seconds.append(time.perf_counter() - started)
+            maps["depth"] *= spec.depth_unit
             view = RenderedView(name, maps)
             if spec.views is not None and spec.indices is not None:
                 i = spec.indices[k]

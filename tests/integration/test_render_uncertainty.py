@@ -839,3 +839,26 @@ def test_a_camera_file_with_a_bad_frame_is_one_line(tiny_run, tmp_path, capsys):
     line = _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), "--views", "cameras", "--cameras",
                               str(candidates), "--output", str(tmp_path / "out")])
     assert "no transform_matrix" in line and str(candidates) in line
+
+
+def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_units(tiny_run, tmp_path):
+    """The same pose through `--views cameras` and `splatu.query` gives the same maps: depth too, in the data's units
+    (render-uncertainty wrote the model's normalised depth, off from the query's by the scene's scale)."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.nerfstudio import read_cameras
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    source = json.loads(Path(scene.source).read_text())
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
+                                      "frames": [{**source["frames"][0], "file_path": "candidate"}]}))
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"))
+    run = open_run(tiny_run)
+    assert abs(run.frame.scale - 1.0) > 0.1  # the two units differ here
+    (camera,) = read_cameras(candidates)
+    view = run.render(camera.world_to_camera.numpy(), camera.K.numpy(), camera.width, camera.height)
+    for key in ("rgb", "alpha", "uncertainty", "depth"):
+        written = np.load(tmp_path / "out" / "npy" / f"candidate_{key}.npy")
+        assert np.allclose(written, getattr(view, key), rtol=1e-5, atol=1e-5), key
