@@ -120,7 +120,7 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
         raise SplatuError(f"the run's scene is not at {path}", where, "pass data= with the scene's location")
     raw = read_scene_files(path, config.downscale or 1, config.background)
     center, scale = normalization(torch.stack([f.camera.center() for f in raw.frames]))
-    require_same_frame(frame, WorldTransform.from_normalization(center.float(), scale), f"in {path}",
+    require_same_frame(frame, WorldTransform.from_normalization(center, scale), f"in {path}",
                        "pass data= with the scene this run was trained on")
     return {f.name: SceneCamera(f.camera.world_to_camera.double().numpy().copy(), f.camera.K.double().numpy().copy(),
                                 f.camera.width, f.camera.height) for f in raw.frames}

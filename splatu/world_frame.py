@@ -22,6 +22,8 @@ from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.sh import num_sh_bases, sh_basis
 
+FLOAT32_ROUNDING = 1e-7
+"""Relative error of rounding a float64 to float32 (at most 2⁻²⁴ ≈ 6e-8)."""
 SAMPLE_DIRECTIONS = 64
 """Directions the SH rotation is fitted on; any ≥ 16 spread-out ones determine it exactly."""
 
@@ -54,10 +56,12 @@ class WorldTransform:
         return cls(state["rotation"].double(), state["translation"].double(), float(state["scale"]))
 
     def matches(self, other: WorldTransform, tolerance: float = 1e-6) -> bool:
-        """Same transform up to float noise (the scene was reloaded, not changed)."""
+        """Same transform up to float noise (the scene was reloaded, not changed). Runs saved before the scene's
+        centre was kept in float64 recorded it rounded to float32: that rounding is noise too."""
         return (math.isclose(self.scale, other.scale, rel_tol=tolerance)
                 and torch.allclose(self.rotation, other.rotation, atol=tolerance)
-                and torch.allclose(self.translation, other.translation, atol=tolerance * (1 + self.scale)))
+                and torch.allclose(self.translation, other.translation, rtol=FLOAT32_ROUNDING,
+                                   atol=tolerance * (1 + self.scale)))
 
     def points(self, x: Tensor) -> Tensor:
         """Normalised points (N, 3) in the world frame."""

@@ -165,7 +165,7 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
         eval=views(held_out),
         points=normalize_points(points, center, scale).to(torch.float32),
         point_colors=None if raw.point_colors is None else torch.as_tensor(raw.point_colors, dtype=torch.float32),
-        center=center.to(torch.float32),
+        center=center,  # float64, as the cameras were normalised: float32 is centimetres off at map coordinates
         scale=scale,
         extra_eval={name: views(indices) for name, indices in extras.items()},
         own_split=own,

@@ -85,7 +85,7 @@ class Scene:
     eval: Views
     points: Tensor  # (M, 3), may be empty
     point_colors: Tensor | None = None  # (M, 3) in [0, 1]
-    center: Tensor = field(default_factory=lambda: torch.zeros(3))
+    center: Tensor = field(default_factory=lambda: torch.zeros(3, dtype=torch.float64))
     scale: float = 1.0
     extra_eval: dict[str, Views] = field(default_factory=dict)
     """More held-out sets, e.g. "interp": every 8th frame of the training path (built-in scene)."""

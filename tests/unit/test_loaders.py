@@ -272,7 +272,7 @@ def test_colmap_text_model_poses_points_and_undistorted_intrinsics(tmp_path):
         assert torch.allclose(camera.world_to_camera.double(), expected.world_to_camera, atol=1e-5)
     K = scene.train.cameras[0].K
     assert 30 < K[0, 0] < 36  # barrel distortion undistorted with alpha=0 zooms in slightly
-    expected_points = (torch.tensor([[10.0, -3.0, 2.0], [10.5, -3.0, 2.5]]) - scene.center) * scene.scale
+    expected_points = (torch.tensor([[10.0, -3.0, 2.0], [10.5, -3.0, 2.5]]) - scene.center.float()) * scene.scale
     assert torch.allclose(scene.points, expected_points, atol=1e-5)
     assert torch.allclose(scene.point_colors[0], torch.tensor([1.0, 0.0, 128 / 255]))
 

@@ -199,3 +199,28 @@ def _transform_matrix(root, name: str) -> list[list[float]]:
 
     return next(f["transform_matrix"] for f in json.loads((root / "transforms.json").read_text())["frames"]
                 if f["file_path"] == name)
+
+
+def test_the_frame_of_a_scene_far_from_the_origin_is_the_one_its_cameras_were_normalised_in(tmp_path):
+    """Cameras in map coordinates (here 10⁶ off the origin, as a georeferenced capture has them) are normalised
+    around their float64 mean; the recorded frame rounded that centre to float32, up to 3 cm off at 10⁶, so
+    exports and candidate views (`splatu.query`, `--views cameras`) landed that far from where they belong."""
+    from splatu.data.config import DataConfig
+    from splatu.data.resolve import load_scene
+    from splatu.world_frame import scene_frame
+    from tests.synthetic_scenes import ring_cameras, write_nerfstudio_scene, write_transforms
+
+    write_nerfstudio_scene(tmp_path / "scene")
+    far = ring_cameras(8, 40, 30, offset=(1e6 + 0.3, -2e6 + 0.7, 50.0))
+    write_transforms(tmp_path / "scene" / "transforms.json", far, [c.name for c in far])
+    scene = load_scene(DataConfig(data=str(tmp_path / "scene"), eval_split="every-n", eval_every=4,
+                                  cache_dir=tmp_path / "cache"))
+    frame = scene_frame(scene)
+    by_name = {c.name: c for c in far}
+    for name, normalised in zip(scene.train.names, scene.train.cameras, strict=True):
+        moved = normalised_world_to_camera(by_name[name].world_to_camera, frame)
+        torch.testing.assert_close(moved.float(), normalised.world_to_camera, rtol=0, atol=1e-5)
+    # a frame recorded before, with its centre rounded to float32, is still this scene's frame, not another one
+    rounded = WorldTransform.from_normalization(frame.translation.float(), 1.0 / frame.scale)
+    assert rounded.matches(frame) and frame.matches(rounded)
+    assert not rounded.matches(WorldTransform.from_normalization(frame.translation + 1e-3, 1.0 / frame.scale))
