@@ -26,7 +26,7 @@ from torch import Tensor
 from splatu.camera import Camera
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
-from splatu.data.frames import ROTATION_TOLERANCE, refuse_implausible_focal
+from splatu.data.frames import MAX_IMAGE_SIDE, ROTATION_TOLERANCE, refuse_implausible_focal
 from splatu.data.normalize import normalization
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
@@ -145,9 +145,10 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError("world_to_camera is not a rigid motion (its 3×3 block must be a rotation, its last row "
                           "0 0 0 1)", "in RunQuery.render", "pass an OpenCV world-to-camera pose without scale")
     sizes = (width, height)  # any whole number (np.int64 from an array of sizes), but not a bool (True is 1)
-    if not all(isinstance(n, Integral) and not isinstance(n, bool) and n > 0 for n in sizes):
-        raise SplatuError(f"the image size must be positive integers, got {width}×{height}", "in RunQuery.render",
-                          "pass width and height in pixels")
+    # no larger than the loaders take: a 10⁶ × 10⁶ image would need terabytes, and fail in torch's allocator
+    if not all(isinstance(n, Integral) and not isinstance(n, bool) and 0 < n <= MAX_IMAGE_SIDE for n in sizes):
+        raise SplatuError(f"the image size must be positive integers up to {MAX_IMAGE_SIDE}, got {width}×{height}",
+                          "in RunQuery.render", "pass width and height in pixels")
     fix = "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels of this image size"
     if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)

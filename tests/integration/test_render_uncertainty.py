@@ -17,6 +17,7 @@ import torch
 from splatu import render_uncertainty
 from splatu.camera import Camera, look_at
 from splatu.cli import entrypoint
+from splatu.data.frames import MAX_IMAGE_SIDE
 from splatu.errors import SplatuError
 from splatu.interrupts import Terminated, sigterm_as_ctrl_c
 from splatu.orbit import capture_frame, orbit_cameras
@@ -739,6 +740,9 @@ def test_an_image_size_as_numpy_gives_it_renders_and_a_bool_or_float_one_is_refu
     for size in ((True, True), (48.0, 80)):
         with pytest.raises(SplatuError, match="the image size must be positive integers"):
             run.render(np.eye(4), K, *size)
+    wide = np.array([[4e4, 0.0, 24.0], [0.0, 4e4, 4.0], [0.0, 0.0, 1.0]])  # a plausible focal length for that width
+    with pytest.raises(SplatuError, match=f"positive integers up to {MAX_IMAGE_SIDE}"):  # larger than the loaders take
+        run.render(np.eye(4), wide, MAX_IMAGE_SIDE + 1, 8)
 
 
 def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
