@@ -60,6 +60,8 @@ def method_of(config: TrainConfig) -> str:
     `splatu` plain splatfacto), so a run is filed and summarised as what it is, not as what it was called. A method
     fits only as many models as it trains: an ensemble whose members keep the uncertainty loss is no splatu run
     (its `latest` would be an ensemble that `render-uncertainty` refuses), so it keeps the name it was given."""
+    if config.method not in METHODS:  # a name the registry does not know (from Python): nothing to compare with
+        return config.method
     candidates = [config.method, *(name for name in METHODS if name != config.method)]
     return next((name for name in candidates if METHODS[name].configure(config) == config
                  and METHODS[name].ensemble == (config.ensemble > 1)), config.method)

@@ -26,7 +26,7 @@ from torch import Tensor
 from splatu.camera import Camera
 from splatu.checkpoint import load_run
 from splatu.data.config import DataConfig
-from splatu.data.frames import MAX_IMAGE_SIDE, ROTATION_TOLERANCE, refuse_implausible_focal
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, ROTATION_TOLERANCE, refuse_implausible_focal
 from splatu.data.normalize import normalization
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
@@ -76,6 +76,9 @@ class RunQuery:
         and cy). For a distorted lens pass the pinhole the images were undistorted to (see `scene_cameras`)."""
         w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height)
         camera = Camera(intrinsics, normalised_world_to_camera(w2c, self.frame), width, height)
+        if float(torch.cat([camera.world_to_camera.abs().flatten(), intrinsics.abs().flatten()]).max()) > FLOAT32_MAX:
+            raise SplatuError("the camera lies beyond float32's range (±3.4e38) in the model's frame, where it renders",
+                              "in RunQuery.render", "pass a pose and K of the scene's own scale")
         out = self.model.render(camera, self.config.model.sh_degree, eval_background(self.config),
                                 with_uncertainty=True)
         assert out.uncertainty is not None  # with_uncertainty=True
@@ -85,7 +88,8 @@ class RunQuery:
     def scene_cameras(self, data: str | Path | None = None) -> dict[str, SceneCamera]:
         """Every camera of the run's scene (training and held-out) by image name, as the run saw it: the pose from
         the scene's files and the undistorted, downscaled K and size its images trained at. Reads the scene's
-        files, not its images; `data` is the scene's new location if it has moved."""
+        files, not its images (a NeRF-synthetic scene's first image per split, for its size); `data` is the scene's
+        new location if it has moved."""
         return scene_cameras(self.config.data, self.frame, data)
 
 

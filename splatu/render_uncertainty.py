@@ -35,7 +35,7 @@ from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import run_folder
 from splatu.data.images import write_png
-from splatu.data.nerfstudio import read_cameras
+from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import Scene, Views
 from splatu.errors import (
     FREE_AND_RERUN,
@@ -81,7 +81,8 @@ class RenderUncertaintyConfig:
     cameras: Path | None = None
     """With --views cameras: a transforms.json-style file of cameras in the data's own frame (the scene's poses and
     splat.ply's): per frame a file_path naming the view (no file need exist) and an OpenGL camera-to-world
-    transform_matrix; fl_x, fl_y, cx, cy, w and h at the top level or per frame, as nerfstudio writes them."""
+    transform_matrix; fl_x, fl_y, cx, cy, w and h at the top level or per frame, as nerfstudio writes them. They
+    render at the run's --downscale, as its own cameras do."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
@@ -136,13 +137,14 @@ def _evenly(count: int, limit: int) -> list[int]:
     return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)}) if limit > 1 else [0]
 
 
-def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig) -> ViewSpec:
-    """Cameras of the eval or train split (with their ground truth), a generated orbit, or the --cameras file's."""
+def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, downscale: int = 1) -> ViewSpec:
+    """Cameras of the eval or train split (with their ground truth), a generated orbit, or the --cameras file's, at
+    the run's `downscale` as its own cameras are."""
     frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
     if which == "cameras":
         assert config.cameras is not None  # run() refuses --views cameras without it
         cameras = [dataclasses.replace(c, world_to_camera=normalised_world_to_camera(c.world_to_camera, frame))
-                   for c in read_cameras(config.cameras)]
+                   for c in read_cameras(config.cameras, downscale)]
         keep = _evenly(len(cameras), config.max_views)
         return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
                         depth_unit=frame.scale)
@@ -356,7 +358,8 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise SplatuError("--cameras FILE and --views cameras go together", "in the command's options",
                           "pass both to render candidate cameras, or neither")
     if config.cameras is not None:
-        require_file(config.cameras, "camera file", "pass the path of a transforms.json-style file of cameras")
+        require_file(transforms_file(config.cameras), "camera file",
+                     "pass the path of a transforms.json-style file of cameras, or of the folder holding it")
     options = config.uncertainty
     options.check()
     run_info = _load(config.load, options)
@@ -366,12 +369,13 @@ def run(config: RenderUncertaintyConfig) -> None:
                        "--output folder")
     refuse_foreign_output(out, config.output is None)
     scene, built = _setup(run_info, options)
-    spec = view_spec(scene, config.views, config)
+    spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
     views, seconds = render_views(built.source, spec)
     with no_empty_folders_left(out):
         record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
-    Console().print(f"rendered {len(views)} {config.views} view{'' if len(views) == 1 else 's'} with {options.method} "
+    which = "candidate" if config.views == "cameras" else config.views
+    Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
                     f"{most['name']} (mean U {most['mean_uncertainty']:.3f})", soft_wrap=True)
 

@@ -197,9 +197,16 @@ def _frame_camera(frame: Mapping[str, Any], top: Mapping[str, Any], where: str, 
     return camera, K, distortion
 
 
-def read_cameras(path: Path) -> list[Camera]:
-    """The cameras a transforms.json-style file lists (poses and intrinsics as nerfstudio writes them; no image need
-    exist, file_path only names the view), as the loader would build them: candidate views in the data's frame."""
+def transforms_file(path: Path) -> Path:
+    """The transforms.json that `path` names: the file itself, or the one in the folder."""
+    return path / "transforms.json" if path.is_dir() else path
+
+
+def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
+    """The cameras a transforms.json-style file (or its folder) lists, poses and intrinsics as nerfstudio writes
+    them, built as the loader builds a run's cameras at its --downscale: candidate views in the data's frame. No
+    image need exist; file_path only names the view."""
+    path = transforms_file(path)
     top = read_json(path)
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
@@ -208,13 +215,13 @@ def read_cameras(path: Path) -> list[Camera]:
     undistorted: dict[tuple, np.ndarray] = {}
     for index, frame in enumerate(frames_json):
         name, where, c2w = frame_entry(frame, index, path)
-        cameras.append(_frame_camera(frame, top, where, name, c2w, undistorted)[0])
+        cameras.append(_frame_camera(frame, top, where, name, c2w, undistorted)[0].scaled(1.0 / downscale))
     return cameras
 
 
 def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
     """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution."""
-    json_path = path / "transforms.json" if path.is_dir() else path
+    json_path = transforms_file(path)
     root = json_path.parent
     top = read_json(json_path)
     frames_json = top.get("frames")

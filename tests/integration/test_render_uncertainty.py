@@ -463,7 +463,7 @@ def test_a_write_refused_midway_leaves_no_folder_the_render_made_and_keeps_one_t
         with pytest.raises(SystemExit) as exc:
             _render(tiny_run, "--output", str(out))
         err = capsys.readouterr().err
-        errors = [line for line in err.splitlines() if line.startswith("error")]  # after the stand-in's line
+        errors = [line for line in err.splitlines() if line.startswith("error")]
         assert exc.value.code == 2 and len(errors) == 1 and "Traceback" not in err, err
         assert "No space left on device" in errors[0] and f"in {out}," in errors[0]
         assert len(panels) == 2  # it failed after writing the first view's files
@@ -693,6 +693,8 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     (lambda w2c, K: (w2c[:3], K), "needs world_to_camera (4, 4)"),
     (lambda w2c, K: (w2c, -K), "focal lengths must be positive"),
     (lambda w2c, K: (w2c, K * 1e9), "longer than any camera"),
+    (lambda w2c, K: (np.concatenate([np.eye(4)[:, :3], [[1e39], [0.0], [0.0], [1.0]]], axis=1), K),
+     "beyond float32's range"),
     # the rasterizer reads fx, fy, cx, cy only: a skew, or a K scaled as a whole (K / 8), rendered another view
     (lambda w2c, K: (w2c, K + np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])), "K has a skew"),
     (lambda w2c, K: (w2c, K / 8), "K's last row is [0.0, 0.0, 0.125]"),

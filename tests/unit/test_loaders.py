@@ -26,7 +26,7 @@ from splatu.data.images import (
     load_pixels,
     truncated_format,
 )
-from splatu.data.nerfstudio import load_nerfstudio
+from splatu.data.nerfstudio import load_nerfstudio, read_cameras
 from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
@@ -91,6 +91,21 @@ def test_nerfstudio_round_trip_gives_identical_cameras_points_and_pixels(tmp_pat
     index = int(cameras[[c.name for c in cameras].index(scene.train.names[0])].name[-7:-4])
     assert torch.equal(scene.train.images[0], torch.from_numpy(noise_image(index, 40, 30) / np.float32(255)))
     assert scene.train.images.dtype == torch.float32
+
+
+def test_a_camera_file_gives_the_cameras_the_loader_builds_at_the_runs_downscale(tmp_path):
+    """render-uncertainty --views cameras: a transforms.json's cameras without their images, as a run at
+    --downscale 2 trained on them (file or folder)."""
+    cameras = ring_cameras(3, 40, 30)
+    write_transforms(tmp_path / "transforms.json", cameras, ["no/such/a.png", "b.png", "c.png"])
+    for path in (tmp_path / "transforms.json", tmp_path):
+        read = read_cameras(path, downscale=2)
+        assert [c.name for c in read] == ["no/such/a.png", "b.png", "c.png"]
+        for got, original in zip(read, cameras, strict=True):
+            want = original.scaled(0.5)
+            assert (got.width, got.height) == (want.width, want.height) == (20, 15)
+            torch.testing.assert_close(got.K.double(), want.K.double())
+            torch.testing.assert_close(got.world_to_camera.double(), original.world_to_camera.double())
 
 
 def test_file_splits_depths_and_observed_masks(tmp_path):

@@ -440,6 +440,7 @@ def test_a_run_is_named_after_the_method_its_options_train():
     assert method_of(METHODS["splatu"].configure(preset_config("fast", "splatfacto"))) == "splatu"
     assert method_of(dataclasses.replace(ensemble, ensemble=1)) == "splatfacto"  # one member is one plain run
     assert method_of(dataclasses.replace(ensemble, ensemble=3)) == "ensemble"
+    assert method_of(dataclasses.replace(splatu, method="mine")) == "mine"  # unregistered (from Python): kept
     # an ensemble is named by the ensemble method only: with the loss kept on it is no splatu run (one model),
     # and plain members asked of splatfacto are exactly what --method ensemble trains
     with_loss = dataclasses.replace(ensemble, uncertainty=dataclasses.replace(ensemble.uncertainty, off=False))
