@@ -25,9 +25,9 @@ from torch import Tensor
 
 from splatu.camera import Camera
 from splatu.checkpoint import load_run
+from splatu.data.assemble import scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, ROTATION_TOLERANCE, refuse_implausible_focal
-from splatu.data.normalize import normalization
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
@@ -123,7 +123,7 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
     if config.data != POSTER and not path.exists():
         raise SplatuError(f"the run's scene is not at {path}", where, "pass data= with the scene's location")
     raw = read_scene_files(path, config.downscale or 1, config.background)
-    center, scale = normalization(torch.stack([f.camera.center() for f in raw.frames]))
+    center, scale = scene_normalization(raw)
     require_same_frame(frame, WorldTransform.from_normalization(center, scale), f"in {path}",
                        "pass data= with the scene this run was trained on")
     return {f.name: SceneCamera(f.camera.world_to_camera.double().numpy().copy(), f.camera.K.double().numpy().copy(),

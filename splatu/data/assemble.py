@@ -146,13 +146,19 @@ def refuse_outlying_camera(frames: list[Frame], centers: torch.Tensor, source: s
                           "fix or remove that frame's pose")
 
 
-def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
-    """Split, normalise (cameras of all frames define centre and scale) and decode a parsed scene."""
-    check_downscaled_size(raw.frames, cfg.downscale or 1)
-    train, held_out, extras, own = choose_split(raw, cfg)
+def scene_normalization(raw: RawScene) -> tuple[torch.Tensor, float]:
+    """The (centre, scale) a parsed scene is normalised with: the cameras of all its frames define them, so the
+    split does not move the frame (and `splatu.query` finds the same one from the files alone)."""
     centers = torch.stack([f.camera.center() for f in raw.frames])
     refuse_outlying_camera(raw.frames, centers, raw.source)
-    center, scale = normalization(centers)
+    return normalization(centers)
+
+
+def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
+    """Split, normalise (`scene_normalization`) and decode a parsed scene."""
+    check_downscaled_size(raw.frames, cfg.downscale or 1)
+    train, held_out, extras, own = choose_split(raw, cfg)
+    center, scale = scene_normalization(raw)
     points = torch.as_tensor(np.asarray(raw.points, dtype=np.float64)).reshape(-1, 3)
 
     def views(indices: list[int]) -> Views:
