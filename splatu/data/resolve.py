@@ -95,6 +95,6 @@ def load_scene(cfg: DataConfig) -> Scene:
     cfg.validate()
     downscale = 1 if cfg.downscale is None else cfg.downscale
     raw = read_scene_files(scene_path(cfg), downscale, cfg.background)
-    if cfg.data == POSTER:
-        raw.name = POSTER  # the real capture or the stand-in: either way, runs are filed under "poster"
+    if cfg.data == POSTER or raw.stand_in:
+        raw.name = POSTER  # the real capture or the stand-in, named or given by its path: runs are filed under "poster"
     return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))

@@ -522,6 +522,7 @@ def test_the_stand_in_is_marked_however_it_is_loaded_and_loading_it_says_nothing
     (folder,) = (tmp_path / "cache").glob("poster-standin-*")
     by_path = load_scene(DataConfig(data=str(folder), cache_dir=tmp_path / "cache"))
     assert by_name.stand_in and by_path.stand_in
+    assert by_name.name == by_path.name == "poster"  # by its path it was named after its cache folder
     assert capsys.readouterr() == ("", "")
 
 
