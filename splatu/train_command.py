@@ -37,7 +37,7 @@ from splatu.run_records import refuse_set_aside_checkpoint
 from splatu.train_config import DEFAULT_PRESET, TrainConfig, from_dict, load_config, preset_config
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_run
-from splatu.training_step import StepHook
+from splatu.training_step import StepHook, resolution_level
 from splatu.world_frame import require_same_frame, scene_frame
 
 
@@ -49,6 +49,20 @@ def check_options(config: TrainConfig) -> None:
     config.data.refuse_unused_flags()
     refuse_unused_poster_options(config.data)
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+
+
+def resolution_note(config: TrainConfig) -> str | None:
+    """What to say when a run ends before its resolution schedule reaches full resolution: --steps alone shortens a
+    preset without scaling its schedule (each preset doubles the resolution every tenth of its steps), so such a run
+    trains only on downscaled images and is scored on full-resolution ones."""
+    last = resolution_level(config.steps - 1, config.resolution_levels, config.resolution_interval)
+    if last == 0:
+        return None
+    suggested = max(1, config.steps // 10)
+    return (f"note: --steps {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
+            f"images (the schedule starts at 1/{2 ** config.resolution_levels} and doubles every "
+            f"--resolution-interval {config.resolution_interval} steps); --resolution-interval {suggested} (a tenth of "
+            f"the steps, as in every preset) reaches full resolution at step {config.resolution_levels * suggested}")
 
 
 def _flag(config: TrainConfig, name: str) -> str:
@@ -111,6 +125,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
+    note = resolution_note(config)
+    if note is not None:  # after the scene line, which a run's output starts with
+        console.print(note, soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)

@@ -70,7 +70,9 @@ class TrainConfig:
     """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none (FULL_RECIPE)
     = the full splatfacto recipe, these dataclass defaults."""
     steps: int = SPLATFACTO_STEPS
-    """Number of optimisation steps (one training image per step)."""
+    """Number of optimisation steps (one training image per step). It does not rescale the preset's step-based
+    schedule (resolution levels, SH degree, densification): a run that ends before --resolution-levels ×
+    --resolution-interval steps never trains at full resolution (train says so); scale --resolution-interval too."""
     resolution_levels: int = 2
     """Start at 1/2^levels resolution; k = max(levels - step // resolution_interval, 0)."""
     resolution_interval: int = 3000
