@@ -11,7 +11,7 @@ written in full, see `swap_in`):
     panels/NAME.png                              render | uncertainty | error (error when GT exists)
     maps/                                        the layout `eval-ause --maps` scores (when GT exists)
     orbit.gif                                    for --views orbit
-    render.json                                  per-view mean uncertainty, elevations, timings
+    render.json                                  per-view mean uncertainty, elevations, timings, the --cameras file
 """
 
 from __future__ import annotations
@@ -405,6 +405,8 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         **config.uncertainty.record(), "views": config.views,
+        # the file --views cameras ranked: every candidate file renders into the same default folder
+        "cameras": None if config.cameras is None else str(transforms_file(config.cameras).resolve()),
         "train_seconds": train_seconds, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],

@@ -819,7 +819,9 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "cameras"))
     assert "the most uncertain is" in capsys.readouterr().out
     _render(tiny_run, "--views", "train", "--output", str(tmp_path / "train"))
-    per_view = json.loads((tmp_path / "cameras" / "render.json").read_text())["per_view"]
+    record = json.loads((tmp_path / "cameras" / "render.json").read_text())
+    assert record["cameras"] == str(candidates.resolve())  # which file's cameras it ranks: every file shares a folder
+    per_view = record["per_view"]
     assert len(per_view) == len(chosen) == 3
     for view in per_view:
         for key in ("rgb", "depth", "uncertainty"):
