@@ -81,8 +81,10 @@ class RenderUncertaintyConfig:
     cameras: Path | None = None
     """With --views cameras: a transforms.json-style file of cameras in the data's own frame (the scene's poses and
     splat.ply's): per frame a file_path naming the view (no file need exist) and an OpenGL camera-to-world
-    transform_matrix; fl_x, fl_y, cx, cy, w and h at the top level or per frame, as nerfstudio writes them. They
-    render at the run's --downscale, as its own cameras do."""
+    transform_matrix; fl_x, fl_y, cx, cy, w and h at the scene's full resolution, and a distorted capture's k1, k2,
+    p1, p2 (K is then undistorted as the loader's is), at the top level or per frame, as nerfstudio writes them. They
+    render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose [R(qvec) | tvec] is written as
+    its inverse with the y and z columns negated. Empty space counts as U = 1, so a view of nothing ranks first."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
