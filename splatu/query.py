@@ -37,10 +37,11 @@ from splatu.world_frame import WorldTransform, normalised_world_to_camera, requi
 
 @dataclass(frozen=True)
 class ViewUncertainty:
-    """One rendered candidate view; depth is in the data's units, uncertainty in [0, 1] (1 where nothing is seen)."""
+    """One rendered candidate view; depth is in the data's units (the blended depth Σ w·z / alpha, so a faint pixel
+    reads a full depth: weigh it by alpha; 0 where nothing is seen), uncertainty in [0, 1] (1 where nothing is seen)."""
 
     rgb: np.ndarray  # (H, W, 3)
-    depth: np.ndarray  # (H, W), expected depth Σ w·z (0 where nothing is seen)
+    depth: np.ndarray  # (H, W), the blended depth Σ w·z / alpha (0 where alpha is 0)
     alpha: np.ndarray  # (H, W)
     uncertainty: np.ndarray  # (H, W)
 
@@ -86,7 +87,8 @@ class RunQuery:
                                out.uncertainty.numpy())
 
     def scene_cameras(self, data: str | Path | None = None) -> dict[str, SceneCamera]:
-        """Every camera of the run's scene (training and held-out) by image name, as the run saw it: the pose from
+        """Every camera of the run's scene (training and held-out) by image name (a COLMAP image's name, a nerfstudio
+        frame's file_path such as images/0001.jpg), as the run saw it: the pose from
         the scene's files and the undistorted, downscaled K and size its images trained at. Reads the scene's
         files, not its images (a NeRF-synthetic scene's first image per split, for its size); `data` is the scene's
         new location if it has moved."""
