@@ -46,6 +46,11 @@ class ViewUncertainty:
     uncertainty: np.ndarray  # (H, W)
 
     @property
+    def coverage(self) -> float:
+        """The view's mean alpha: how much of it the model covers (a view of empty space: mean U 1, coverage 0)."""
+        return float(self.alpha.mean())
+
+    @property
     def mean_uncertainty(self) -> float:
         """The view's mean U: what a planner ranks candidate views by (empty space counts as unknown, U = 1)."""
         return float(self.uncertainty.mean())

@@ -84,7 +84,8 @@ class RenderUncertaintyConfig:
     transform_matrix; fl_x, fl_y, cx, cy, w and h at the scene's full resolution, and a distorted capture's k1, k2,
     p1, p2 (K is then undistorted as the loader's is), at the top level or per frame, as nerfstudio writes them. They
     render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose [R(qvec) | tvec] is written as
-    its inverse with the y and z columns negated. Empty space counts as U = 1, so a view of nothing ranks first."""
+    its inverse with the y and z columns negated. Empty space counts as U = 1, so a view of nothing ranks first
+    (render.json gives each view's coverage)."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
@@ -379,7 +380,8 @@ def run(config: RenderUncertaintyConfig) -> None:
     which = "candidate" if config.views == "cameras" else config.views
     Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
-                    f"{most['name']} (mean U {most['mean_uncertainty']:.3f})", soft_wrap=True)
+                    f"{most['name']} (mean U {most['mean_uncertainty']:.3f}, coverage {most['coverage']:.0%})",
+                    soft_wrap=True)
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
@@ -413,6 +415,7 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
         "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
+                      "coverage": float(v.maps["alpha"].mean()),  # a view of empty space reads U = 1 but shows nothing
                       "elevation_degrees": v.elevation_degrees} for v in views],
     }
     atomic_write_text(out / "render.json", json.dumps(record, indent=2), FREE_AND_RERUN)

@@ -685,6 +685,7 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
         torch.tensor([0.0, 0.0, -50.0]), torch.tensor([0.0, 0.0, -100.0]), torch.tensor([0.0, 1.0, 0.0]))), run.frame)
     empty = run.render(away, camera.K.numpy(), camera.width, camera.height)  # looking into empty space
     assert empty.mean_uncertainty == pytest.approx(1.0) and view.mean_uncertainty < empty.mean_uncertainty
+    assert empty.coverage == 0.0 and view.coverage == pytest.approx(float(view.alpha.mean())) and view.coverage > 0.5
 
 
 @pytest.mark.parametrize(("change", "message"), [
@@ -823,6 +824,9 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     assert record["cameras"] == str(candidates.resolve())  # which file's cameras it ranks: every file shares a folder
     per_view = record["per_view"]
     assert len(per_view) == len(chosen) == 3
+    for view in per_view:  # a view of empty space reads U = 1, so a ranking needs how much each view sees
+        alpha = np.load(tmp_path / "cameras" / "npy" / f"{view['name']}_alpha.npy")
+        assert view["coverage"] == pytest.approx(float(alpha.mean()), rel=1e-6) and view["coverage"] > 0.5
     for view in per_view:
         for key in ("rgb", "depth", "uncertainty"):
             got = np.load(tmp_path / "cameras" / "npy" / f"{view['name']}_{key}.npy")
