@@ -118,6 +118,8 @@ class RenderedView:
     mask: np.ndarray | None = None
     unobserved: np.ndarray | None = None
     elevation_degrees: float | None = None
+    nearest_training_view: dict[str, Any] | None = None
+    """The training view closest in viewing direction (`nearest_training_views`)."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,24 @@ def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, dow
     keep = _evenly(len(views), config.max_views)
     return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep,
                     depth_unit=frame.scale)
+
+
+def nearest_training_views(cameras: list[Camera], train: Views, depth_unit: float) -> list[dict[str, Any]]:
+    """Per camera, the training view whose viewing direction is closest: its name, the angle between the two
+    directions (degrees) and between the two centres (the data's units). For a candidate it says how new its view
+    is, and a pose written in the wrong convention (camera-to-world for world-to-camera) shows as far from them all."""
+    forward = torch.stack([c.world_to_camera[2, :3].double() for c in train.cameras])
+    centres = torch.stack([c.center().double() for c in train.cameras])
+    nearest = []
+    for camera in cameras:
+        direction = camera.world_to_camera[2, :3].double()
+        best = int((forward @ direction).argmax())
+        # atan2(|a × b|, a · b), not acos(a · b): exact near 0°, where a rounding of the cosine is a visible angle
+        sine = torch.linalg.cross(forward[best], direction).norm()
+        angle = torch.rad2deg(torch.atan2(sine, forward[best] @ direction))
+        nearest.append({"name": train.names[best], "angle_degrees": float(angle),
+                        "distance": float((centres[best] - camera.center().double()).norm()) * depth_unit})
+    return nearest
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -374,6 +394,8 @@ def run(config: RenderUncertaintyConfig) -> None:
     scene, built = _setup(run_info, options)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
     views, seconds = render_views(built.source, spec)
+    for view, nearest in zip(views, nearest_training_views(spec.cameras, scene.train, spec.depth_unit), strict=True):
+        view.nearest_training_view = nearest
     with no_empty_folders_left(out):
         record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
@@ -416,7 +438,8 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
         "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
                       "coverage": float(v.maps["alpha"].mean()),  # a view of empty space reads U = 1 but shows nothing
-                      "elevation_degrees": v.elevation_degrees} for v in views],
+                      "elevation_degrees": v.elevation_degrees, "nearest_training_view": v.nearest_training_view}
+                     for v in views],
     }
     atomic_write_text(out / "render.json", json.dumps(record, indent=2), FREE_AND_RERUN)
     return record

@@ -810,6 +810,7 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     from splatu.baselines.load import load_any_run, run_data
     from splatu.data.nerfstudio import frame_name
     from splatu.data.resolve import load_scene
+    from splatu.maps import file_stems
 
     scene = load_scene(run_data(load_any_run(tiny_run)))
     source = json.loads(Path(scene.source).read_text())
@@ -827,6 +828,9 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     for view in per_view:  # a view of empty space reads U = 1, so a ranking needs how much each view sees
         alpha = np.load(tmp_path / "cameras" / "npy" / f"{view['name']}_alpha.npy")
         assert view["coverage"] == pytest.approx(float(alpha.mean()), rel=1e-6) and view["coverage"] > 0.5
+        nearest = view["nearest_training_view"]  # each is a training pose: its own view, at no angle or distance
+        assert nearest["name"] in chosen and file_stems([nearest["name"]]) == [view["name"]]
+        assert nearest["angle_degrees"] < 1e-3 and nearest["distance"] < 1e-5
     for view in per_view:
         for key in ("rgb", "depth", "uncertainty"):
             got = np.load(tmp_path / "cameras" / "npy" / f"{view['name']}_{key}.npy")
@@ -874,3 +878,21 @@ def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_u
     for key in ("rgb", "alpha", "uncertainty", "depth"):
         written = np.load(tmp_path / "out" / "npy" / f"candidate_{key}.npy")
         assert np.allclose(written, getattr(view, key), rtol=1e-5, atol=1e-5), key
+
+
+def test_the_nearest_training_view_is_the_closest_viewing_direction_with_its_angle_and_distance():
+    from splatu.data.scene import Views
+    from splatu.render_uncertainty import nearest_training_views
+
+    K, origin = torch.tensor([[50.0, 0, 16], [0, 50.0, 16], [0, 0, 1]]), torch.zeros(3, dtype=torch.float64)
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+
+    def camera(position) -> Camera:
+        return Camera(K, look_at(torch.tensor(position, dtype=torch.float64), origin, up), 32, 32)
+
+    train = Views([camera([3.0, 0.0, 0.0]), camera([0.0, 3.0, 0.0])], torch.zeros(2, 32, 32, 3), ["east", "north"])
+    turned = math.radians(30.0)  # 30° from east towards north, twice as far out
+    (nearest,) = nearest_training_views([camera([6 * math.cos(turned), 6 * math.sin(turned), 0.0])], train, 2.0)
+    assert nearest["name"] == "east" and nearest["angle_degrees"] == pytest.approx(30.0)
+    expected = 2.0 * math.dist((6 * math.cos(turned), 6 * math.sin(turned)), (3.0, 0.0))  # in the data's units
+    assert nearest["distance"] == pytest.approx(expected)
