@@ -4,13 +4,13 @@
 
 AUSE ranks pixels within a view; a planner ranks candidate views. Over every held-out view of the run's scene (its
 eval split and extra sets: poster's unseen block and its every-8th path frames), each method's mean U over the view
-is set against the view's error, the mean over its pixels of the error AUSE uses (absolute error summed over RGB,
-unobserved pixels included: a planner wants to look where the model is wrong). Spearman's ρ across the views says
-how well ranking views by mean U ranks them by error (1: the same order; 0 for noise). ρ within each set says more
-than ρ over all: the unseen block's views are far worse than the path frames', which any coverage measure sees.
-"First pick" is the view with the highest mean U, and its error's rank among the views (1: the worst view). Each
-method renders on the run's own Gaussians (`render-uncertainty --method M`), so its time is its setup plus its
-renders. Prints a table and writes benchmarks/results/view_ranking.json.
+is set against the view's error, the mean over the pixels AUSE scores of the error it uses (absolute error summed
+over RGB; a masked scene's object pixels only; unobserved pixels included: a planner wants to look where the model
+is wrong). Spearman's ρ across the views says how well ranking views by mean U ranks them by error (1: the same
+order; 0 for noise). ρ within each set says more than ρ over all: the unseen block's views are far worse than the
+path frames', which any coverage measure sees. "First pick" is the view with the highest mean U, and its error's
+rank among the views (1: the worst view). Each method renders on the run's own Gaussians (`render-uncertainty
+--method M`), so its time is its setup plus its renders. Prints a table and writes benchmarks/results/view_ranking.json.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene
 from splatu.maps import file_stems
 from splatu.provenance import measured_on
-from splatu.render_uncertainty import ViewSpec, render_views
+from splatu.render_uncertainty import RenderedView, ViewSpec, render_views
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 
@@ -69,17 +69,27 @@ def first_pick_rank(mean_uncertainty: np.ndarray, error: np.ndarray) -> int:
     return int((error > error[pick]).sum()) + 1
 
 
+def view_error(view: RenderedView) -> float | None:
+    """The view's mean error over the pixels AUSE scores (its object mask's, when the scene has one: an RGBA
+    image's alpha, its mask files); None when the mask leaves none, a view eval-ause leaves out too."""
+    assert view.gt is not None  # held-out views have ground truth
+    errors = A.pixel_errors(view.maps["rgb"], view.gt)
+    if view.mask is not None:
+        errors = errors[view.mask]
+    return float(errors.mean()) if errors.size else None
+
+
 def held_out_scores(source: UncertaintySource, scene: Scene) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Each held-out view's name, mean U and mean error."""
+    """Each held-out view's name, mean U (over the whole view: what a planner ranks by) and mean error."""
     names, mean_u, error = [], [], []
     for set_name, views in {"eval": scene.eval, **scene.extra_eval}.items():
         spec = ViewSpec(views.cameras, file_stems(views.names), views, list(range(len(views))))
         rendered, _ = render_views(source, spec)
         for view in rendered:
-            assert view.gt is not None  # held-out views have ground truth
-            names.append(f"{set_name}/{view.name}")
-            mean_u.append(float(view.maps["uncertainty"].mean()))
-            error.append(float(A.pixel_errors(view.maps["rgb"], view.gt).mean()))
+            if (view_mean := view_error(view)) is not None:
+                names.append(f"{set_name}/{view.name}")
+                mean_u.append(float(view.maps["uncertainty"].mean()))
+                error.append(view_mean)
     return names, np.array(mean_u), np.array(error)
 
 

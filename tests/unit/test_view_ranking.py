@@ -31,3 +31,19 @@ def test_the_first_pick_is_the_most_uncertain_view_ranked_by_its_error(ranking) 
     assert ranking.first_pick_rank(np.array([0.2, 0.8, 0.1, 0.3]), error) == 1  # picks the worst view
     assert ranking.first_pick_rank(np.array([0.2, 0.1, 0.1, 0.3]), error) == 2
     assert ranking.first_pick_rank(np.array([0.2, 0.1, 0.9, 0.3]), error) == 4  # the best view
+
+
+def test_a_views_error_is_over_the_pixels_ause_scores(ranking) -> None:
+    """A scene's object masks (an RGBA image's alpha, its mask files) leave pixels out of AUSE's error; the
+    ranking's error left them in, so a masked-out background could decide a view's rank."""
+    from splatu.render_uncertainty import RenderedView
+
+    rgb, gt = np.zeros((2, 2, 3)), np.zeros((2, 2, 3))
+    gt[0, 0] = 1.0  # wrong by 3 (summed over RGB) at one pixel, which the mask leaves out
+    mask = np.array([[False, True], [True, True]])
+    view = RenderedView("v", {"rgb": rgb, "uncertainty": np.zeros((2, 2))}, gt=gt)
+    assert ranking.view_error(view) == pytest.approx(0.75)  # unmasked: every pixel counts
+    view.mask = mask
+    assert ranking.view_error(view) == 0.0
+    view.mask = np.zeros((2, 2), bool)
+    assert ranking.view_error(view) is None  # nothing to score: the view is left out, as eval-ause leaves it out
