@@ -896,3 +896,9 @@ def test_the_nearest_training_view_is_the_closest_viewing_direction_with_its_ang
     assert nearest["name"] == "east" and nearest["angle_degrees"] == pytest.approx(30.0)
     expected = 2.0 * math.dist((6 * math.cos(turned), 6 * math.sin(turned)), (3.0, 0.0))  # in the data's units
     assert nearest["distance"] == pytest.approx(expected)
+    # looking down at 45° from above east: the same right (x) and a different forward (z) axis as east's, so only
+    # the forward axis (the rotation's third row) tells the two apart
+    train = Views([camera([3.0, 0.0, 0.0]), camera([3.0, 0.0, 3.0])], torch.zeros(2, 32, 32, 3), ["east", "above"])
+    (nearest,) = nearest_training_views([camera([3.0, 0.0, 2.0])], train, 1.0)
+    assert nearest["name"] == "above"
+    assert nearest["angle_degrees"] == pytest.approx(45.0 - math.degrees(math.atan(2 / 3)))
