@@ -58,11 +58,15 @@ def resolution_note(config: TrainConfig) -> str | None:
     last = resolution_level(config.steps - 1, config.resolution_levels, config.resolution_interval)
     if last == 0:
         return None
-    suggested = max(1, config.steps // 10)
+    levels, tenth = config.resolution_levels, max(1, config.steps // 10)
+    # a tenth of the steps, as in every preset, unless that leaves the last step short of full resolution
+    suggested = tenth if levels * tenth < config.steps else (config.steps - 1) // levels
+    why = " (a tenth of the steps, as in every preset)" if suggested == tenth else ""
+    remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
+              f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
     return (f"note: --steps {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
-            f"images (the schedule starts at 1/{2 ** config.resolution_levels} and doubles every "
-            f"--resolution-interval {config.resolution_interval} steps); --resolution-interval {suggested} (a tenth of "
-            f"the steps, as in every preset) reaches full resolution at step {config.resolution_levels * suggested}")
+            f"images (the schedule starts at 1/{2 ** levels} and doubles every --resolution-interval "
+            f"{config.resolution_interval} steps); {remedy}")
 
 
 def _flag(config: TrainConfig, name: str) -> str:

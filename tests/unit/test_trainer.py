@@ -345,6 +345,18 @@ def test_a_run_too_short_to_reach_full_resolution_says_so_before_it_trains(tmp_p
     assert "note: --steps 4 " in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("steps", "levels"), [(2, 2), (3, 2), (20, 2), (400, 2), (1000, 12), (13, 12)])
+def test_the_resolution_notes_remedy_reaches_full_resolution_within_the_run(steps: int, levels: int) -> None:
+    """It suggested a tenth of the steps whatever they were: a 2-step run (levels 2) was told that interval 1
+    reaches full resolution at step 2, after its last step (1); with 12 levels, 1000 steps at step 1200."""
+    note = train_command.resolution_note(TrainConfig(steps=steps, resolution_levels=levels,
+                                                     resolution_interval=10 * steps))
+    assert note is not None
+    remedy = dict(re.findall(r"--(resolution-levels|resolution-interval) (\d+)", note.split("; ", 1)[1]))
+    interval, levels = int(remedy.get("resolution-interval", 10 * steps)), int(remedy.get("resolution-levels", levels))
+    assert training_step.resolution_level(steps - 1, levels, interval) == 0, note
+
+
 def splatfacto_schedule(steps: int) -> dict[str, Any]:
     """The splatfacto step-based settings scaled by s = steps / 30000, as nested preset keys.
 
