@@ -171,7 +171,7 @@ def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, dow
 def nearest_training_views(cameras: list[Camera], train: Views, depth_unit: float) -> list[dict[str, Any]]:
     """Per camera, the training view whose viewing direction is closest: its name, the angle between the two
     directions (degrees) and between the two centres (the data's units). For a candidate it says how new its view
-    is, and a pose written in the wrong convention (camera-to-world for world-to-camera) shows as far from them all."""
+    is; a pose written in the wrong convention (camera-to-world for world-to-camera) usually stands out by either."""
     forward = torch.stack([c.world_to_camera[2, :3].double() for c in train.cameras])
     centres = torch.stack([c.center().double() for c in train.cameras])
     nearest = []
