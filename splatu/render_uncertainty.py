@@ -170,8 +170,9 @@ def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, dow
 
 def nearest_training_views(cameras: list[Camera], train: Views, depth_unit: float) -> list[dict[str, Any]]:
     """Per camera, the training view whose viewing direction is closest: its name, the angle between the two
-    directions (degrees) and between the two centres (the data's units). For a candidate it says how new its view
-    is; a pose written in the wrong convention (camera-to-world for world-to-camera) usually stands out by either."""
+    directions (degrees) and the distance between the two centres (the data's units). For a candidate it says how new
+    its view is; a pose written in the wrong convention (camera-to-world for world-to-camera) usually stands out by
+    either."""
     forward = torch.stack([c.world_to_camera[2, :3].double() for c in train.cameras])
     centres = torch.stack([c.center().double() for c in train.cameras])
     nearest = []
