@@ -27,7 +27,7 @@ from splatu.camera import Camera
 from splatu.checkpoint import load_run
 from splatu.data.assemble import scene_normalization
 from splatu.data.config import DataConfig
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, ROTATION_TOLERANCE, refuse_implausible_focal
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
@@ -141,20 +141,13 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
                     height: int) -> tuple[Tensor, Tensor, int, int]:
     """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
     that is not a rigid motion, or a bad size would otherwise render a wrong or blank image without a word."""
-    w2c, intrinsics = _numbers(world_to_camera, "world_to_camera"), _numbers(K, "K")
-    if w2c.shape != (4, 4) or intrinsics.shape != (3, 3):
-        raise SplatuError(f"a camera needs world_to_camera (4, 4) and K (3, 3), got {tuple(w2c.shape)} and "
-                          f"{tuple(intrinsics.shape)}", "in RunQuery.render", "pass the matrices in those shapes")
-    if not (w2c.isfinite().all() and intrinsics.isfinite().all()):
-        raise SplatuError("the camera holds NaN or Inf", "in RunQuery.render", "pass a finite pose and K")
-    rotation = w2c[:3, :3]
-    # as loose as the loaders (a pose from a file, rounded to a few decimals or stored in float32, trains there)
-    rigid = (float((rotation @ rotation.T - torch.eye(3, dtype=torch.float64)).abs().max()) <= ROTATION_TOLERANCE
-             and float(torch.linalg.det(rotation)) > 0
-             and torch.equal(w2c[3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)))
-    if not rigid:
-        raise SplatuError("world_to_camera is not a rigid motion (its 3×3 block must be a rotation, its last row "
-                          "0 0 0 1)", "in RunQuery.render", "pass an OpenCV world-to-camera pose without scale")
+    # the loaders' own check of a pose (finite, rigid within their tolerance, last row 0 0 0 1; 3x4 or 4x4)
+    w2c = torch.from_numpy(checked_matrix(world_to_camera, "in RunQuery.render's world_to_camera",
+                                          "pass an OpenCV world-to-camera pose without scale"))
+    intrinsics = _numbers(K, "K")
+    if intrinsics.shape != (3, 3) or not intrinsics.isfinite().all():
+        raise SplatuError(f"K must be a finite (3, 3) matrix, got shape {tuple(intrinsics.shape)}",
+                          "in RunQuery.render", "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels")
     sizes = (width, height)  # any whole number (np.int64 from an array of sizes), but not a bool (True is 1)
     # no larger than the loaders take: a 10⁶ × 10⁶ image would need terabytes, and fail in torch's allocator
     if not all(isinstance(n, Integral) and not isinstance(n, bool) and 0 < n <= MAX_IMAGE_SIDE for n in sizes):

@@ -689,9 +689,10 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
 
 
 @pytest.mark.parametrize(("change", "message"), [
-    (lambda w2c, K: (w2c * np.nan, K), "NaN or Inf"),
-    (lambda w2c, K: (w2c * 2.0, K), "not a rigid motion"),
-    (lambda w2c, K: (w2c[:3], K), "needs world_to_camera (4, 4)"),
+    (lambda w2c, K: (w2c * np.nan, K), "pose has non-finite values"),
+    (lambda w2c, K: (w2c * 2.0, K), "pose's last row is [0.0, 0.0, 0.0, 2.0]"),
+    (lambda w2c, K: (w2c[:2], K), "pose is not a 3x4 or 4x4 matrix"),
+    (lambda w2c, K: (w2c, K[:2]), "K must be a finite (3, 3) matrix"),
     (lambda w2c, K: (w2c, -K), "focal lengths must be positive"),
     (lambda w2c, K: (w2c, K * 1e9), "longer than any camera"),
     (lambda w2c, K: (np.concatenate([np.eye(4)[:, :3], [[1e39], [0.0], [0.0], [1.0]]], axis=1), K),
@@ -699,7 +700,8 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     # the rasterizer reads fx, fy, cx, cy only: a skew, or a K scaled as a whole (K / 8), rendered another view
     (lambda w2c, K: (w2c, K + np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])), "K has a skew"),
     (lambda w2c, K: (w2c, K / 8), "K's last row is [0.0, 0.0, 0.125]"),
-    (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "world_to_camera is not an array of numbers"),  # ragged
+    (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "pose is not a 3x4 or 4x4 matrix"),  # ragged
+    (lambda w2c, K: ([["a"] * 4] * 4, K), "pose holds 'a', which is not a number"),
     (lambda w2c, K: (w2c, "K"), "K is not an array of numbers"),
 ])
 def test_a_bad_candidate_camera_is_one_clear_error(tiny_run, change, message):
@@ -726,7 +728,7 @@ def test_a_pose_as_a_file_rounds_it_renders_and_a_scaled_one_is_refused(tiny_run
     assert np.abs(view.rgb - expected.rgb).mean() < 1e-3
     scaled = exact.copy()
     scaled[:3, :3] *= 1.01
-    with pytest.raises(SplatuError, match="not a rigid motion"):
+    with pytest.raises(SplatuError, match="pose rotation is not a rotation matrix"):
         run.render(scaled, camera.K.numpy(), camera.width, camera.height)
 
 
