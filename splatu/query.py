@@ -1,9 +1,11 @@
 """Ask a trained run how sure it is of a view you choose: the Python entry point for next-best-view planning.
 
 `open_run(path).render(world_to_camera, K, width, height)` renders a candidate camera given in the data's own
-frame (the frame of the scene's poses and of the run's splat.ply, OpenCV axes), without reading the scene's
-images. The model lives in the normalised frame it was trained in; the camera is moved there rather than the
-model moved out, so the render is exactly what `splatu render-uncertainty` computes for that view.
+frame (the frame of the scene's poses and of the run's splat.ply, OpenCV axes), with the run's own uncertainty
+(or an ensemble's, or a baseline's: `open_run(path, method=...)`), without reading the scene's images unless the
+method looks at the training views first. The model lives in the normalised frame it was trained in; the camera
+is moved there rather than the model moved out, so the render is exactly what `splatu render-uncertainty
+--method ...` computes for that view.
 
 K is the pinhole the model saw, not the lens's: a distorted capture (COLMAP SIMPLE_RADIAL or OPENCV, nerfstudio
 OPENCV) trained on images undistorted to OpenCV's alpha=0 pinhole, which differs from the file's K by up to a few
@@ -17,28 +19,31 @@ import dataclasses
 from dataclasses import dataclass
 from numbers import Integral
 from pathlib import Path
-from typing import NamedTuple
+from typing import Literal, NamedTuple, get_args
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, UncertaintySource, method_list
+from splatu.baselines.ensemble import ENSEMBLE_FILE
+from splatu.baselines.load import build_method, load_any_run, run_data
 from splatu.camera import Camera
-from splatu.checkpoint import load_run
 from splatu.data.assemble import scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
-from splatu.data.resolve import POSTER, read_scene_files, scene_path
+from splatu.data.resolve import POSTER, load_scene, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
-from splatu.train_config import TrainConfig, eval_background
+from splatu.train_config import TrainConfig
 from splatu.world_frame import WorldTransform, normalised_world_to_camera, require_same_frame
 
 
 @dataclass(frozen=True)
 class ViewUncertainty:
     """One rendered candidate view; depth is in the data's units (the blended depth Σ w·z / alpha, so a faint pixel
-    reads a full depth: weigh it by alpha; 0 where nothing is seen), uncertainty in [0, 1] (1 where nothing is seen)."""
+    reads a full depth: weigh it by alpha; 0 where nothing is seen). The uncertainty is in [0, 1] and reads 1 where
+    nothing is seen, for every method but the ensemble, whose RGB std reads 0 there unless `density_aware`."""
 
     rgb: np.ndarray  # (H, W, 3)
     depth: np.ndarray  # (H, W), the blended depth Σ w·z / alpha (0 where alpha is 0)
@@ -65,13 +70,23 @@ class SceneCamera(NamedTuple):
     height: int
 
 
+QueryMethod = Literal["ours", "ensemble", "visibility", "fisher", "spread", "ours-spread", "residual", "ours-residual",
+                      "angle", "ours-residual-angle", "ours-view-residual-angle"]
+"""What `open_run` can render a candidate's uncertainty with: every method of `splatu render-uncertainty` but
+random, whose noise ranks nothing."""
+
+QUERY_METHODS: tuple[str, ...] = get_args(QueryMethod)
+
+
 @dataclass(frozen=True)
 class RunQuery:
-    """A trained run, ready to render candidate views in the data's frame."""
+    """A trained run, ready to render candidate views in the data's frame with one uncertainty method."""
 
     config: TrainConfig
-    model: GaussianModel
+    models: list[GaussianModel]  # the run's model, or an ensemble's members
     frame: WorldTransform
+    method: QueryMethod
+    source: UncertaintySource
 
     @torch.no_grad()
     def render(self, world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
@@ -85,9 +100,7 @@ class RunQuery:
         if float(torch.cat([camera.world_to_camera.abs().flatten(), intrinsics.abs().flatten()]).max()) > FLOAT32_MAX:
             raise SplatuError("the camera lies beyond float32's range (±3.4e38) in the model's frame, where it renders",
                               "in RunQuery.render", "pass a pose and K of the scene's own scale")
-        out = self.model.render(camera, self.config.model.sh_degree, eval_background(self.config),
-                                with_uncertainty=True)
-        assert out.uncertainty is not None  # with_uncertainty=True
+        out = self.source.render(camera)
         return ViewUncertainty(out.rgb.numpy(), (out.depth.double() * self.frame.scale).numpy(), out.alpha.numpy(),
                                out.uncertainty.numpy())
 
@@ -100,24 +113,42 @@ class RunQuery:
         return scene_cameras(self.config.data, self.frame, data)
 
 
-def open_run(path: str | Path, head: str | None = None) -> RunQuery:
-    """A single run's folder (or one of its checkpoints), optionally as one of its extra uncertainty heads."""
+def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "ours", data: str | Path | None = None,
+             density_aware: bool = False) -> RunQuery:
+    """A run's folder (or one of its checkpoints), to render with `method`: ours (optionally one of the run's extra
+    uncertainty heads), an ensemble run's member disagreement (`density_aware` as in `splatu eval-ause`), or a
+    baseline. The baselines that look at the training views first (visibility, fisher, angle and the residuals) read
+    the scene's images here, once; `data` is the scene's new location if it has moved."""
     target = Path(path).expanduser()
-    if (target / "ensemble.json").is_file():  # its members trained without the uncertainty loss: no U to render
-        raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement, not a U that "
-                          "splatu.query renders", f"in {path}",
-                          "open a run trained with `splatu train --method splatu`")
+    if method not in QUERY_METHODS:
+        raise SplatuError(f"unknown method {method!r}", "in open_run",
+                          f"pass method= one of {method_list(QUERY_METHODS)}")
+    is_ensemble = (target / ENSEMBLE_FILE).is_file()
+    if is_ensemble != (method == "ensemble"):  # an ensemble's members trained without the loss: they have no U
+        raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement" if is_ensemble
+                          else "method=\"ensemble\" needs an ensemble run (with ensemble.json)", f"in {path}",
+                          "pass method=\"ensemble\"" if is_ensemble else
+                          "open one trained with `splatu train --method ensemble`, or pass another method=")
     try:
-        run = load_run(target, head)
-    except SplatuError as error:  # the CLI's advice, in the argument a Python caller passes
-        raise SplatuError(error.what, error.where, error.fix.replace("--head", "head=")) from None
-    if run.config.uncertainty.off:
-        raise SplatuError("this run was trained without the uncertainty loss, so it has no uncertainty to render",
-                          f"in {path}", "open a run trained with `splatu train --method splatu`")
-    if run.frame is None:
-        raise SplatuError("this run's checkpoint predates the record of its data frame, so a camera in the data's "
-                          "frame cannot be placed", f"in {path}", "train the run again with this version")
-    return RunQuery(run.config, run.model, run.frame)
+        run = load_any_run(target, head)
+        if method in METHODS_WITH_OURS and run.config.uncertainty.off:
+            raise SplatuError("this run was trained without the uncertainty loss, so it has no uncertainty to render",
+                              f"in {path}", "open a run trained with `splatu train --method splatu`, or pass a "
+                              "baseline's method= (angle, visibility, ...)")
+        if any(frame is None for frame in run.frames):
+            raise SplatuError("this run's checkpoint predates the record of its data frame, so a camera in the data's "
+                              "frame cannot be placed", f"in {path}", "train the run again with this version")
+        frame = run.frames[0]
+        assert frame is not None  # checked above
+        for other in run.frames[1:]:
+            require_same_frame(other, frame, f"in {path}", "train the ensemble again: its members differ in scene")
+        scene = (load_scene(run_data(run, None if data is None else str(data)))
+                 if method in METHODS_FROM_TRAINING_VIEWS else None)
+        source = build_method(method, run, scene, density_aware).source
+    except SplatuError as error:  # the CLI's advice, in the arguments a Python caller passes
+        raise SplatuError(error.what, error.where,
+                          error.fix.replace("--head", "head=").replace("--data PATH", "data=PATH")) from None
+    return RunQuery(run.config, run.models, frame, method, source)
 
 
 def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path | None = None) -> dict[str,

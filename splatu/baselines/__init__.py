@@ -34,6 +34,10 @@ UNCERTAINTY_METHODS: tuple[str, ...] = get_args(UncertaintyMethod)
 METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual", "ours-residual-angle",
                                                     "ours-view-residual-angle")
 """The methods that read the run's uncertainty SH, so they need a run trained with the loss and accept --head."""
+METHODS_FROM_TRAINING_VIEWS: tuple[UncertaintyMethod, ...] = ("visibility", "fisher", "angle", "residual",
+                                                              "ours-residual", "ours-residual-angle",
+                                                              "ours-view-residual-angle")
+"""The methods that look at the scene's training views before they render (so they need the scene loaded)."""
 
 
 def method_list(methods: tuple[str, ...] = UNCERTAINTY_METHODS) -> str:

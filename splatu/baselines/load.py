@@ -9,7 +9,13 @@ from pathlib import Path
 
 import torch
 
-from splatu.baselines import METHODS_WITH_OURS, UncertaintyMethod, UncertaintySource, method_list
+from splatu.baselines import (
+    METHODS_FROM_TRAINING_VIEWS,
+    METHODS_WITH_OURS,
+    UncertaintyMethod,
+    UncertaintySource,
+    method_list,
+)
 from splatu.baselines.angle import AngleSource, view_coverage
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal, fisher_feature
@@ -114,12 +120,16 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
                           f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
 
 
-def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene, density_aware: bool = False,
+def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | None, density_aware: bool = False,
                  fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
     """The renderer of `method` for this run; visibility, Fisher, residual and angle look at the scene's training
-    views first (their setup_seconds)."""
+    views first (their setup_seconds). `scene` may be None for the other methods, which render the model alone; the
+    caller then checks the frame its cameras are in."""
     check_method(method, run)
-    check_frames(run, scene)
+    if scene is not None:
+        check_frames(run, scene)
+    elif method in METHODS_FROM_TRAINING_VIEWS:
+        raise ValueError(f"method {method!r} needs the scene's training views")
     degree = run.config.model.sh_degree
     background = eval_background(run.config)
     model = run.models[0]

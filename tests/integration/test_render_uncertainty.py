@@ -674,7 +674,7 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     camera = load_scene(run_data(load_any_run(tiny_run))).eval.cameras[0]
     assert run.frame.scale != 1.0 and run.frame.translation.abs().max() > 0  # the frames differ, so this tests a move
     view = run.render(_data_frame_camera(camera, run.frame), camera.K.numpy(), camera.width, camera.height)
-    expected = run.model.render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
+    expected = run.models[0].render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
     assert np.allclose(view.rgb, expected.rgb.detach().numpy(), atol=1e-5)
     assert np.allclose(view.alpha, expected.alpha.detach().numpy(), atol=1e-5)
     assert np.allclose(view.uncertainty, expected.uncertainty.detach().numpy(), atol=1e-5)
@@ -765,7 +765,7 @@ def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
         n for views in scene.extra_eval.values() for n in views.names}
     camera = scene.eval.cameras[0]
     view = run.render(*cameras[scene.eval.names[0]])
-    expected = run.model.render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
+    expected = run.models[0].render(camera, run.config.model.sh_degree, torch.zeros(3), with_uncertainty=True)
     assert np.allclose(view.rgb, expected.rgb.detach().numpy(), atol=1e-5)
     assert np.allclose(view.uncertainty, expected.uncertainty.detach().numpy(), atol=1e-5)
     with pytest.raises(SplatuError, match="the run's scene is not at"):
@@ -776,19 +776,42 @@ def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
 
 
 def test_open_run_errors_give_a_python_caller_a_way_on(tiny_run, tmp_path):
-    """An ensemble has no U of its own to render (its members trained without the loss), so it is refused pointing at
-    a splatu run, not at its members; an unknown head is named with the argument a Python caller passes, head=."""
+    """An ensemble's members trained without the loss, so it renders only as method="ensemble", and that method only
+    an ensemble; an unknown head or method is named with the argument a Python caller passes (head=, method=)."""
     from splatu.query import open_run
 
     (tmp_path / "ensemble.json").write_text("{}")
     with pytest.raises(SplatuError) as error:
         open_run(tmp_path)
-    assert "ensemble" in error.value.what and "--method splatu" in error.value.fix and "ensemble.json" not in str(
+    assert "ensemble" in error.value.what and 'method="ensemble"' in error.value.fix and "ensemble.json" not in str(
         error.value)
+    with pytest.raises(SplatuError, match='method="ensemble" needs an ensemble run'):
+        open_run(tiny_run, method="ensemble")
+    for method in ("random", "angel"):
+        with pytest.raises(SplatuError, match=f"unknown method '{method}'") as error:
+            open_run(tiny_run, method=method)
+        assert "angle" in error.value.fix and "random" not in error.value.fix
     with pytest.raises(SplatuError, match="no uncertainty head 'kind=mean'") as error:
         open_run(tiny_run, head="kind=mean")
     assert "head=" in error.value.fix and "--head" not in error.value.fix and EXTRA_HEAD in error.value.fix
     assert open_run(tiny_run, head=EXTRA_HEAD).config.model.u_sh_degree == 0
+
+
+def test_an_ensemble_renders_its_members_disagreement_through_the_query(tiny_run, tmp_path):
+    """Two identical members disagree nowhere: std 0, and (1 − alpha)² with density_aware, as eval-ause scores it."""
+    from splatu.query import open_run
+
+    ensemble = tmp_path / "ensemble"
+    for k in range(2):
+        shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty"))
+    (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"]}))
+    single = open_run(tiny_run)
+    camera = next(iter(single.scene_cameras().values()))
+    plain, aware = (open_run(ensemble, method="ensemble", density_aware=aware).render(*camera)
+                    for aware in (False, True))
+    assert np.abs(plain.uncertainty).max() < 1e-6 and plain.alpha.mean() > 0.5
+    assert np.allclose(aware.uncertainty, (1.0 - aware.alpha) ** 2, atol=1e-5)
+    assert np.allclose(plain.rgb, single.render(*camera).rgb, atol=1e-6)
 
 
 def test_the_readmes_python_example_runs(tiny_run):
@@ -859,9 +882,11 @@ def test_a_camera_file_with_a_bad_frame_is_one_line(tiny_run, tmp_path, capsys):
     assert "no transform_matrix" in line and str(candidates) in line
 
 
-def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_units(tiny_run, tmp_path):
-    """The same pose through `--views cameras` and `splatu.query` gives the same maps: depth too, in the data's units
-    (render-uncertainty wrote the model's normalised depth, off from the query's by the scene's scale)."""
+@pytest.mark.parametrize("method", ["ours", "angle", "visibility", "ours-spread"])
+def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_units(tiny_run, tmp_path, method):
+    """The same pose through `--views cameras --method M` and `splatu.query` with method=M gives the same maps:
+    depth too, in the data's units (render-uncertainty wrote the model's normalised depth, off from the query's by
+    the scene's scale), and the angular gap and visibility count built from the same training views."""
     from splatu.baselines.load import load_any_run, run_data
     from splatu.data.nerfstudio import read_cameras
     from splatu.data.resolve import load_scene
@@ -872,11 +897,13 @@ def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_u
     candidates = tmp_path / "candidates.json"
     candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
                                       "frames": [{**source["frames"][0], "file_path": "candidate"}]}))
-    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"))
-    run = open_run(tiny_run)
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"),
+            "--method", method)
+    run = open_run(tiny_run, method=method)
     assert abs(run.frame.scale - 1.0) > 0.1  # the two units differ here
     (camera,) = read_cameras(candidates)
     view = run.render(camera.world_to_camera.numpy(), camera.K.numpy(), camera.width, camera.height)
+    assert 0.0 < view.mean_uncertainty < 1.0 and np.ptp(view.uncertainty) > 0.01  # a map, not a constant
     for key in ("rgb", "alpha", "uncertainty", "depth"):
         written = np.load(tmp_path / "out" / "npy" / f"candidate_{key}.npy")
         assert np.allclose(written, getattr(view, key), rtol=1e-5, atol=1e-5), key
