@@ -120,6 +120,9 @@ class RenderedView:
     elevation_degrees: float | None = None
     nearest_training_view: dict[str, Any] | None = None
     """The training view closest in viewing direction (`nearest_training_views`)."""
+    source_name: str | None = None
+    """The view's name as the scene or the --cameras file gives it (a COLMAP image's name, a frame's file_path), of
+    which `name` is the file stem: `close0.2` is written as `close0_*.npy`, `images/0001.jpg` as `images_0001_*`."""
 
 
 @dataclass(frozen=True)
@@ -395,15 +398,17 @@ def run(config: RenderUncertaintyConfig) -> None:
     scene, built = _setup(run_info, options)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
     views, seconds = render_views(built.source, spec)
-    for view, nearest in zip(views, nearest_training_views(spec.cameras, scene.train, spec.depth_unit), strict=True):
+    for view, camera, nearest in zip(views, spec.cameras,
+                                     nearest_training_views(spec.cameras, scene.train, spec.depth_unit), strict=True):
         view.nearest_training_view = nearest
+        view.source_name = camera.name or view.name
     with no_empty_folders_left(out):
         record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
     which = "candidate" if config.views == "cameras" else config.views
     Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
-                    f"{most['name']} (mean U {most['mean_uncertainty']:.3f}, coverage {most['coverage']:.0%})",
+                    f"{most['source_name']} (mean U {most['mean_uncertainty']:.3f}, coverage {most['coverage']:.0%})",
                     soft_wrap=True)
 
 
@@ -437,7 +442,10 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         "train_seconds": train_seconds, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
-        "per_view": [{"name": v.name, "mean_uncertainty": float(v.maps["uncertainty"].mean()),
+        # name: the stem of the view's files; source_name: the name the scene or --cameras gave it (close0.2, whose
+        # files are close0_*), to match a ranking to the candidates, to scene_cameras and to nearest_training_view
+        "per_view": [{"name": v.name, "source_name": v.source_name,
+                      "mean_uncertainty": float(v.maps["uncertainty"].mean()),
                       "coverage": float(v.maps["alpha"].mean()),  # a view of empty space reads U = 1 but shows nothing
                       "elevation_degrees": v.elevation_degrees, "nearest_training_view": v.nearest_training_view}
                      for v in views],

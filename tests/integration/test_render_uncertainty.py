@@ -829,6 +829,25 @@ def test_the_readmes_python_example_runs(tiny_run):
     assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0
 
 
+def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, capsys):
+    """A candidate's file_path `near0.5` is written as `near0_*.npy`: render.json also gives the name the file gave
+    it, so a planner can match the ranking back to its candidates (render.json named only the stem `near0`)."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    source = json.loads(Path(scene.source).read_text())
+    frames = [dict(source["frames"][0], file_path="near0.5"), dict(source["frames"][0], file_path="far/2.0")]
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"}, "frames": frames}))
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"))
+    per_view = json.loads((tmp_path / "out" / "render.json").read_text())["per_view"]
+    assert [(v["name"], v["source_name"]) for v in per_view] == [("near0", "near0.5"), ("far_2", "far/2.0")]
+    assert all((tmp_path / "out" / "npy" / f"{v['name']}_uncertainty.npy").is_file() for v in per_view)
+    most = max(per_view, key=lambda v: v["mean_uncertainty"])["source_name"]
+    assert f"the most uncertain is {most} (" in capsys.readouterr().out
+
+
 def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny_run, tmp_path, capsys):
     """`--views cameras`: poses straight from a transforms.json (the data's frame), here three of the stand-in's own
     training frames, give the maps `--views train` gives those views."""
