@@ -189,6 +189,14 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)
     width, height = int(width), int(height)
     refuse_implausible_focal(intrinsics.numpy(), width, height, "in RunQuery.render", fix)
+    # K for a larger image (the file's full-resolution K at the run's --downscale size) rendered a
+    # zoomed, shifted view without a word; no real camera's principal point lies off its own image
+    cx, cy = float(intrinsics[0, 2]), float(intrinsics[1, 2])
+    if not (0.0 <= cx <= width and 0.0 <= cy <= height):
+        raise SplatuError(f"K's principal point ({cx:.6g}, {cy:.6g}) lies outside the {width}×{height} image, as for "
+                          "a K of another image size", "in RunQuery.render",
+                          "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), "
+                          "or scale K's first two rows by new size / old size")
     # the rasterizer reads fx, fy, cx and cy alone, so any other entry would be dropped without a word
     if float((intrinsics[2] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).abs().max()) > 1e-9:
         raise SplatuError(f"K's last row is {intrinsics[2].tolist()}, not [0, 0, 1]", "in RunQuery.render",

@@ -700,6 +700,10 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     # the rasterizer reads fx, fy, cx, cy only: a skew, or a K scaled as a whole (K / 8), rendered another view
     (lambda w2c, K: (w2c, K + np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])), "K has a skew"),
     (lambda w2c, K: (w2c, K / 8), "K's last row is [0.0, 0.0, 0.125]"),
+    # K of the full-resolution images at a --downscale 8 size (or the reverse) rendered a shifted, zoomed view
+    (lambda w2c, K: (w2c, np.diag([8.0, 8.0, 1.0]) @ K), "K's principal point (192, 320) lies outside the 48×80 image"),
+    (lambda w2c, K: (w2c, K - np.array([[0.0, 0.0, 30.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])),
+     "K's principal point (-6, 40) lies outside"),
     (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "pose is not a 3x4 or 4x4 matrix"),  # ragged
     (lambda w2c, K: ([["a"] * 4] * 4, K), "pose holds 'a', which is not a number"),
     (lambda w2c, K: (w2c, "K"), "K is not an array of numbers"),
