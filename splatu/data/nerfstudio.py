@@ -57,8 +57,11 @@ def frame_name(file_path: str) -> str:
 def frame_entry(frame: object, index: int, json_path: Path) -> tuple[str, str, np.ndarray]:
     """A transforms.json frame's (name, where-text for errors, camera-to-world), validated in one place
     for both nerfstudio and NeRF-synthetic files."""
-    if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
+    if not isinstance(frame, dict) or frame.get("file_path") is None:
         raise SplatuError(f"frames[{index}] has no file_path", f"in {json_path}", "give every frame a file_path")
+    if not isinstance(frame["file_path"], str):  # a number was read as "has no file_path" though the frame has one
+        raise SplatuError(f"frames[{index}]'s file_path is {frame['file_path']!r}, not a string", f"in {json_path}",
+                          "write the file_path in quotes, as a path or a name")
     name = frame_name(frame["file_path"])
     where = f"in frame {name!r} of {json_path}"
     if "transform_matrix" not in frame:

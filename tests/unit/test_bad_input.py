@@ -481,6 +481,14 @@ def test_frame_without_file_path_is_counted_as_in_the_file(tmp_path):
     assert load_error(root, tmp_path).what == "frames[2] has no file_path"
 
 
+def test_frame_whose_file_path_is_a_number_says_so_rather_than_that_it_has_none(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][2].update(file_path=5))  # it said "frames[2] has no file_path"
+    error = load_error(root, tmp_path)
+    assert error.what == "frames[2]'s file_path is 5, not a string" and "in quotes" in error.fix
+
+
 def test_frame_without_transform_matrix_says_so(tmp_path):
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4)
