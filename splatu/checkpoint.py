@@ -22,6 +22,7 @@ from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
+from splatu.run_dir import still_training
 from splatu.train_config import TrainConfig, from_dict
 from splatu.world_frame import WorldTransform
 
@@ -81,6 +82,18 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
         raise SplatuError("no checkpoint in this run directory", f"in {target / CHECKPOINT_DIR}",
                           "train it first (splatu train) or point to a run that saved checkpoints")
     return found[-1]
+
+
+def still_training_note(run_dir_or_checkpoint: Path) -> str | None:
+    """A note for a run folder that a `splatu train` is training now: its newest checkpoint, which renders, is an
+    intermediate model (a named checkpoint file was chosen, and needs none)."""
+    target = Path(run_dir_or_checkpoint).expanduser()
+    if target.is_file() or not still_training(target):
+        return None
+    if (target / "ensemble.json").is_file():  # its members' checkpoints, not its own
+        return "note: this ensemble is still training; its members' newest checkpoints so far are the models used"
+    return (f"note: this run is still training; its newest checkpoint so far ({resolve_checkpoint(target).name}) "
+            "is the model used")
 
 
 def run_folder(run_dir_or_checkpoint: Path) -> Path:

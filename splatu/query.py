@@ -16,6 +16,7 @@ per cent, and --downscale N rounds each image side, so K scales by new side / ol
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from numbers import Integral
 from pathlib import Path
@@ -29,6 +30,7 @@ from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, Unc
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, run_data
 from splatu.camera import Camera
+from splatu.checkpoint import still_training_note
 from splatu.data.assemble import scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
@@ -148,6 +150,8 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     except SplatuError as error:  # the CLI's advice, in the arguments a Python caller passes
         raise SplatuError(error.what, error.where,
                           error.fix.replace("--head", "head=").replace("--data PATH", "data=PATH")) from None
+    if note := still_training_note(target):  # a ranking of an intermediate model, which the next checkpoint replaces
+        warnings.warn(note.removeprefix("note: "), stacklevel=2)
     return RunQuery(run.config, run.models, frame, method, source)
 
 

@@ -33,7 +33,7 @@ from rich.console import Console
 from splatu.atomic import atomic_write_text, leftover_temporaries, temporary_sibling
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
-from splatu.checkpoint import run_folder
+from splatu.checkpoint import run_folder, still_training_note
 from splatu.data.images import write_png
 from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import Scene, Views
@@ -390,6 +390,8 @@ def run(config: RenderUncertaintyConfig) -> None:
     options = config.uncertainty
     options.check()
     run_info = _load(config.load, options)
+    if note := still_training_note(config.load):  # the ranking would be of a model the next checkpoint replaces
+        Console(stderr=True).print(note, soft_wrap=True)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
     out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
                        f"{config.views}",

@@ -65,3 +65,16 @@ def training_lock(run_dir: Path) -> Iterator[None]:
         except OSError:  # a file system without locks (some NFS mounts): train unguarded rather than not at all
             pass
         yield
+
+
+def still_training(run_dir: Path) -> bool:
+    """Whether a `splatu train` holds the run's lock now (`training_lock`): its newest checkpoint is then an
+    intermediate model that the next one replaces. False where there is no lock file or the file system has none."""
+    try:
+        with open(Path(run_dir) / LOCK_FILE) as lock:
+            fcntl.flock(lock, fcntl.LOCK_SH | fcntl.LOCK_NB)  # released as the file closes
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False

@@ -833,6 +833,29 @@ def test_the_readmes_python_example_runs(tiny_run):
     assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0
 
 
+def test_a_run_still_training_renders_its_newest_checkpoint_with_a_note(tiny_run, tmp_path, capsys):
+    """While `splatu train` holds the run (its lock), the newest checkpoint is an intermediate model: rendering and
+    ranking it went on without a word. It still renders, with a note naming the checkpoint; a finished run has none."""
+    import warnings
+
+    from splatu.checkpoint import list_checkpoints
+    from splatu.query import open_run
+    from splatu.run_dir import training_lock
+
+    newest = list_checkpoints(Path(tiny_run))[-1].name
+    with training_lock(Path(tiny_run)):  # as a `splatu train` of this run holds it
+        _render(tiny_run, "--views", "train", "--max-views", "1", "--output", str(tmp_path / "during"))
+        with pytest.warns(UserWarning, match=re.escape(f"this run is still training; its newest checkpoint so far "
+                                                       f"({newest})")):
+            open_run(tiny_run)
+    assert f"note: this run is still training; its newest checkpoint so far ({newest})" in capsys.readouterr().err
+    _render(tiny_run, "--views", "train", "--max-views", "1", "--output", str(tmp_path / "after"))
+    assert "still training" not in capsys.readouterr().err
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_run(tiny_run)
+
+
 def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, capsys):
     """A candidate's file_path `near0.5` is written as `near0_*.npy`: render.json also gives the name the file gave
     it, so a planner can match the ranking back to its candidates (render.json named only the stem `near0`)."""
