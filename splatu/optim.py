@@ -41,11 +41,19 @@ class OptimConfig:
     u_sh_lr: float = 1e-2
     """Learning rate of the uncertainty SH (ours): 4× the colour DC rate, because each Gaussian is supervised
     only in the views that see it and short CPU schedules must still move u from its initial 0.88."""
+    means_lr_steps: int = 0
+    """Steps the means' learning rate decays over, then holds its final value; 0: the run's --steps. A run trained
+    on with `--resume RUN --extend-to N` keeps the decay it had, as splatfacto's scheduler holds past its max_steps."""
 
     def validate(self) -> None:
         """Raise a one-line SplatuError for a rate that is not positive and finite (the means decay takes
-        log(lr_final / lr))."""
+        log(lr_final / lr)), or a negative decay length."""
+        if self.means_lr_steps < 0:
+            raise SplatuError(f"--optim.means-lr-steps must be 0 or more (got {self.means_lr_steps})",
+                              "in the training options", "pass 0 to decay over the run's --steps")
         for name, value in vars(self).items():
+            if name == "means_lr_steps":
+                continue
             if not (math.isfinite(value) and value > 0):
                 flag = f"--optim.{name.replace('_', '-')}"
                 raise SplatuError(f"{flag} must be a positive learning rate (got {value})", "in the training options",
@@ -67,12 +75,13 @@ class Optimizers:
     """
 
     def __init__(self, model: GaussianModel, cfg: OptimConfig, scene_extent: float, max_steps: int) -> None:
+        """`max_steps`: the run's length, which the means' rate decays over unless cfg.means_lr_steps says otherwise."""
         if not (math.isfinite(scene_extent) and scene_extent > 0):
             raise ValueError(f"scene_extent must be positive and finite, got {scene_extent}")
         cfg.validate()
         self.cfg = cfg
         self.scene_extent = scene_extent
-        self.max_steps = max(1, max_steps)
+        self.max_steps = max(1, cfg.means_lr_steps or max_steps)
         self.optimizers: dict[str, torch.optim.Adam] = {
             name: torch.optim.Adam([getattr(model, name)], lr=lr, eps=ADAM_EPS, fused=True)
             for name, lr in _learning_rates(cfg, scene_extent).items()

@@ -70,6 +70,7 @@ class MetricsLog:
 
 
 ABANDONED_DIR = "abandoned"
+SUPERSEDED_DIR = "superseded"
 CHECKPOINT_IN_LABEL = re.compile(r"-step-(\d+)")
 """How an output label names the checkpoint file it was made of (`UncertaintyOptions.label`)."""
 
@@ -91,16 +92,39 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
     atomic_write_text(folder / "metrics.jsonl", "".join(ln + "\n" for ln in dropped))
     moved = [choice] if stale_choice else []
     if later:  # with the model they came from: its summary, export, renders and scores
-        moved += [*later, run_dir / "summary.json", run_dir / "splat.ply"]
-        reports = (*run_dir.glob("ause_*"), *run_dir.glob("uncertainty/*"), *run_dir.glob("exports/*"))
-        moved += [p for p in reports if _made_after(p.name, step)]
-    for path in moved:
-        if path.exists():  # renders and exports keep their folder; checkpoints go straight in (see refuse_set_aside…)
+        moved += [*later, *_outputs_made_after(run_dir, step)]
+    _move_into(folder, run_dir, moved)
+    return folder
+
+
+def set_aside_final_outputs(run_dir: Path, step: int) -> Path | None:
+    """Training a run on past its end (`--extend-to`) supersedes the model of step `step`: move its summary.json and
+    splat.ply, and the renders, AUSE reports and exports made of it (those naming no checkpoint), into
+    superseded/<time>/, so that none is taken for the longer run's. Its checkpoint stays until newer ones prune it.
+    Returns that folder, or None when there was nothing to move."""
+    outputs = [path for path in _outputs_made_after(run_dir, step) if path.exists()]
+    if not outputs:
+        return None
+    folder = new_timestamped_dir(run_dir / SUPERSEDED_DIR)
+    _move_into(folder, run_dir, outputs)
+    return folder
+
+
+def _outputs_made_after(run_dir: Path, step: int) -> list[Path]:
+    """The run's summary and export, and the renders, reports and exports made of a model after `step`."""
+    reports = (*run_dir.glob("ause_*"), *run_dir.glob("uncertainty/*"), *run_dir.glob("exports/*"))
+    return [run_dir / "summary.json", run_dir / "splat.ply", *(p for p in reports if _made_after(p.name, step))]
+
+
+def _move_into(folder: Path, run_dir: Path, paths: list[Path]) -> None:
+    """Move `paths` into `folder`: renders and exports keep their folder; the rest (checkpoints too, see
+    refuse_set_aside_checkpoint) go straight in."""
+    for path in paths:
+        if path.exists():
             kept_folder = path.parent in (run_dir / "uncertainty", run_dir / "exports")
             target = folder / path.parent.name if kept_folder else folder
             target.mkdir(exist_ok=True)
             path.replace(target / path.name)
-    return folder
 
 
 def _made_after(name: str, step: int) -> bool:

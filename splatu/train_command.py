@@ -84,10 +84,11 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
     chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
               if getattr(given, name) != default]  # the base of the comparison below, so never in it
     ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
-                        if name not in ("resume", "data.data")]
+                        if name not in ("resume", "extend_to", "data.data")]
     if ignored:
         flags = " ".join(_flag(given, name) for name in ignored)
-        console.print(f"note: --resume continues with the run's saved options; ignoring {flags}", soft_wrap=True)
+        more = " (--extend-to N trains the run on to N steps)" if "steps" in ignored else ""
+        console.print(f"note: --resume continues with the run's saved options; ignoring {flags}{more}", soft_wrap=True)
     if given.data.data != POSTER:
         return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
     if saved.data.data != POSTER and not Path(saved.data.data).exists():
@@ -95,6 +96,19 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
                           "pass --data PATH with the scene's new location beside --resume (the run's split and "
                           "downscale still apply)")
     return saved
+
+
+def extended(saved: TrainConfig, steps: int, step: int, run_dir: Path) -> TrainConfig:
+    """`saved` trained on to `steps` in all from `step`: only the length changes. The means' rate keeps the decay it
+    had (over the old length, then held), so the step after a checkpoint trains exactly as it would have."""
+    if steps <= saved.steps:
+        raise SplatuError(f"--extend-to {steps} is not more than the {saved.steps} steps this run was set to train",
+                          f"in {run_dir}", f"pass --extend-to with more than {saved.steps}, or start a new run")
+    if saved.degree_choice.on:  # its decision step is a fraction of the length: it would choose a second time
+        raise SplatuError("--extend-to cannot train on a run that chose its SH degrees mid-run (--degree-choice.on)",
+                          f"in {run_dir}", "start a new run with --steps N and the chosen degrees")
+    decay = saved.optim.means_lr_steps or (saved.steps if step > 0 else 0)  # from step 0: as a new run of N steps
+    return dataclasses.replace(saved, steps=steps, optim=dataclasses.replace(saved.optim, means_lr_steps=decay))
 
 
 def filed_as_trained(config: TrainConfig) -> TrainConfig:
@@ -147,6 +161,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
 def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wall_start: float,
                      hooks: Sequence[StepHook]) -> Path:
     """`--resume` of an ensemble run: finish every unfinished member."""
+    if config.extend_to is not None:  # its members' schedules and its wall-time record are one run's
+        raise SplatuError("--extend-to trains on a single run, not an ensemble", f"in {run_dir}",
+                          "train a new ensemble with --steps N")
     saved = resumed_config(config, saved, run_dir)
     members = ensemble_members(run_dir, saved)
     if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
@@ -180,9 +197,11 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
                            else from_dict(checkpoint["config"], str(path)), run_dir)
     step = 0 if checkpoint is None else int(checkpoint["step"])
+    if config.extend_to is not None:
+        saved = extended(saved, config.extend_to, step, run_dir)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
-        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume",
-                      soft_wrap=True)
+        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "
+                      "trains it on to N steps)", soft_wrap=True)
         return run_dir
     console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
     scene = load_scene(saved.data)

@@ -98,7 +98,12 @@ class TrainConfig:
     """Seeds torch, numpy, random and the trainer's own generator: same seed, same run."""
     resume: Path | None = None
     """Continue a run exactly from its latest checkpoint (a run directory or a .pt file), with its saved options:
-    other flags are ignored (and named), except --data, which gives the scene's new location."""
+    other flags are ignored (and named), except --data, which gives the scene's new location, and --extend-to."""
+    extend_to: int | None = None
+    """With --resume: train a single run on to this many steps in all, more than it was set to train. Its schedules
+    stay as they were, by step (so densification goes on only up to --densify.stop-split-at), and the means' rate holds
+    its final value past the old length; the old final model's summary, export (the model itself) and reports move
+    to superseded/<time>/, and its checkpoint stays until newer ones prune it (--keep-checkpoints)."""
     ensemble: int = 1
     """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/; `--method ensemble`
     trains the paper's 10 when this is left at 1."""
@@ -123,6 +128,11 @@ class TrainConfig:
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise SplatuError(f"--ssim-lambda {self.ssim_lambda} is not in [0, 1]", "in the training options",
                               "pass a weight from 0 (L1 only) to 1 (SSIM only); 3DGS uses 0.2")
+        if self.extend_to is not None:
+            require_at_least(self.extend_to, 1, "--extend-to")
+            if self.resume is None:
+                raise SplatuError("--extend-to trains on a run that --resume names", "in the training options",
+                                  "pass --resume RUN beside it, or --steps N for a new run's length")
         for name in ("resolution_levels", "eval_every_steps", "checkpoint_every", "seed"):
             require_at_least(getattr(self, name), 0, f"--{name.replace('_', '-')}")
         if self.seed + self.ensemble > MAX_SEED:  # camera_index seeds torch with seed · 1,000,003 + epoch (64 bits);

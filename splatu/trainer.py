@@ -64,6 +64,7 @@ from splatu.run_records import (
     DEGREE_CHOICE_FILE,
     MetricsLog,
     remove_torn_checkpoints,
+    set_aside_final_outputs,
     set_aside_later_work,
 )
 from splatu.train_config import (
@@ -374,5 +375,12 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
                           f"{abandoned}", soft_wrap=True)
     # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
+    if checkpoint is not None and int(checkpoint["config"]["steps"]) < config.steps:  # --extend-to
+        superseded = set_aside_final_outputs(run_dir, state.step)
+        if superseded is not None:
+            console.print(f"training on to step {config.steps}: the step-{state.step} model's summary, export and "
+                          f"reports moved to {superseded}", soft_wrap=True)
+        # its checkpoint again, with the new length: a resume after a kill before the next one still trains on
+        _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
     state, config = run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir)

@@ -1548,3 +1548,66 @@ def test_a_resume_sets_aside_only_the_reports_of_later_models(tmp_path):
 def test_a_training_keeps_as_many_checkpoints_as_asked(tmp_path, scene):
     run_dir = train_command.train(tiny_config(tmp_path, checkpoint_every=3, keep_checkpoints=3))
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000006.pt", "step-0000009.pt", "step-0000012.pt"]
+
+
+def test_extend_to_trains_a_finished_run_on_exactly_as_one_longer_run_with_the_same_decay(tmp_path, scene, capsys):
+    """`--resume RUN --extend-to 18` on a finished 12-step run: the same losses and model as one 18-step run whose
+    means' rate decays over 12 steps and then holds, as the extension keeps it; the 12-step model's summary, export
+    and reports move to superseded/ (a renamed copy of the old summary would pass for the longer run's)."""
+    longer = train_command.train(_mean_loss(tiny_config(tmp_path / "a", steps=18,
+                                                        optim=OptimConfig(means_lr_steps=12))))
+    run_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "b")))
+    (run_dir / "uncertainty" / "ours-eval").mkdir(parents=True)  # a render and a report of the 12-step model
+    (run_dir / "ause_ours.json").write_text("{}")
+    (run_dir / "ause_ours-step-0000006.json").write_text("{}")  # of a checkpoint it names: stays
+    capsys.readouterr()
+    extend = dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18)
+    assert train_command.train(extend) == run_dir
+    assert "training on to step 18: the step-12 model's summary, export and reports moved to" in capsys.readouterr().err
+    (superseded,) = (run_dir / "superseded").iterdir()
+    assert json.loads((superseded / "summary.json").read_text())["steps"] == 12 and (superseded / "splat.ply").is_file()
+    assert (superseded / "uncertainty" / "ours-eval").is_dir() and (superseded / "ause_ours.json").is_file()
+    assert (run_dir / "ause_ours-step-0000006.json").is_file() and not (run_dir / "ause_ours.json").exists()
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18 and (run_dir / "splat.ply").is_file()
+    assert load_config(run_dir / "config.yml").optim.means_lr_steps == 12
+    assert losses_of(run_dir) == losses_of(longer) and sorted(losses_of(run_dir)) == list(range(1, 19))
+    model_a, model_b = load_run(longer).model, load_run(run_dir).model
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
+    with pytest.raises(SplatuError, match="--extend-to 18 is not more than the 18 steps"):
+        train_command.train(extend)
+
+
+def test_an_extension_killed_before_its_first_checkpoint_still_trains_on_when_resumed(tmp_path, scene, monkeypatch):
+    """The extension re-saves the checkpoint it starts from with its new length, so a plain `--resume` after a kill
+    trains on to 18 rather than finishing the run again at 12."""
+    longer = train_command.train(_mean_loss(tiny_config(tmp_path / "a", steps=18,
+                                                        optim=OptimConfig(means_lr_steps=12))))
+    run_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "b")))
+    run_loop = trainer.run_loop
+
+    def killed(*args, **kwargs):
+        raise RuntimeError("killed")
+
+    monkeypatch.setattr(trainer, "run_loop", killed)
+    with pytest.raises(RuntimeError, match="killed"):
+        train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18))
+    monkeypatch.setattr(trainer, "run_loop", run_loop)
+    train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir))
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18
+    assert losses_of(run_dir) == losses_of(longer)
+
+
+def test_extend_to_is_refused_in_one_line_where_it_cannot_apply(tmp_path, scene, capsys):
+    with pytest.raises(SplatuError, match="--extend-to trains on a run that --resume names"):
+        tiny_config(tmp_path, extend_to=20)
+    run_dir = train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0))
+    with pytest.raises(SplatuError, match="not more than the 4 steps"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=3))
+    ensemble = train_command.train(tiny_config(tmp_path / "e", steps=2, checkpoint_every=0, ensemble=2))
+    with pytest.raises(SplatuError, match="--extend-to trains on a single run, not an ensemble"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=ensemble, extend_to=4))
+    capsys.readouterr()
+    given = dataclasses.replace(preset_config(), steps=60, resume=tmp_path)
+    train_command.resumed_config(given, preset_config(), tmp_path)
+    assert "ignoring --steps (--extend-to N trains the run on to N steps)" in capsys.readouterr().err
