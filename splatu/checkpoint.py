@@ -84,16 +84,24 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     return found[-1]
 
 
-def still_training_note(run_dir_or_checkpoint: Path) -> str | None:
-    """A note for a run folder that a `splatu train` is training now: its newest checkpoint, which renders, is an
-    intermediate model (a named checkpoint file was chosen, and needs none)."""
-    target = Path(run_dir_or_checkpoint).expanduser()
+def pinned_while_training(load: Path) -> tuple[Path, bool]:
+    """What `--load` names, and whether a `splatu train` is training it now. A run folder in training is pinned to its
+    newest checkpoint file, as if that file had been passed: what renders or scores it is named after that checkpoint
+    (`ours-step-0001000`), never taken for the finished run's, and set aside with it by a resume from an earlier
+    one. An ensemble's members keep their own newest checkpoints."""
+    target = Path(load).expanduser()
     if target.is_file() or not still_training(target):
-        return None
-    if (target / "ensemble.json").is_file():  # its members' checkpoints, not its own
-        return "note: this ensemble is still training; its members' newest checkpoints so far are the models used"
-    return (f"note: this run is still training; its newest checkpoint so far ({resolve_checkpoint(target).name}) "
-            "is the model used")
+        return Path(load), False
+    if (target / "ensemble.json").is_file():
+        return Path(load), True
+    return resolve_checkpoint(target), True
+
+
+def training_note(load: Path, pinned: Path) -> str:
+    """The note for a run that `pinned_while_training` found in training."""
+    if pinned.is_file():
+        return f"note: {load} is still training; its newest checkpoint so far, {pinned.name}, is the model used"
+    return f"note: {load} is still training; its members' newest checkpoints so far are the models used"
 
 
 def run_folder(run_dir_or_checkpoint: Path) -> Path:

@@ -7,6 +7,7 @@ directly; `--load RUN` first renders the run's eval views into that layout with 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -158,10 +159,11 @@ def run(config: EvalAuseConfig) -> None:
         report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
     else:
-        from splatu.render_uncertainty import render_eval_maps
+        from splatu.render_uncertainty import pinned_load, render_eval_maps
 
         options = config.uncertainty
         options.check()
+        config = dataclasses.replace(config, load=pinned_load(config.load, "the report"))
         maps_root = None
         if config.output is not None:  # before the render, so a bad --output costs nothing
             maps_root = maps_beside(checked_output(config.output))

@@ -30,7 +30,7 @@ from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, Unc
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, run_data
 from splatu.camera import Camera
-from splatu.checkpoint import still_training_note
+from splatu.checkpoint import pinned_while_training, training_note
 from splatu.data.assemble import scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
@@ -131,8 +131,11 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
                           else "method=\"ensemble\" needs an ensemble run (with ensemble.json)", f"in {path}",
                           "pass method=\"ensemble\"" if is_ensemble else
                           "open one trained with `splatu train --method ensemble`, or pass another method=")
+    pinned, training = pinned_while_training(target)
+    if training:  # a ranking of an intermediate model, which the next checkpoint replaces
+        warnings.warn(training_note(Path(path), pinned).removeprefix("note: "), stacklevel=2)
     try:
-        run = load_any_run(target, head)
+        run = load_any_run(pinned, head)
         if method in METHODS_WITH_OURS and run.config.uncertainty.off:
             raise SplatuError("this run was trained without the uncertainty loss, so it has no uncertainty to render",
                               f"in {path}", "open a run trained with `splatu train --method splatu`, or pass a "
@@ -150,8 +153,6 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     except SplatuError as error:  # the CLI's advice, in the arguments a Python caller passes
         raise SplatuError(error.what, error.where,
                           error.fix.replace("--head", "head=").replace("--data PATH", "data=PATH")) from None
-    if note := still_training_note(target):  # a ranking of an intermediate model, which the next checkpoint replaces
-        warnings.warn(note.removeprefix("note: "), stacklevel=2)
     return RunQuery(run.config, run.models, frame, method, source)
 
 

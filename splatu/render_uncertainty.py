@@ -33,7 +33,7 @@ from rich.console import Console
 from splatu.atomic import atomic_write_text, leftover_temporaries, temporary_sibling
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
-from splatu.checkpoint import run_folder, still_training_note
+from splatu.checkpoint import pinned_while_training, run_folder, training_note
 from splatu.data.images import write_png
 from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import Scene, Views
@@ -322,6 +322,17 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     return scales
 
 
+def pinned_load(load: Path, written: str) -> Path:
+    """`--load`, pinned to its newest checkpoint while a `splatu train` trains it (`pinned_while_training`), with a
+    note on stderr: `written`, what the command writes, is named after that checkpoint."""
+    pinned, training = pinned_while_training(load)
+    if training:
+        note = training_note(load, pinned)
+        Console(stderr=True).print(f"{note}; {written} is named after it" if pinned.is_file() else note,
+                                   soft_wrap=True)
+    return pinned
+
+
 def _load(load: Path, options: UncertaintyOptions):
     """The run, checked against the method (imports kept here: they pull in the whole trainer stack); the
     options themselves are checked by each command first (`UncertaintyOptions.check`)."""
@@ -389,9 +400,8 @@ def run(config: RenderUncertaintyConfig) -> None:
                      "pass the path of a transforms.json-style file of cameras, or of the folder holding it")
     options = config.uncertainty
     options.check()
+    config = dataclasses.replace(config, load=pinned_load(config.load, "what is written"))
     run_info = _load(config.load, options)
-    if note := still_training_note(config.load):  # the ranking would be of a model the next checkpoint replaces
-        Console(stderr=True).print(note, soft_wrap=True)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
     out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
                        f"{config.views}",

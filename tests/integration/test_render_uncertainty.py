@@ -833,27 +833,35 @@ def test_the_readmes_python_example_runs(tiny_run):
     assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0
 
 
-def test_a_run_still_training_renders_its_newest_checkpoint_with_a_note(tiny_run, tmp_path, capsys):
-    """While `splatu train` holds the run (its lock), the newest checkpoint is an intermediate model: rendering and
-    ranking it went on without a word. It still renders, with a note naming the checkpoint; a finished run has none."""
+def test_a_run_still_training_renders_its_newest_checkpoint_under_that_checkpoints_name(tiny_run, tmp_path, capsys):
+    """While `splatu train` holds the run (its lock), its newest checkpoint is an intermediate model: rendering, scoring
+    and ranking it went on without a word, and wrote `uncertainty/ours-train` and `ause_ours.json` as if of the
+    finished run. Now each says so and names what it writes after the checkpoint, as `--load <that file>` does."""
     import warnings
 
     from splatu.checkpoint import list_checkpoints
     from splatu.query import open_run
     from splatu.run_dir import training_lock
 
-    newest = list_checkpoints(Path(tiny_run))[-1].name
-    with training_lock(Path(tiny_run)):  # as a `splatu train` of this run holds it
-        _render(tiny_run, "--views", "train", "--max-views", "1", "--output", str(tmp_path / "during"))
-        with pytest.warns(UserWarning, match=re.escape(f"this run is still training; its newest checkpoint so far "
-                                                       f"({newest})")):
-            open_run(tiny_run)
-    assert f"note: this run is still training; its newest checkpoint so far ({newest})" in capsys.readouterr().err
-    _render(tiny_run, "--views", "train", "--max-views", "1", "--output", str(tmp_path / "after"))
-    assert "still training" not in capsys.readouterr().err
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    newest = list_checkpoints(copy)[-1]
+    with training_lock(copy):  # as a `splatu train` of this run holds it
+        _render(copy, "--views", "train", "--max-views", "1")
+        assert f"{newest.name}, is the model used; what is written is named after it" in capsys.readouterr().err
+        entrypoint(["eval-ause", "--load", str(copy)])
+        assert f"{newest.name}, is the model used; the report is named after it" in capsys.readouterr().err
+        with pytest.warns(UserWarning, match=re.escape(f"its newest checkpoint so far, {newest.name}, is the model")):
+            open_run(copy)
+    label = f"ours-{newest.stem}"
+    assert (copy / "uncertainty" / f"{label}-train" / "render.json").is_file()
+    assert (copy / f"ause_{label}.json").is_file() and not (copy / "ause_ours.json").exists()
+    assert not (copy / "uncertainty" / "ours-train").exists()
+    _render(copy, "--views", "train", "--max-views", "1")
+    assert "still training" not in capsys.readouterr().err and (copy / "uncertainty" / "ours-train").is_dir()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        open_run(tiny_run)
+        open_run(copy)
 
 
 def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, capsys):
