@@ -100,7 +100,11 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
 
 def extended(saved: TrainConfig, steps: int, step: int, run_dir: Path) -> TrainConfig:
     """`saved` trained on to `steps` in all from `step`: only the length changes. The means' rate keeps the decay it
-    had (over the old length, then held), so the step after a checkpoint trains exactly as it would have."""
+    had (over the old length, then held), so the step after a checkpoint trains exactly as it would have. `steps`
+    equal to the length of a run not yet there (an extension stopped part way, and the same command given again, as
+    a requeued job does) trains it on unchanged."""
+    if steps == saved.steps and step < steps:
+        return saved
     if steps <= saved.steps:
         raise SplatuError(f"--extend-to {steps} is not more than the {saved.steps} steps this run was set to train",
                           f"in {run_dir}", f"pass --extend-to with more than {saved.steps}, or start a new run")

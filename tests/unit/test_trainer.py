@@ -1611,3 +1611,25 @@ def test_extend_to_is_refused_in_one_line_where_it_cannot_apply(tmp_path, scene,
     given = dataclasses.replace(preset_config(), steps=60, resume=tmp_path)
     train_command.resumed_config(given, preset_config(), tmp_path)
     assert "ignoring --steps (--extend-to N trains the run on to N steps)" in capsys.readouterr().err
+
+
+def test_the_same_extend_to_again_after_a_stop_trains_the_extension_on(tmp_path, scene):
+    """A requeued job (or the same command again after Ctrl-C) repeats `--resume RUN --extend-to 18` on a run whose
+    extension stopped at 15: it was refused as "not more than the 18 steps" with the advice to start a new run; it
+    trains on to 18, as one 18-step run would have."""
+    longer = train_command.train(_mean_loss(tiny_config(tmp_path / "a", steps=18,
+                                                        optim=OptimConfig(means_lr_steps=12))))
+    run_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "b")))
+    extend = dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18)
+
+    def stop_at_15(step, state):
+        if step == 15:
+            raise KeyboardInterrupt
+
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 15"):
+        train_command.train(extend, hooks=[stop_at_15])
+    assert train_command.train(extend) == run_dir
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18
+    assert losses_of(run_dir) == losses_of(longer)
+    with pytest.raises(SplatuError, match="--extend-to 16 is not more than the 18 steps"):
+        train_command.train(dataclasses.replace(extend, extend_to=16))
