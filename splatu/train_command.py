@@ -202,6 +202,9 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
                            else from_dict(checkpoint["config"], str(path)), run_dir)
     step = 0 if checkpoint is None else int(checkpoint["step"])
     if config.extend_to is not None:
+        if run_dir.parent.name == "members" and ensemble_config(run_dir.parent.parent) is not None:
+            raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "
+                              "at their length)", f"in {run_dir}", "train a new ensemble with --steps N")
         saved = extended(saved, config.extend_to, step, run_dir)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
         console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "

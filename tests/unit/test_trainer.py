@@ -1633,3 +1633,13 @@ def test_the_same_extend_to_again_after_a_stop_trains_the_extension_on(tmp_path,
     assert losses_of(run_dir) == losses_of(longer)
     with pytest.raises(SplatuError, match="--extend-to 16 is not more than the 18 steps"):
         train_command.train(dataclasses.replace(extend, extend_to=16))
+
+
+def test_extend_to_refuses_an_ensemble_member_as_it_refuses_the_ensemble(tmp_path, scene):
+    """`--resume ENSEMBLE/members/0 --extend-to N` trained that member alone on, leaving an ensemble whose members
+    differ in length (and whose wall time misses it) that eval-ause and open_run then scored without a word."""
+    ensemble = train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, ensemble=2))
+    member = ensemble / "members" / "0"
+    with pytest.raises(SplatuError, match="--extend-to trains on a single run, not an ensemble's member"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member, extend_to=4))
+    assert json.loads((member / "summary.json").read_text())["steps"] == 2 and not (member / "superseded").exists()
