@@ -125,6 +125,12 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     if method not in QUERY_METHODS:
         raise SplatuError(f"unknown method {method!r}", "in open_run",
                           f"pass method= one of {method_list(QUERY_METHODS)}")
+    if density_aware and method != "ensemble":  # as render-uncertainty refuses it: it would be ignored
+        raise SplatuError("density_aware only applies with method=\"ensemble\"", "in open_run",
+                          "drop density_aware, or pass method=\"ensemble\" for an ensemble run")
+    if head is not None and method not in METHODS_WITH_OURS:
+        raise SplatuError(f'head picks an uncertainty head of ours; method="{method}" has none',
+                          "in open_run", f"drop head, or pass method= one of {method_list(METHODS_WITH_OURS)}")
     is_ensemble = (target / ENSEMBLE_FILE).is_file()
     if is_ensemble != (method == "ensemble"):  # an ensemble's members trained without the loss: they have no U
         raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement" if is_ensemble

@@ -985,3 +985,18 @@ def test_the_nearest_training_view_is_the_closest_viewing_direction_with_its_ang
     (nearest,) = nearest_training_views([camera([3.0, 0.0, 2.0])], train, 1.0)
     assert nearest["name"] == "above"
     assert nearest["angle_degrees"] == pytest.approx(45.0 - math.degrees(math.atan(2 / 3)))
+
+
+def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
+    """render-uncertainty refuses --density-aware without --method ensemble and --head with a method that reads no
+    head; open_run ignored density_aware=True and head= there, so a ranking asked to count empty space, or to use an
+    extra head, came back as plain ours (or the baseline) without a word."""
+    from splatu.query import open_run
+
+    with pytest.raises(SplatuError, match='density_aware only applies with method="ensemble"') as error:
+        open_run(tiny_run, density_aware=True)
+    assert "--" not in error.value.fix
+    with pytest.raises(SplatuError, match="head picks an uncertainty head of ours; method=\"angle\" has none") as error:
+        open_run(tiny_run, method="angle", head=EXTRA_HEAD)
+    assert "--" not in error.value.fix and "ours-spread" in error.value.fix
+    assert open_run(tiny_run, method="ours-spread", head=EXTRA_HEAD).method == "ours-spread"
