@@ -45,7 +45,8 @@ from splatu.world_frame import WorldTransform, normalised_world_to_camera, requi
 class ViewUncertainty:
     """One rendered candidate view; depth is in the data's units (the blended depth Σ w·z / alpha, so a faint pixel
     reads a full depth: weigh it by alpha; 0 where nothing is seen). The uncertainty is in [0, 1] and reads 1 where
-    nothing is seen, for every method but the ensemble, whose RGB std reads 0 there unless `density_aware`."""
+    nothing is seen, for every method but the ensemble, whose RGB std reads 0 there unless `density_aware`, and
+    residual, whose map reads its worst there, 1 / (1 + the typical training residual), below 1."""
 
     rgb: np.ndarray  # (H, W, 3)
     depth: np.ndarray  # (H, W), the blended depth Σ w·z / alpha (0 where alpha is 0)

@@ -1000,3 +1000,22 @@ def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
         open_run(tiny_run, method="angle", head=EXTRA_HEAD)
     assert "--" not in error.value.fix and "ours-spread" in error.value.fix
     assert open_run(tiny_run, method="ours-spread", head=EXTRA_HEAD).method == "ours-spread"
+
+
+def test_empty_space_reads_as_the_view_uncertainty_docstring_says(tiny_run):
+    """ViewUncertainty said U reads 1 where nothing is seen for every method but the ensemble; `residual` alone reads
+    its worst, 1 / (1 + the typical training residual), there: below 1, so the docstring names it too."""
+    from splatu.baselines.residual import residual_map
+    from splatu.query import QUERY_METHODS, ViewUncertainty, open_run
+
+    w2c, K, width, height = next(iter(open_run(tiny_run).scene_cameras().values()))
+    nothing = w2c.copy()
+    nothing[2, 3] -= 1e4  # the whole scene far behind the camera
+    for method in (m for m in QUERY_METHODS if m != "ensemble"):
+        run = open_run(tiny_run, method=method)
+        view = run.render(nothing, K, width, height)
+        assert view.alpha.max() == 0.0
+        expected = 1.0 if method != "residual" else float(residual_map(torch.tensor(1.0), run.source.typical))
+        assert np.allclose(view.uncertainty, expected, atol=1e-6), method
+        assert (expected < 1.0) == (method == "residual")
+    assert "residual" in " ".join(ViewUncertainty.__doc__.split())
