@@ -1019,3 +1019,29 @@ def test_empty_space_reads_as_the_view_uncertainty_docstring_says(tiny_run):
         assert np.allclose(view.uncertainty, expected, atol=1e-6), method
         assert (expected < 1.0) == (method == "residual")
     assert "residual" in " ".join(ViewUncertainty.__doc__.split())
+
+
+def test_the_still_training_note_names_the_checkpoint_open_run_loaded(tiny_run, tmp_path, monkeypatch):
+    """open_run named "the newest checkpoint so far" only after building the method, which for visibility, fisher,
+    angle and the residuals reads the scene and passes over every training view: a checkpoint the training wrote
+    meanwhile was named, though the model used was the one before it."""
+    import shutil as shutil_module
+
+    from splatu import query
+    from splatu.checkpoint import list_checkpoints
+    from splatu.run_dir import training_lock
+
+    run_dir = tmp_path / "run"
+    shutil_module.copytree(tiny_run, run_dir, ignore=shutil_module.ignore_patterns("uncertainty"))
+    loaded = list_checkpoints(run_dir)[-1]
+    build_method = query.build_method
+
+    def a_checkpoint_lands_meanwhile(*args, **kwargs):
+        shutil_module.copy(loaded, loaded.with_name("step-9999999.pt"))  # as the training saves its next one
+        return build_method(*args, **kwargs)
+
+    monkeypatch.setattr(query, "build_method", a_checkpoint_lands_meanwhile)
+    with training_lock(run_dir), pytest.warns(UserWarning, match="still training") as caught:
+        query.open_run(run_dir, method="angle")
+    (note,) = [str(w.message) for w in caught if "still training" in str(w.message)]
+    assert f"{loaded.name}, is the model used" in note and "9999999" not in note
