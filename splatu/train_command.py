@@ -206,6 +206,9 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
             raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "
                               "at their length)", f"in {run_dir}", "train a new ensemble with --steps N")
         saved = extended(saved, config.extend_to, step, run_dir)
+        note = resolution_note(saved)
+        if note is not None:  # a short run trained on can still end before full resolution, as a new one can
+            console.print(note.replace("--steps", "--extend-to", 1), soft_wrap=True)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
         console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "
                       "trains it on to N steps)", soft_wrap=True)

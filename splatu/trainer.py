@@ -376,11 +376,13 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
     # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
     if checkpoint is not None and int(checkpoint["config"]["steps"]) < config.steps:  # --extend-to
+        # its checkpoint again, with the new length: a resume after a kill from here on still trains on
+        _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
+    # a summary that outlived the resume's checks is a finished run's that this one trains on (after a kill, its resume)
+    if checkpoint is not None and (run_dir / "summary.json").is_file():
         superseded = set_aside_final_outputs(run_dir, state.step)
         if superseded is not None:
-            console.print(f"training on to step {config.steps}: the step-{state.step} model's summary, export and "
-                          f"reports moved to {superseded}", soft_wrap=True)
-        # its checkpoint again, with the new length: a resume after a kill before the next one still trains on
-        _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
+            console.print(f"training on to step {config.steps}: the finished model's summary, export and reports "
+                          f"moved to {superseded}", soft_wrap=True)
     state, config = run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir)

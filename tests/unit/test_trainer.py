@@ -1563,7 +1563,8 @@ def test_extend_to_trains_a_finished_run_on_exactly_as_one_longer_run_with_the_s
     capsys.readouterr()
     extend = dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18)
     assert train_command.train(extend) == run_dir
-    assert "training on to step 18: the step-12 model's summary, export and reports moved to" in capsys.readouterr().err
+    assert "training on to step 18: the finished model's summary, export and reports moved to" in (
+        capsys.readouterr().err)
     (superseded,) = (run_dir / "superseded").iterdir()
     assert json.loads((superseded / "summary.json").read_text())["steps"] == 12 and (superseded / "splat.ply").is_file()
     assert (superseded / "uncertainty" / "ours-eval").is_dir() and (superseded / "ause_ours.json").is_file()
@@ -1596,6 +1597,8 @@ def test_an_extension_killed_before_its_first_checkpoint_still_trains_on_when_re
     train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir))
     assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18
     assert losses_of(run_dir) == losses_of(longer)
+    (superseded,) = (run_dir / "superseded").iterdir()  # set aside by the resume, which the kill came before
+    assert json.loads((superseded / "summary.json").read_text())["steps"] == 12
 
 
 def test_extend_to_is_refused_in_one_line_where_it_cannot_apply(tmp_path, scene, capsys):
@@ -1604,6 +1607,9 @@ def test_extend_to_is_refused_in_one_line_where_it_cannot_apply(tmp_path, scene,
     run_dir = train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0))
     with pytest.raises(SplatuError, match="not more than the 4 steps"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=3))
+    capsys.readouterr()
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=5))  # 1/2 until 6
+    assert "note: --extend-to 5 ends at 1/2 resolution" in capsys.readouterr().err
     ensemble = train_command.train(tiny_config(tmp_path / "e", steps=2, checkpoint_every=0, ensemble=2))
     with pytest.raises(SplatuError, match="--extend-to trains on a single run, not an ensemble"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=ensemble, extend_to=4))
