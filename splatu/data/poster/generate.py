@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from rich.console import Console
 
 from splatu.atomic import temporary_sibling
 from splatu.data.frames import STANDIN_KEY, opengl_camera_to_world
@@ -167,9 +166,6 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
                           "choose a writable cache directory") from err
     staging = temporary_sibling(final)
     shutil.rmtree(staging, ignore_errors=True)
-    # seconds of ray casting before the scene line: say what the wait is, and that it is paid once
-    Console(stderr=True).print(f"building the built-in poster stand-in ({cfg.frames} views at "
-                               f"{cfg.width}x{cfg.height}, once; cached in {final})", soft_wrap=True, highlight=False)
     try:
         with _single_thread():
             _generate(cfg, staging)
