@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from numbers import Integral
 from pathlib import Path
@@ -31,12 +32,13 @@ from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, run_data
 from splatu.camera import Camera
 from splatu.checkpoint import pinned_while_training, training_note
-from splatu.data.assemble import scene_normalization
+from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
 from splatu.data.resolve import POSTER, load_scene, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
+from splatu.nearest_view import NearestView, nearest_training_views
 from splatu.train_config import TrainConfig
 from splatu.world_frame import WorldTransform, normalised_world_to_camera, require_same_frame
 
@@ -115,6 +117,26 @@ class RunQuery:
         new location if it has moved."""
         return scene_cameras(self.config.data, self.frame, data)
 
+    def training_cameras(self, data: str | Path | None = None) -> dict[str, SceneCamera]:
+        """The cameras the run trained on, as `scene_cameras` gives them (its split, as the run's options chose it):
+        what `nearest_training_view` compares a candidate with."""
+        return scene_cameras(self.config.data, self.frame, data, training_only=True)
+
+
+def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mapping[str, SceneCamera]) -> NearestView:
+    """The training camera whose viewing direction is closest to this pose's (in the data's frame, OpenCV axes): its
+    name, the angle between the two directions in degrees and the distance between the centres in the data's units,
+    as render.json gives each candidate. How new a view is; a camera-to-world pose passed as world-to-camera, which
+    renders a plausible view without a word, usually stands out by its angle or its distance."""
+    if not training:
+        raise SplatuError("no training cameras to compare with", "in nearest_training_view",
+                          "pass run.training_cameras()")
+    pose = torch.from_numpy(checked_matrix(world_to_camera, "in nearest_training_view's world_to_camera",
+                                           "pass an OpenCV world-to-camera pose without scale"))
+    names = list(training)
+    (nearest,) = nearest_training_views([pose], [torch.as_tensor(training[n].world_to_camera) for n in names], names)
+    return nearest
+
 
 def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "ours", data: str | Path | None = None,
              density_aware: bool = False) -> RunQuery:
@@ -163,10 +185,11 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     return RunQuery(run.config, run.models, frame, method, source)
 
 
-def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path | None = None) -> dict[str,
-                                                                                                    SceneCamera]:
+def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path | None = None,
+                  training_only: bool = False) -> dict[str, SceneCamera]:
     """The cameras of the scene `recorded` names (at `data` if given) in the data's frame, as the loaders make them
-    for training; a scene that is missing, or normalised unlike `frame` (another scene), is one SplatuError line."""
+    for training (only its training split's with `training_only`); a scene that is missing, or normalised unlike
+    `frame` (another scene), is one SplatuError line."""
     config = recorded if data is None else dataclasses.replace(recorded, data=str(data))
     path = scene_path(config)
     where = "in RunQuery.scene_cameras"
@@ -176,8 +199,9 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
     center, scale = scene_normalization(raw)
     require_same_frame(frame, WorldTransform.from_normalization(center, scale), f"in {path}",
                        "pass data= with the scene this run was trained on")
+    frames = [raw.frames[i] for i in choose_split(raw, config)[0]] if training_only else raw.frames
     return {f.name: SceneCamera(f.camera.world_to_camera.double().numpy().copy(), f.camera.K.double().numpy().copy(),
-                                f.camera.width, f.camera.height) for f in raw.frames}
+                                f.camera.width, f.camera.height) for f in frames}
 
 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,

@@ -59,6 +59,7 @@ from splatu.figures import (
 )
 from splatu.interrupts import finish_first, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
+from splatu.nearest_view import nearest_training_views
 from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
@@ -169,25 +170,6 @@ def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, dow
     keep = _evenly(len(views), config.max_views)
     return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep,
                     depth_unit=frame.scale)
-
-
-def nearest_training_views(cameras: list[Camera], train: Views, depth_unit: float) -> list[dict[str, Any]]:
-    """Per camera, the training view whose viewing direction is closest: its name, the angle between the two
-    directions (degrees) and the distance between the two centres (the data's units). For a candidate it says how new
-    its view is; a pose written in the wrong convention (camera-to-world for world-to-camera) usually stands out by
-    either."""
-    forward = torch.stack([c.world_to_camera[2, :3].double() for c in train.cameras])
-    centres = torch.stack([c.center().double() for c in train.cameras])
-    nearest = []
-    for camera in cameras:
-        direction = camera.world_to_camera[2, :3].double()
-        best = int((forward @ direction).argmax())
-        # atan2(|a × b|, a · b), not acos(a · b): exact near 0°, where a rounding of the cosine is a visible angle
-        sine = torch.linalg.cross(forward[best], direction).norm()
-        angle = torch.rad2deg(torch.atan2(sine, forward[best] @ direction))
-        nearest.append({"name": train.names[best], "angle_degrees": float(angle),
-                        "distance": float((centres[best] - camera.center().double()).norm()) * depth_unit})
-    return nearest
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -410,9 +392,11 @@ def run(config: RenderUncertaintyConfig) -> None:
     scene, built = _setup(run_info, options)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
     views, seconds = render_views(built.source, spec)
-    for view, camera, nearest in zip(views, spec.cameras,
-                                     nearest_training_views(spec.cameras, scene.train, spec.depth_unit), strict=True):
-        view.nearest_training_view = nearest
+    nearest = nearest_training_views([c.world_to_camera for c in spec.cameras],
+                                     [c.world_to_camera for c in scene.train.cameras], scene.train.names,
+                                     spec.depth_unit)
+    for view, camera, closest in zip(views, spec.cameras, nearest, strict=True):
+        view.nearest_training_view = closest._asdict()
         view.source_name = camera.name or view.name
     with no_empty_folders_left(out):
         record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)

@@ -964,27 +964,25 @@ def test_candidate_cameras_render_with_the_depths_the_query_gives_in_the_datas_u
 
 
 def test_the_nearest_training_view_is_the_closest_viewing_direction_with_its_angle_and_distance():
-    from splatu.data.scene import Views
-    from splatu.render_uncertainty import nearest_training_views
+    from splatu.nearest_view import nearest_training_views
 
-    K, origin = torch.tensor([[50.0, 0, 16], [0, 50.0, 16], [0, 0, 1]]), torch.zeros(3, dtype=torch.float64)
+    origin = torch.zeros(3, dtype=torch.float64)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
-    def camera(position) -> Camera:
-        return Camera(K, look_at(torch.tensor(position, dtype=torch.float64), origin, up), 32, 32)
+    def pose(position) -> torch.Tensor:
+        return look_at(torch.tensor(position, dtype=torch.float64), origin, up)
 
-    train = Views([camera([3.0, 0.0, 0.0]), camera([0.0, 3.0, 0.0])], torch.zeros(2, 32, 32, 3), ["east", "north"])
     turned = math.radians(30.0)  # 30° from east towards north, twice as far out
-    (nearest,) = nearest_training_views([camera([6 * math.cos(turned), 6 * math.sin(turned), 0.0])], train, 2.0)
-    assert nearest["name"] == "east" and nearest["angle_degrees"] == pytest.approx(30.0)
+    (nearest,) = nearest_training_views([pose([6 * math.cos(turned), 6 * math.sin(turned), 0.0])],
+                                        [pose([3.0, 0.0, 0.0]), pose([0.0, 3.0, 0.0])], ["east", "north"], 2.0)
+    assert nearest.name == "east" and nearest.angle_degrees == pytest.approx(30.0)
     expected = 2.0 * math.dist((6 * math.cos(turned), 6 * math.sin(turned)), (3.0, 0.0))  # in the data's units
-    assert nearest["distance"] == pytest.approx(expected)
+    assert nearest.distance == pytest.approx(expected)
     # looking down at 45° from above east: the same right (x) and a different forward (z) axis as east's, so only
     # the forward axis (the rotation's third row) tells the two apart
-    train = Views([camera([3.0, 0.0, 0.0]), camera([3.0, 0.0, 3.0])], torch.zeros(2, 32, 32, 3), ["east", "above"])
-    (nearest,) = nearest_training_views([camera([3.0, 0.0, 2.0])], train, 1.0)
-    assert nearest["name"] == "above"
-    assert nearest["angle_degrees"] == pytest.approx(45.0 - math.degrees(math.atan(2 / 3)))
+    (nearest,) = nearest_training_views([pose([3.0, 0.0, 2.0])], [pose([3.0, 0.0, 0.0]), pose([3.0, 0.0, 3.0])],
+                                        ["east", "above"])
+    assert nearest.name == "above"
 
 
 def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
@@ -1045,3 +1043,38 @@ def test_the_still_training_note_names_the_checkpoint_open_run_loaded(tiny_run, 
         query.open_run(run_dir, method="angle")
     (note,) = [str(w.message) for w in caught if "still training" in str(w.message)]
     assert f"{loaded.name}, is the model used" in note and "9999999" not in note
+
+
+def test_the_query_names_a_candidates_nearest_training_view_as_render_json_does(tiny_run, tmp_path):
+    """`nearest_training_view` against `run.training_cameras()` (the run's own split, in the data's frame) gives what
+    render.json gives the same candidate; a camera-to-world pose passed by mistake stands out by its distance."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.nerfstudio import read_cameras
+    from splatu.data.resolve import load_scene
+    from splatu.query import nearest_training_view, open_run
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    run = open_run(tiny_run)
+    training = run.training_cameras()
+    assert list(training) == scene.train.names  # the split the run trained on, not every camera
+    own = training[scene.train.names[2]]
+    name, angle, distance = nearest_training_view(own.world_to_camera, training)
+    assert name == scene.train.names[2] and angle < 1e-9 and distance < 1e-12
+    source = json.loads(Path(scene.source).read_text())
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
+                                      "frames": [{**source["frames"][k], "file_path": f"c{k}"} for k in (0, 9, 20)]}))
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"))
+    record = json.loads((tmp_path / "out" / "render.json").read_text())
+    for camera, view in zip(read_cameras(candidates), record["per_view"], strict=True):
+        nearest = nearest_training_view(camera.world_to_camera.numpy(), training)
+        assert nearest.name == view["nearest_training_view"]["name"]
+        assert nearest.angle_degrees == pytest.approx(view["nearest_training_view"]["angle_degrees"], abs=1e-4)
+        assert nearest.distance == pytest.approx(view["nearest_training_view"]["distance"], rel=1e-5, abs=1e-6)
+    flipped = np.linalg.inv(own.world_to_camera)  # camera-to-world, in the wrong argument
+    centres = np.stack([-c.world_to_camera[:3, :3].T @ c.world_to_camera[:3, 3] for c in training.values()])
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.eye(len(centres)) * 1e9
+    spacing = float(np.median(gaps.min(axis=1)))  # between neighbouring training cameras
+    assert nearest_training_view(flipped, training).distance > 3 * spacing
+    with pytest.raises(SplatuError, match="no training cameras"):
+        nearest_training_view(own.world_to_camera, {})

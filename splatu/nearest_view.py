@@ -1,0 +1,37 @@
+"""How new a view is: the training view whose viewing direction is closest, by angle, and how far off it stands."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+
+class NearestView(NamedTuple):
+    """The training view closest in viewing direction to a camera."""
+
+    name: str
+    angle_degrees: float  # between the two viewing directions
+    distance: float  # between the two camera centres, in the units of the poses given (times `unit`)
+
+
+def nearest_training_views(world_to_cameras: Sequence[Tensor], training: Sequence[Tensor], names: Sequence[str],
+                           unit: float = 1.0) -> list[NearestView]:
+    """Per world-to-camera pose (4, 4), the training pose whose viewing direction is closest. For a candidate it says
+    how new its view is; a pose written in the wrong convention (camera-to-world for world-to-camera) usually stands
+    out by its angle or its distance. `unit` scales distances (data units per unit of the poses given)."""
+    training_poses = torch.stack([pose.double() for pose in training])
+    forward = training_poses[:, 2, :3]  # OpenCV: the camera's +z, the third row of R
+    centres = -(training_poses[:, :3, :3].transpose(1, 2) @ training_poses[:, :3, 3:]).squeeze(-1)
+    nearest = []
+    for pose in world_to_cameras:
+        pose = pose.double()
+        direction, centre = pose[2, :3], -(pose[:3, :3].T @ pose[:3, 3])
+        best = int((forward @ direction).argmax())
+        # atan2(|a × b|, a · b), not acos(a · b): exact near 0°, where a rounding of the cosine is a visible angle
+        sine = torch.linalg.cross(forward[best], direction).norm()
+        angle = torch.rad2deg(torch.atan2(sine, forward[best] @ direction))
+        nearest.append(NearestView(names[best], float(angle), float((centres[best] - centre).norm()) * unit))
+    return nearest
