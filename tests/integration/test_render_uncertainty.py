@@ -704,6 +704,11 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     (lambda w2c, K: (w2c, np.diag([8.0, 8.0, 1.0]) @ K), "K's principal point (192, 320) lies outside the 48×80 image"),
     (lambda w2c, K: (w2c, K - np.array([[0.0, 0.0, 30.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])),
      "K's principal point (-6, 40) lies outside"),
+    # cx past the width but within the height, and cy alone off the image: each side against its own size
+    (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 36.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])),
+     "K's principal point (60, 40) lies outside the 48×80 image"),
+    (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 50.0], [0.0, 0.0, 0.0]])),
+     "K's principal point (24, 90) lies outside the 48×80 image"),
     (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "pose is not a 3x4 or 4x4 matrix"),  # ragged
     (lambda w2c, K: ([["a"] * 4] * 4, K), "pose holds 'a', which is not a number"),
     (lambda w2c, K: (w2c, "K"), "K is not an array of numbers"),
@@ -1078,3 +1083,70 @@ def test_the_query_names_a_candidates_nearest_training_view_as_render_json_does(
     assert nearest_training_view(flipped, training).distance > 3 * spacing
     with pytest.raises(SplatuError, match="no training cameras"):
         nearest_training_view(own.world_to_camera, {})
+
+
+def test_open_run_renders_a_baseline_or_an_ensemble_of_runs_trained_without_the_uncertainty_loss(tiny_run, tmp_path,
+                                                                                                 monkeypatch):
+    """Only the methods that read the run's uncertainty SH need the loss: a plain splatfacto run renders with a
+    baseline, and an ensemble (whose members all train without the loss) with method="ensemble"."""
+    from splatu import query
+
+    load = query.load_any_run
+
+    def trained_without_the_loss(*args, **kwargs):
+        run = load(*args, **kwargs)
+        run.config = dataclasses.replace(run.config, uncertainty=dataclasses.replace(run.config.uncertainty, off=True))
+        return run
+
+    monkeypatch.setattr(query, "load_any_run", trained_without_the_loss)
+    with pytest.raises(SplatuError, match="trained without the uncertainty loss"):
+        query.open_run(tiny_run)
+    camera = next(iter(query.open_run(tiny_run, method="angle").scene_cameras().values()))
+    assert 0.0 < query.open_run(tiny_run, method="angle").render(*camera).mean_uncertainty < 1.0
+    ensemble = tmp_path / "ensemble"
+    for k in range(2):
+        shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty"))
+    (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"]}))
+    assert query.open_run(ensemble, method="ensemble").render(*camera).alpha.mean() > 0.5
+
+
+def test_open_run_renders_the_checkpoint_it_named_though_a_newer_one_lands_before_loading(tiny_run, tmp_path,
+                                                                                         monkeypatch):
+    """The note names the checkpoint pinned while the run trains; a checkpoint saved between the pinning and the
+    loading must not be the model used instead (the note would then name another model than the one rendered)."""
+    from splatu import query
+    from splatu.checkpoint import list_checkpoints
+    from splatu.run_dir import training_lock
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(tiny_run, run_dir, ignore=shutil.ignore_patterns("uncertainty"))
+    pinned = list_checkpoints(run_dir)[-1]
+    later = torch.load(pinned, weights_only=True)
+    later["model"]["means"] = later["model"]["means"] + 1.0  # the model trained on: another render
+    pin = query.pinned_while_training
+
+    def a_checkpoint_lands_meanwhile(load):
+        found = pin(load)
+        torch.save(later, pinned.with_name("step-9999999.pt"))  # as the training saves its next one
+        return found
+
+    monkeypatch.setattr(query, "pinned_while_training", a_checkpoint_lands_meanwhile)
+    with training_lock(run_dir), pytest.warns(UserWarning, match=re.escape(f"{pinned.name}, is the model used")):
+        run = query.open_run(run_dir)
+    monkeypatch.setattr(query, "pinned_while_training", pin)
+    assert torch.equal(run.models[0].means, query.open_run(pinned).models[0].means)
+
+
+def test_an_ensemble_in_training_renders_its_members_newest_checkpoints_with_a_note(tiny_run, tmp_path):
+    """An ensemble being trained (its folder locked) has no checkpoint of its own to pin: each member keeps its
+    newest, and the note says so."""
+    from splatu.query import open_run
+    from splatu.run_dir import training_lock
+
+    ensemble = tmp_path / "ensemble"
+    for k in range(2):
+        shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty"))
+    (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"]}))
+    with training_lock(ensemble), pytest.warns(UserWarning, match="its members' newest checkpoints so far"):
+        run = open_run(ensemble, method="ensemble")
+    assert len(run.models) == 2

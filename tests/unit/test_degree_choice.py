@@ -398,3 +398,23 @@ def test_resuming_from_a_checkpoint_before_the_choice_sets_its_record_aside(tmp_
     folder = run_records.set_aside_later_work(tmp_path, 9)
     assert (folder is not None and (folder / trainer.DEGREE_CHOICE_FILE).is_file()) == set_aside
     assert (tmp_path / trainer.DEGREE_CHOICE_FILE).is_file() != set_aside
+
+
+def test_extend_to_refuses_a_run_still_to_choose_its_degrees_and_trains_on_one_that_chose(tmp_path, scene):
+    """Stopped before its decision step (9 of 16), the run would choose at another step of a longer run (13 of 24):
+    refused in one line. Once the degrees are chosen the saved options no longer choose, so it trains on."""
+    def stop_at_5(step, state):
+        if step == 5:
+            raise KeyboardInterrupt
+
+    with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 5"):
+        train_command.train(choice_config(tmp_path), hooks=[stop_at_5])
+    (run_dir,) = (p for p in (tmp_path / "outputs" / "tiny" / "splatu").iterdir() if not p.is_symlink())
+    with pytest.raises(SplatuError, match="cannot train on a run that chose its SH degrees mid-run"):
+        train_command.train(dataclasses.replace(choice_config(tmp_path), resume=run_dir, extend_to=24))
+    assert not (run_dir / run_records.DEGREE_CHOICE_FILE).exists()
+    train_command.train(dataclasses.replace(choice_config(tmp_path), resume=run_dir))
+    chosen = json.loads((run_dir / run_records.DEGREE_CHOICE_FILE).read_text())
+    train_command.train(dataclasses.replace(choice_config(tmp_path), resume=run_dir, extend_to=24))
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["steps"] == 24 and summary["degree_choice"] == chosen

@@ -1649,3 +1649,91 @@ def test_extend_to_refuses_an_ensemble_member_as_it_refuses_the_ensemble(tmp_pat
     with pytest.raises(SplatuError, match="--extend-to trains on a single run, not an ensemble's member"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member, extend_to=4))
     assert json.loads((member / "summary.json").read_text())["steps"] == 2 and not (member / "superseded").exists()
+
+
+def test_a_second_extension_keeps_the_first_runs_decay(tmp_path, scene):
+    """12 steps, extended to 18, then to 24: the means' rate still decays over the first 12 steps and then holds, as
+    one 24-step run with --optim.means-lr-steps 12 (the second extension must not decay over 18)."""
+    longer = train_command.train(_mean_loss(tiny_config(tmp_path / "a", steps=24,
+                                                        optim=OptimConfig(means_lr_steps=12))))
+    run_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "b")))
+    extend = dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir)
+    for steps in (18, 24):
+        train_command.train(dataclasses.replace(extend, extend_to=steps))
+    assert load_config(run_dir / "config.yml").optim.means_lr_steps == 12
+    assert losses_of(run_dir) == losses_of(longer) and sorted(losses_of(run_dir)) == list(range(1, 25))
+    assert len(list((run_dir / "superseded").iterdir())) == 2
+
+
+def test_extending_a_run_killed_before_its_first_checkpoint_trains_it_as_a_new_run_of_that_length(tmp_path, scene,
+                                                                                                   monkeypatch):
+    """Nothing was trained to keep a decay of: from step 0 the extension is one 18-step run, decaying over 18."""
+    fresh = train_command.train(_mean_loss(tiny_config(tmp_path / "a", steps=18)))
+    run_loop = trainer.run_loop
+
+    def killed(*args, **kwargs):
+        raise RuntimeError("killed")
+
+    monkeypatch.setattr(trainer, "run_loop", killed)
+    with pytest.raises(RuntimeError, match="killed"):
+        train_command.train(_mean_loss(tiny_config(tmp_path / "b")))
+    (run_dir,) = (p for p in (tmp_path / "b" / "outputs" / "tiny" / "splatu").iterdir() if not p.is_symlink())
+    assert not list_checkpoints(run_dir)
+    monkeypatch.setattr(trainer, "run_loop", run_loop)
+    train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18))
+    assert load_config(run_dir / "config.yml").optim.means_lr_steps == 0
+    assert losses_of(run_dir) == losses_of(fresh)
+
+
+def test_an_extension_names_no_ignored_extend_to(tmp_path, capsys):
+    """--extend-to is the one flag beside --resume (and --data) that a resume reads: it must not be listed among the
+    flags the resume ignores."""
+    given = dataclasses.replace(preset_config(), resume=tmp_path, extend_to=60)
+    train_command.resumed_config(given, preset_config(), tmp_path)
+    assert "ignoring" not in capsys.readouterr().err
+
+
+def test_an_extension_keeps_the_reports_of_the_checkpoint_it_starts_from(tmp_path, scene):
+    """A report named after the finished run's last checkpoint (`--load .../step-0000012.pt`) is of a checkpoint that
+    stays: it stays beside it, and only the reports that name no checkpoint move to superseded/."""
+    run_dir = train_command.train(tiny_config(tmp_path))
+    (run_dir / "ause_ours-step-0000012.json").write_text("{}")
+    (run_dir / "ause_ours.json").write_text("{}")
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=14))
+    (superseded,) = (run_dir / "superseded").iterdir()
+    assert (run_dir / "ause_ours-step-0000012.json").is_file() and (superseded / "ause_ours.json").is_file()
+    assert not (superseded / "ause_ours-step-0000012.json").exists()
+
+
+def test_an_extension_killed_before_it_set_the_old_outputs_aside_moves_them_when_resumed(tmp_path, scene,
+                                                                                         monkeypatch):
+    """A kill between the re-saved checkpoint (now of 18 steps) and the set-aside leaves the 12-step summary and
+    export in place: a plain `--resume` trains on to 18 and moves them to superseded/ then."""
+    run_dir = train_command.train(tiny_config(tmp_path))
+    set_aside = trainer.set_aside_final_outputs
+
+    def killed(*args, **kwargs):
+        raise RuntimeError("killed")
+
+    monkeypatch.setattr(trainer, "set_aside_final_outputs", killed)
+    with pytest.raises(RuntimeError, match="killed"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=18))
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 12
+    monkeypatch.setattr(trainer, "set_aside_final_outputs", set_aside)
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18
+    (superseded,) = (run_dir / "superseded").iterdir()
+    assert json.loads((superseded / "summary.json").read_text())["steps"] == 12 and (superseded / "splat.ply").is_file()
+
+
+def test_setting_aside_nothing_makes_no_folder(tmp_path):
+    """set_aside_final_outputs returns None, and leaves no empty superseded/<time>/, when nothing is there to move."""
+    assert run_records.set_aside_final_outputs(tmp_path, 12) is None
+    assert not (tmp_path / run_records.SUPERSEDED_DIR).exists()
+
+
+def test_a_negative_means_decay_length_is_refused():
+    """--optim.means-lr-steps -1 decayed the means' rate over a single step (max(1, -1)): refused in one line."""
+    with pytest.raises(SplatuError, match=re.escape("--optim.means-lr-steps must be 0 or more (got -1)")):
+        OptimConfig(means_lr_steps=-1).validate()
+    OptimConfig(means_lr_steps=0).validate()
