@@ -51,10 +51,11 @@ def check_options(config: TrainConfig) -> None:
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
 
 
-def resolution_note(config: TrainConfig) -> str | None:
+def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
     """What to say when a run ends before its resolution schedule reaches full resolution: --steps alone shortens a
     preset without scaling its schedule (each preset doubles the resolution every tenth of its steps), so such a run
-    trains only on downscaled images and is scored on full-resolution ones."""
+    trains only on downscaled images and is scored on full-resolution ones. An `extension` (--extend-to) keeps the
+    run's --resolution-interval, which --resume ignores: only a longer extension reaches full resolution."""
     last = resolution_level(config.steps - 1, config.resolution_levels, config.resolution_interval)
     if last == 0:
         return None
@@ -64,7 +65,11 @@ def resolution_note(config: TrainConfig) -> str | None:
     why = " (a tenth of the steps, as in every preset)" if suggested == tenth else ""
     remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
               f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
-    return (f"note: --steps {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
+    if extension:
+        full_at = levels * config.resolution_interval
+        remedy = f"--extend-to {full_at + 1} or more reaches full resolution at step {full_at}"
+    flag = "--extend-to" if extension else "--steps"
+    return (f"note: {flag} {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
             f"images (the schedule starts at 1/{2 ** levels} and doubles every --resolution-interval "
             f"{config.resolution_interval} steps); {remedy}")
 
@@ -206,9 +211,9 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
             raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "
                               "at their length)", f"in {run_dir}", "train a new ensemble with --steps N")
         saved = extended(saved, config.extend_to, step, run_dir)
-        note = resolution_note(saved)
+        note = resolution_note(saved, extension=True)
         if note is not None:  # a short run trained on can still end before full resolution, as a new one can
-            console.print(note.replace("--steps", "--extend-to", 1), soft_wrap=True)
+            console.print(note, soft_wrap=True)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
         console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "
                       "trains it on to N steps)", soft_wrap=True)

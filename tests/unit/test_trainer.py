@@ -1609,7 +1609,10 @@ def test_extend_to_is_refused_in_one_line_where_it_cannot_apply(tmp_path, scene,
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=3))
     capsys.readouterr()
     train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir, extend_to=5))  # 1/2 until 6
-    assert "note: --extend-to 5 ends at 1/2 resolution" in capsys.readouterr().err
+    note = capsys.readouterr().err
+    assert "note: --extend-to 5 ends at 1/2 resolution" in note
+    # a resume keeps the run's --resolution-interval (it ignores the flag): only a longer extension gets there
+    assert "--resolution-interval 1" not in note and "--extend-to 7 or more reaches full resolution at step 6" in note
     ensemble = train_command.train(tiny_config(tmp_path / "e", steps=2, checkpoint_every=0, ensemble=2))
     with pytest.raises(SplatuError, match="--extend-to trains on a single run, not an ensemble"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=ensemble, extend_to=4))
