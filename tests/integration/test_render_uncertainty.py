@@ -1095,7 +1095,8 @@ def test_open_run_renders_a_baseline_or_an_ensemble_of_runs_trained_without_the_
 
     def trained_without_the_loss(*args, **kwargs):
         run = load(*args, **kwargs)
-        run.config = dataclasses.replace(run.config, uncertainty=dataclasses.replace(run.config.uncertainty, off=True))
+        plain = dataclasses.replace(run.config.uncertainty, off=True, extra_heads=())  # as splatfacto's config reads
+        run.config = dataclasses.replace(run.config, uncertainty=plain)
         return run
 
     monkeypatch.setattr(query, "load_any_run", trained_without_the_loss)
