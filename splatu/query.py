@@ -126,8 +126,9 @@ class RunQuery:
 def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mapping[str, SceneCamera]) -> NearestView:
     """The training camera whose viewing direction is closest to this pose's (in the data's frame, OpenCV axes): its
     name, the angle between the two directions in degrees and the distance between the centres in the data's units,
-    as render.json gives each candidate. How new a view is; a camera-to-world pose passed as world-to-camera, which
-    renders a plausible view without a word, usually stands out by its angle or its distance."""
+    as render.json gives each candidate: how new a view is. A camera-to-world pose passed by mistake, which renders a
+    plausible view without a word, stands out by its distance around an object, but need not in a forward-facing
+    capture (`splatu.nearest_view`)."""
     if not training:
         raise SplatuError("no training cameras to compare with", "in nearest_training_view",
                           "pass run.training_cameras()")

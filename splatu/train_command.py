@@ -106,16 +106,17 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> Tra
 def extended(saved: TrainConfig, steps: int, step: int, run_dir: Path) -> TrainConfig:
     """`saved` trained on to `steps` in all from `step`: only the length changes. The means' rate keeps the decay it
     had (over the old length, then held), so the step after a checkpoint trains exactly as it would have. `steps`
-    equal to the length of a run not yet there (an extension stopped part way, and the same command given again, as
-    a requeued job does) trains it on unchanged."""
-    if steps == saved.steps and step < steps:
+    equal to the run's length is a plain resume: the same command given again, as a requeued job does, trains an
+    extension that stopped part way on, and finds one that ended already finished."""
+    if steps == saved.steps:
         return saved
     if steps <= saved.steps:
         raise SplatuError(f"--extend-to {steps} is not more than the {saved.steps} steps this run was set to train",
                           f"in {run_dir}", f"pass --extend-to with more than {saved.steps}, or start a new run")
-    if saved.degree_choice.on:  # its decision step is a fraction of the length: it would choose a second time
-        raise SplatuError("--extend-to cannot train on a run that chose its SH degrees mid-run (--degree-choice.on)",
-                          f"in {run_dir}", "start a new run with --steps N and the chosen degrees")
+    if saved.degree_choice.on:  # not yet chosen (a choice turns it off): its decision step is a fraction of the length
+        raise SplatuError("--extend-to cannot train on a run stopped before its mid-run SH degree choice "
+                          "(--degree-choice.on), which a longer run would make at another step", f"in {run_dir}",
+                          "finish it with a plain --resume first; once it has chosen, --extend-to trains it on")
     decay = saved.optim.means_lr_steps or (saved.steps if step > 0 else 0)  # from step 0: as a new run of N steps
     return dataclasses.replace(saved, steps=steps, optim=dataclasses.replace(saved.optim, means_lr_steps=decay))
 

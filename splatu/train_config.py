@@ -101,10 +101,10 @@ class TrainConfig:
     other flags are ignored (and named), except --data, which gives the scene's new location, and --extend-to."""
     extend_to: int | None = None
     """With --resume: train a single run on to this many steps in all, more than it was set to train (or the same
-    number again, to continue an extension that stopped part way). Its schedules stay as they were, by step (so
-    densification goes on only up to --densify.stop-split-at), and the means' rate holds its final value past the old
-    length; the old final model's summary, export (the model itself) and reports move to superseded/<time>/, and its
-    checkpoint stays until newer ones prune it (--keep-checkpoints)."""
+    number again, which continues an extension that stopped part way or finds it finished). Its schedules stay as
+    they were, by step (so densification goes on only up to --densify.stop-split-at), and the means' rate holds its
+    final value past the old length; the old final model's summary, export (the model itself) and reports move to
+    superseded/<time>/, and its checkpoint stays until newer ones prune it (--keep-checkpoints)."""
     ensemble: int = 1
     """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/; `--method ensemble`
     trains the paper's 10 when this is left at 1."""

@@ -410,7 +410,7 @@ def test_extend_to_refuses_a_run_still_to_choose_its_degrees_and_trains_on_one_t
     with pytest.raises(interrupts.TrainingInterrupted, match="interrupted at step 5"):
         train_command.train(choice_config(tmp_path), hooks=[stop_at_5])
     (run_dir,) = (p for p in (tmp_path / "outputs" / "tiny" / "splatu").iterdir() if not p.is_symlink())
-    with pytest.raises(SplatuError, match="cannot train on a run that chose its SH degrees mid-run"):
+    with pytest.raises(SplatuError, match="cannot train on a run stopped before its mid-run SH degree choice"):
         train_command.train(dataclasses.replace(choice_config(tmp_path), resume=run_dir, extend_to=24))
     assert not (run_dir / run_records.DEGREE_CHOICE_FILE).exists()
     train_command.train(dataclasses.replace(choice_config(tmp_path), resume=run_dir))

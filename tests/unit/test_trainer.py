@@ -1575,8 +1575,11 @@ def test_extend_to_trains_a_finished_run_on_exactly_as_one_longer_run_with_the_s
     model_a, model_b = load_run(longer).model, load_run(run_dir).model
     for name in GaussianModel.PARAM_NAMES:
         assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
-    with pytest.raises(SplatuError, match="--extend-to 18 is not more than the 18 steps"):
-        train_command.train(extend)
+    capsys.readouterr()
+    assert train_command.train(extend) == run_dir  # the same command again: finished, as a plain resume says
+    assert "already finished" in capsys.readouterr().err and len(list((run_dir / "superseded").iterdir())) == 1
+    with pytest.raises(SplatuError, match="--extend-to 17 is not more than the 18 steps"):
+        train_command.train(dataclasses.replace(extend, extend_to=17))
 
 
 def test_an_extension_killed_before_its_first_checkpoint_still_trains_on_when_resumed(tmp_path, scene, monkeypatch):
