@@ -14,6 +14,9 @@ from splatu.errors import SplatuError, unwritable
 
 LATEST = "latest"
 LOCK_FILE = ".training.lock"
+LOCK_ATTEMPTS, LOCK_RETRY_SECONDS = 25, 0.02
+"""A training asks for its lock this often before it refuses (half a second in all): `still_training` holds the lock
+shared for an instant, and a render polling a run must not make a `--resume` starting then refuse."""
 
 
 def new_run_dir(output_dir: Path, scene: str, method: str) -> Path:
@@ -57,13 +60,17 @@ def training_lock(run_dir: Path) -> Iterator[None]:
     except OSError as err:
         raise unwritable(run_dir / LOCK_FILE, err) from None
     with lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise SplatuError("another `splatu train` is training this run now", f"in {run_dir}",
-                              "let it finish, or stop it (Ctrl-C saves) and then resume") from None
-        except OSError:  # a file system without locks (some NFS mounts): train unguarded rather than not at all
-            pass
+        for attempt in range(LOCK_ATTEMPTS):
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:  # a training, or for an instant `still_training`'s probe of a render or query
+                if attempt + 1 == LOCK_ATTEMPTS:
+                    raise SplatuError("another `splatu train` is training this run now", f"in {run_dir}",
+                                      "let it finish, or stop it (Ctrl-C saves) and then resume") from None
+                time.sleep(LOCK_RETRY_SECONDS)
+            except OSError:  # a file system without locks (some NFS mounts): train unguarded rather than not at all
+                break
         yield
 
 

@@ -1243,6 +1243,25 @@ def test_a_second_training_of_the_same_run_is_refused_while_the_first_runs(tmp_p
     assert (run_dir / "summary.json").is_file()
 
 
+def test_a_render_probing_whether_a_run_trains_does_not_make_its_resume_refuse(tmp_path):
+    """`still_training` (render-uncertainty, eval-ause, open_run) holds the lock shared for an instant; a training
+    starting then waits it out rather than refusing as if another training held the run."""
+    import fcntl
+    import threading
+
+    (tmp_path / run_dir_module.LOCK_FILE).touch()
+    probe = open(tmp_path / run_dir_module.LOCK_FILE)  # noqa: SIM115 (closed by the timer)
+    fcntl.flock(probe, fcntl.LOCK_SH | fcntl.LOCK_NB)  # as still_training does, caught in the middle
+    release = threading.Timer(0.1, probe.close)
+    release.start()
+    try:
+        with run_dir_module.training_lock(tmp_path):
+            assert probe.closed
+    finally:
+        release.join()
+    assert not run_dir_module.still_training(tmp_path)
+
+
 def test_a_restored_checkpoint_keeps_the_step_the_nonfinite_streak_and_the_train_seconds(tmp_path, scene):
     config = tiny_config(tmp_path)
     state = dataclasses.replace(trainer.fresh_state(config, scene), step=5, nonfinite_streak=2, train_seconds=12.5)
