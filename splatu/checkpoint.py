@@ -94,6 +94,10 @@ def pinned_while_training(load: Path) -> tuple[Path, bool]:
         return Path(load), False
     if (target / "ensemble.json").is_file():
         return Path(load), True
+    if (target / "members").is_dir() and not (target / CHECKPOINT_DIR).is_dir():  # as load_any_run tells them apart
+        raise SplatuError("this ensemble is still training: it has no ensemble.json until its last member finishes",
+                          f"in {target}", "wait for its `splatu train` to finish, or load one finished member "
+                          "(members/<k>)")
     return resolve_checkpoint(target), True
 
 

@@ -1151,3 +1151,23 @@ def test_an_ensemble_in_training_renders_its_members_newest_checkpoints_with_a_n
     with training_lock(ensemble), pytest.warns(UserWarning, match="its members' newest checkpoints so far"):
         run = open_run(ensemble, method="ensemble")
     assert len(run.models) == 2
+
+
+def test_an_ensemble_training_its_members_is_named_as_such_not_as_a_run_without_checkpoints(tiny_run, tmp_path,
+                                                                                             capsys):
+    """A fresh ensemble writes ensemble.json only once its last member finishes: while it trains, its folder holds
+    config.yml and members/ but no checkpoints/, and pinning its newest checkpoint told to 'train it first'."""
+    from splatu.run_dir import training_lock
+
+    ensemble = tmp_path / "ensemble"
+    shutil.copytree(tiny_run, ensemble / "members" / "0", ignore=shutil.ignore_patterns("uncertainty"))
+    shutil.copy(tiny_run / "config.yml", ensemble / "config.yml")
+    with training_lock(ensemble):
+        for command in ("render-uncertainty", "eval-ause"):
+            capsys.readouterr()
+            with pytest.raises(SystemExit) as exc:
+                entrypoint([command, "--load", str(ensemble), "--method", "ensemble"])
+            assert exc.value.code == 2
+            err = capsys.readouterr().err
+            assert "this ensemble is still training" in err and "members/<k>" in err, err
+            assert "Traceback" not in err
