@@ -181,8 +181,8 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
                  if method in METHODS_FROM_TRAINING_VIEWS else None)
         source = build_method(method, run, scene, density_aware).source
     except SplatuError as error:  # the CLI's advice, in the arguments a Python caller passes
-        raise SplatuError(error.what, error.where,
-                          error.fix.replace("--head", "head=").replace("--data PATH", "data=PATH")) from None
+        fix = error.fix.replace("--head", "head=").replace("--data PATH", "data=PATH").replace("--data", "data=")
+        raise SplatuError(error.what, error.where, fix) from None
     return RunQuery(run.config, run.models, frame, method, source)
 
 

@@ -1153,6 +1153,23 @@ def test_an_ensemble_in_training_renders_its_members_newest_checkpoints_with_a_n
     assert len(run.models) == 2
 
 
+def test_open_run_advises_data_not_the_command_lines_flag_for_a_scene_normalised_otherwise(tiny_run, tmp_path):
+    """A baseline that reads the training views checks their frame against the run's; a Python caller is told to pass
+    data=, as for a moved scene, not the command line's --data."""
+    from splatu.checkpoint import list_checkpoints, read_checkpoint
+    from splatu.query import open_run
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    path = list_checkpoints(run)[-1]
+    state = read_checkpoint(path)
+    state["world_transform"]["scale"] *= 1.5  # as if trained on a scene normalised differently
+    torch.save(state, path)
+    with pytest.raises(SplatuError, match="normalisation differs") as caught:
+        open_run(run, method="angle")
+    assert "data=" in caught.value.fix and "--data" not in caught.value.fix, caught.value.fix
+
+
 def test_an_ensemble_training_its_members_is_named_as_such_not_as_a_run_without_checkpoints(tiny_run, tmp_path,
                                                                                              capsys):
     """A fresh ensemble writes ensemble.json only once its last member finishes: while it trains, its folder holds
