@@ -22,8 +22,8 @@ def nearest_training_views(world_to_cameras: Sequence[Tensor], training: Sequenc
     """Per world-to-camera pose (4, 4), the training pose whose viewing direction is closest. For a candidate it says
     how new its view is. A pose written in the wrong convention (camera-to-world for world-to-camera) stands out by
     its distance around an object (the poster stand-in's training poses inverted: 22–29 times the cameras' spacing)
-    but need not in a forward-facing capture (lund_door's: 0.3–2.7 times). `unit` scales distances (data units per
-    unit of the poses given)."""
+    but need not in a forward-facing capture (lund_door's: 0.3–2.7 times; docs/results.md). `unit` scales distances
+    (data units per unit of the poses given)."""
     training_poses = torch.stack([pose.double() for pose in training])
     forward = training_poses[:, 2, :3]  # OpenCV: the camera's +z, the third row of R
     centres = -(training_poses[:, :3, :3].transpose(1, 2) @ training_poses[:, :3, 3:]).squeeze(-1)

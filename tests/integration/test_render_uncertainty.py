@@ -1188,3 +1188,13 @@ def test_an_ensemble_training_its_members_is_named_as_such_not_as_a_run_without_
             err = capsys.readouterr().err
             assert "this ensemble is still training" in err and "members/<k>" in err, err
             assert "Traceback" not in err
+
+
+def test_the_query_offers_every_uncertainty_method_but_random():
+    """QueryMethod spells the methods out for type checkers: a method added to render-uncertainty must reach open_run
+    too."""
+    from splatu.baselines import UNCERTAINTY_METHODS
+    from splatu.query import QUERY_METHODS
+
+    offered = QUERY_METHODS
+    assert offered == tuple(m for m in UNCERTAINTY_METHODS if m != "random")
