@@ -60,14 +60,14 @@ def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
     if last == 0:
         return None
     levels, tenth = config.resolution_levels, max(1, config.steps // 10)
-    # a tenth of the steps, as in every preset, unless that leaves the last step short of full resolution
-    suggested = tenth if levels * tenth < config.steps else (config.steps - 1) // levels
-    why = " (a tenth of the steps, as in every preset)" if suggested == tenth else ""
-    remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
-              f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
     if extension:
         full_at = levels * config.resolution_interval
         remedy = f"--extend-to {full_at + 1} or more reaches full resolution at step {full_at}"
+    else:  # a tenth of the steps, as in every preset, unless that leaves the last step short of full resolution
+        suggested = tenth if levels * tenth < config.steps else (config.steps - 1) // levels
+        why = " (a tenth of the steps, as in every preset)" if suggested == tenth else ""
+        remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
+                  f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
     flag = "--extend-to" if extension else "--steps"
     return (f"note: {flag} {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
             f"images (the schedule starts at 1/{2 ** levels} and doubles every --resolution-interval "
