@@ -13,6 +13,12 @@ import torch
 from torch import Tensor
 
 
+def camera_center(world_to_camera: Tensor) -> Tensor:
+    """The centre −Rᵀt of world-to-camera poses (..., 4, 4), in world coordinates (..., 3)."""
+    R, t = world_to_camera[..., :3, :3], world_to_camera[..., :3, 3:]
+    return -(R.transpose(-1, -2) @ t).squeeze(-1)
+
+
 @dataclass(frozen=True)
 class Camera:
     K: Tensor  # (3, 3)
@@ -25,9 +31,7 @@ class Camera:
 
     def center(self) -> Tensor:
         """Camera centre in world coordinates, (3,)."""
-        R = self.world_to_camera[:3, :3]
-        t = self.world_to_camera[:3, 3]
-        return -R.T @ t
+        return camera_center(self.world_to_camera)
 
     def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
         """Project world points (M, 3) to pixel coordinates (M, 2) and camera depth (M,)."""

@@ -8,6 +8,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from splatu.camera import camera_center
+
 
 class NearestView(NamedTuple):
     """The training view closest in viewing direction to a camera."""
@@ -26,11 +28,11 @@ def nearest_training_views(world_to_cameras: Sequence[Tensor], training: Sequenc
     (data units per unit of the poses given)."""
     training_poses = torch.stack([pose.double() for pose in training])
     forward = training_poses[:, 2, :3]  # OpenCV: the camera's +z, the third row of R
-    centres = -(training_poses[:, :3, :3].transpose(1, 2) @ training_poses[:, :3, 3:]).squeeze(-1)
+    centres = camera_center(training_poses)
     nearest = []
     for pose in world_to_cameras:
         pose = pose.double()
-        direction, centre = pose[2, :3], -(pose[:3, :3].T @ pose[:3, 3])
+        direction, centre = pose[2, :3], camera_center(pose)
         best = int((forward @ direction).argmax())
         # atan2(|a × b|, a · b), not acos(a · b): exact near 0°, where a rounding of the cosine is a visible angle
         sine = torch.linalg.cross(forward[best], direction).norm()
