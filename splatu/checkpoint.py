@@ -88,12 +88,15 @@ def pinned_while_training(load: Path) -> tuple[Path, bool]:
     """What `--load` names, and whether a `splatu train` is training it now. A run folder in training is pinned to its
     newest checkpoint file, as if that file had been passed: what renders or scores it is named after that checkpoint
     (`ours-step-0001000`), never taken for the finished run's, and set aside with it by a resume from an earlier
-    one. An ensemble's members keep their own newest checkpoints."""
+    one. An ensemble counts as in training while `unfinished_members` says so: its members keep their own newest
+    checkpoints, and what is written is named after their steps (`UncertaintyOptions.label`)."""
     target = Path(load).expanduser()
-    if target.is_file() or not still_training(target):
+    if target.is_file():
         return Path(load), False
     if (target / "ensemble.json").is_file():
-        return Path(load), True
+        return Path(load), unfinished_members(target)
+    if not still_training(target):
+        return Path(load), False
     if (target / "members").is_dir() and not (target / CHECKPOINT_DIR).is_dir():  # as load_any_run tells them apart
         raise SplatuError("this ensemble is still training: it has no ensemble.json until its last member finishes",
                           f"in {target}", "wait for its `splatu train` to finish, or load one finished member "
@@ -101,11 +104,21 @@ def pinned_while_training(load: Path) -> tuple[Path, bool]:
     return resolve_checkpoint(target), True
 
 
+def unfinished_members(ensemble_dir: Path) -> bool:
+    """Whether an ensemble that finished once (it has ensemble.json) is not whole now: a member has no summary.json
+    (a `--resume` of it from an earlier checkpoint set it aside, and a resume of the ensemble retrains it) or a
+    `splatu train` holds a member's lock (the ensemble's resume, or one of the member folder itself). Its members'
+    newest checkpoints are then partly intermediate models, not the finished ensemble's."""
+    members = [path for path in (Path(ensemble_dir) / "members").glob("*") if path.is_dir()]
+    return any(not (member / "summary.json").is_file() or still_training(member) for member in members)
+
+
 def training_note(load: Path, pinned: Path) -> str:
     """The note for a run that `pinned_while_training` found in training."""
     if pinned.is_file():
         return f"note: {load} is still training; its newest checkpoint so far, {pinned.name}, is the model used"
-    return f"note: {load} is still training; its members' newest checkpoints so far are the models used"
+    return (f"note: {load} has members still training or left unfinished; their newest checkpoints so far are the "
+            "models used")
 
 
 def run_folder(run_dir_or_checkpoint: Path) -> Path:

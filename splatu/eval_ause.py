@@ -167,8 +167,7 @@ def run(config: EvalAuseConfig) -> None:
         maps_root = None
         if config.output is not None:  # before the render, so a bad --output costs nothing
             maps_root = maps_beside(checked_output(config.output))
-        maps_dir, entries, stand_in = render_eval_maps(config.load, options, maps_root)
-        label = options.label(config.load)
+        maps_dir, entries, stand_in, label = render_eval_maps(config.load, options, maps_root)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},
                                entries, stand_in)

@@ -23,7 +23,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -310,8 +310,8 @@ def pinned_load(load: Path, written: str) -> Path:
     pinned, training = pinned_while_training(load)
     if training:
         note = training_note(load, pinned)
-        Console(stderr=True).print(f"{note}; {written} is named after it" if pinned.is_file() else note,
-                                   soft_wrap=True)
+        named = "it" if pinned.is_file() else "their steps"
+        Console(stderr=True).print(f"{note}; {written} is named after {named}", soft_wrap=True)
     return pinned
 
 
@@ -335,14 +335,23 @@ def _setup(run, options: UncertaintyOptions):
                                options.seed)
 
 
-def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None = None
-                     ) -> tuple[Path, list[MapEntry], bool]:
+class EvalMaps(NamedTuple):
+    """What `render_eval_maps` wrote: where, the views as stored there (see write_maps_dir), whether the scene is the
+    built-in stand-in (`Scene.stand_in`), and the label of what was loaded (`UncertaintyOptions.label`)."""
+
+    root: Path
+    entries: list[MapEntry]
+    stand_in: bool
+    label: str
+
+
+def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None = None) -> EvalMaps:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores), at `root` (default: the
-    run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files); returns it, the views as stored
-    there (see write_maps_dir) and whether the scene is the built-in stand-in (`Scene.stand_in`)."""
+    run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files)."""
     run = _load(load, options)
+    label = options.label(load, run.member_steps)
     if root is None:
-        root = run_folder(load) / "uncertainty" / f"{options.label(load)}-eval" / "maps"
+        root = run_folder(load) / "uncertainty" / f"{label}-eval" / "maps"
         creatable_dir(root.parent, "run folder (eval-ause --load writes the maps it scores there), or pass "
                                   "--output elsewhere to write them beside it")
     else:
@@ -357,7 +366,7 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     timing = {"train_seconds": run.train_seconds, "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored
-    return root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in
+    return EvalMaps(root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in, label)
 
 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")
@@ -385,9 +394,9 @@ def run(config: RenderUncertaintyConfig) -> None:
     config = dataclasses.replace(config, load=pinned_load(config.load, "what is written"))
     run_info = _load(config.load, options)
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
-    out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{options.label(config.load)}-"
-                       f"{config.views}",
-                       "--output folder")
+    label = options.label(config.load, run_info.member_steps)
+    out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
+                        "--output folder")
     refuse_foreign_output(out, config.output is None)
     scene, built = _setup(run_info, options)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)

@@ -61,17 +61,20 @@ class UncertaintyOptions:
                 raise SplatuError(f"{flag} only applies with {methods}", "in the command's options",
                                   f"drop {flag}, or pass {methods}")
 
-    def label(self, load: Path | None = None) -> str:
+    def label(self, load: Path | None = None, member_steps: tuple[int, ...] | None = None) -> str:
         """The method's name in folder and file names, with every option that changes its maps and is not at its
         default (`ours-<head spec>`, `ensemble-density-aware`, `fisher-4-probes-seed-1`) and, when `load` names a
-        checkpoint file rather than the run, that file's name (`ours-step-0001000`), so that one variant's maps and
-        scores never overwrite another's, nor an earlier checkpoint's the final model's; a head has one spelling
-        (`canonical_head`), so the same head asked for twice writes one set of files. `data` is not part of it:
-        it only says where the run's own scene now is (another scene's normalisation is refused), so its maps are
-        the same maps."""
+        checkpoint file rather than the run, that file's name (`ours-step-0001000`), or for an ensemble not whole now
+        the steps of its members' checkpoints (`ensemble-steps-30-25`, `LoadedRun.member_steps`), so that one
+        variant's maps and scores never overwrite another's, nor an earlier checkpoint's the final model's; a head
+        has one spelling (`canonical_head`), so the same head asked for twice writes one set of files. `data` is not
+        part of it: it only says where the run's own scene now is (another scene's normalisation is refused), so its
+        maps are the same maps."""
         parts = [self.method if self.head is None else f"{self.method}-{canonical_head(self.head)}"]
         if load is not None and Path(load).expanduser().is_file():
             parts.append(Path(load).stem)
+        if member_steps is not None:
+            parts.append("steps-" + "-".join(map(str, member_steps)))
         if self.density_aware:
             parts.append("density-aware")
         if self.fisher_probes != DEFAULTS.fisher_probes:

@@ -22,7 +22,7 @@ from splatu.baselines.fisher import fisher_diagonal, fisher_feature
 from splatu.baselines.model_sources import FeatureSource, OursSource, RandomSource, SpreadSource
 from splatu.baselines.residual import ResidualSource, mean_residuals, training_residuals, view_residual_sums
 from splatu.baselines.visibility import visibility_counts, visibility_feature
-from splatu.checkpoint import load_run
+from splatu.checkpoint import checkpoint_step, load_run, resolve_checkpoint, unfinished_members
 from splatu.data.config import DataConfig
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
@@ -43,6 +43,9 @@ class LoadedRun:
     """Training time as the run recorded it (an ensemble: the wall time of all members)."""
     frames: list[WorldTransform | None]
     """Per model, the frame (scene normalisation) it was trained in; None in older checkpoints."""
+    member_steps: tuple[int, ...] | None = None
+    """An ensemble that is not whole now (`unfinished_members`): the step of each member's checkpoint loaded, which
+    names what is made of it; None for a finished ensemble and a single run."""
 
 
 @dataclass
@@ -74,9 +77,12 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
             if not member.is_dir():
                 raise SplatuError("an ensemble member that ensemble.json lists is missing", f"at {member}",
                                   f"train it again with `splatu train --resume {run_dir}` (trained members are kept)")
-        loaded = [load_run(member) for member in record.members]
+        unfinished = unfinished_members(run_dir)  # asked first: a member finishing meanwhile is then loaded final
+        checkpoints = [resolve_checkpoint(member) for member in record.members]
+        loaded = [load_run(checkpoint) for checkpoint in checkpoints]
+        steps = tuple(map(checkpoint_step, checkpoints)) if unfinished else None
         return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], record.wall_seconds,
-                         [m.frame for m in loaded])
+                         [m.frame for m in loaded], steps)
     if (run_dir / "members").is_dir() and not (run_dir / "checkpoints").is_dir():
         raise SplatuError("this ensemble is unfinished (it has members but no ensemble.json yet)", f"in {run_dir}",
                           f"finish it with `splatu train --resume {run_dir}`")

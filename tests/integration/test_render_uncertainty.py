@@ -1138,19 +1138,57 @@ def test_open_run_renders_the_checkpoint_it_named_though_a_newer_one_lands_befor
     assert torch.equal(run.models[0].means, query.open_run(pinned).models[0].means)
 
 
+def _finished_ensemble(tiny_run, folder: Path) -> Path:
+    """An ensemble run of two copies of `tiny_run`, as `splatu train --method ensemble --ensemble 2` leaves it."""
+    for k in range(2):
+        shutil.copytree(tiny_run, folder / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    (folder / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"]}))
+    return folder
+
+
 def test_an_ensemble_in_training_renders_its_members_newest_checkpoints_with_a_note(tiny_run, tmp_path):
-    """An ensemble being trained (its folder locked) has no checkpoint of its own to pin: each member keeps its
-    newest, and the note says so."""
+    """An ensemble being trained (a member's folder locked, as its `--resume` holds it) has no checkpoint of its own
+    to pin: each member keeps its newest, and the note says so."""
     from splatu.query import open_run
     from splatu.run_dir import training_lock
 
-    ensemble = tmp_path / "ensemble"
-    for k in range(2):
-        shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty"))
-    (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"]}))
-    with training_lock(ensemble), pytest.warns(UserWarning, match="its members' newest checkpoints so far"):
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    with training_lock(ensemble / "members" / "1"), pytest.warns(UserWarning, match="newest checkpoints so far"):
         run = open_run(ensemble, method="ensemble")
     assert len(run.models) == 2
+
+
+@pytest.mark.parametrize("how", ["resumed", "left unfinished"])
+def test_an_ensemble_not_whole_is_rendered_and_scored_under_its_members_steps_not_its_finished_name(
+        tiny_run, tmp_path, capsys, how):
+    """A finished ensemble (ensemble.json) whose member a `--resume` retrains, or whose member such a resume left
+    unfinished (its summary.json set aside), was rendered and scored from that member's intermediate checkpoint into
+    `uncertainty/ensemble-eval` and `ause_ensemble.json`, the finished ensemble's names, overwriting its own (with no
+    note at all when the member folder itself was resumed). Now they are named after the members' steps."""
+    from contextlib import nullcontext
+
+    from splatu.checkpoint import checkpoint_path, list_checkpoints
+    from splatu.run_dir import training_lock
+
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    for command in (["render-uncertainty", "--max-views", "1"], ["eval-ause"]):  # the finished ensemble's outputs
+        entrypoint([command[0], "--load", str(ensemble), "--method", "ensemble", *command[1:]])
+    finished = {path: path.read_bytes() for path in (*ensemble.glob("ause_*"), *ensemble.rglob("uncertainty/**/*"))
+                if path.is_file()}
+    assert (ensemble / "ause_ensemble.json") in finished and len(finished) > 10
+    member = ensemble / "members" / "1"
+    newest = list_checkpoints(member)[-1]
+    newest.rename(checkpoint_path(member, 7))  # as a resume from an earlier checkpoint left it
+    (member / "summary.json").rename(tmp_path / "summary.json")
+    capsys.readouterr()
+    with training_lock(member) if how == "resumed" else nullcontext():
+        for command in (["render-uncertainty", "--max-views", "1"], ["eval-ause"]):
+            entrypoint([command[0], "--load", str(ensemble), "--method", "ensemble", *command[1:]])
+            assert "their newest checkpoints so far are the models used" in capsys.readouterr().err
+    label = f"ensemble-steps-{TINY_STEPS}-7"
+    assert (ensemble / "uncertainty" / f"{label}-eval" / "render.json").is_file()
+    assert (ensemble / f"ause_{label}.json").is_file()
+    assert all(path.read_bytes() == data for path, data in finished.items()), "the finished outputs were overwritten"
 
 
 def test_open_run_advises_data_not_the_command_lines_flag_for_a_scene_normalised_otherwise(tiny_run, tmp_path):

@@ -194,7 +194,7 @@ def test_eval_ause_says_so_when_every_eval_view_is_masked_out(tmp_path, monkeypa
     blank = R.RenderedView("v", {"rgb": np.zeros((4, 4, 3)), "uncertainty": np.zeros((4, 4))},
                            gt=np.zeros((4, 4, 3)), mask=np.zeros((4, 4), bool))
     scene = SimpleNamespace(eval=None, train=None)
-    monkeypatch.setattr(R, "_load", lambda load, options: None)
+    monkeypatch.setattr(R, "_load", lambda load, options: SimpleNamespace(member_steps=None))
     monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None)))
     monkeypatch.setattr(R, "view_spec", lambda *args: None)
     monkeypatch.setattr(R, "render_views", lambda source, spec: ([blank], [0.1]))
