@@ -22,23 +22,24 @@ from splatu.json_files import is_finite_number, read_json
 from splatu.run_dir import training_lock
 from splatu.train_config import TrainConfig, from_dict, load_config, save_config
 from splatu.train_progress import console
-from splatu.trainer import train_run
+from splatu.trainer import train_locked_run
 from splatu.training_step import StepHook
 
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"
 
 
 def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
-    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it."""
+    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it; the
+    caller holds the member's `training_lock`, under which this choice is made."""
     if (member_dir / "summary.json").is_file():
         console.print(f"already trained: {member_dir}", soft_wrap=True)
         return
     found = list_checkpoints(member_dir)
     if not found:
-        train_run(member, scene, member_dir, hooks)
+        train_locked_run(member, scene, member_dir, hooks)
         return
     checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
-    train_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
+    train_locked_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
 
 
 def recorded_sessions(run_dir: Path) -> list[float]:

@@ -36,7 +36,7 @@ from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
 from splatu.train_config import DEFAULT_PRESET, TrainConfig, from_dict, load_config, preset_config
 from splatu.train_progress import console, scene_line
-from splatu.trainer import restartable, train_run
+from splatu.trainer import restartable, train_locked_run
 from splatu.training_step import StepHook, resolution_level
 from splatu.world_frame import require_same_frame, scene_frame
 
@@ -164,7 +164,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         if config.ensemble > 1:
             train_ensemble(config, scene, run_dir, wall_start, hooks)
         else:
-            train_run(config, scene, run_dir, hooks, wall_start=wall_start)
+            train_locked_run(config, scene, run_dir, hooks, wall_start=wall_start)
     return run_dir
 
 
@@ -223,7 +223,7 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
     scene = load_scene(saved.data)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    train_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
+    train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
     return run_dir
 
 

@@ -4,9 +4,9 @@ It drives `train_step` (splatu.training_step) from a fresh or restored state to 
 evaluation, checkpoints, the mid-run choice of SH degrees, and a clean stop on Ctrl-C or SIGTERM, then
 finishes the run (final checkpoint, evaluation, PLY, summary.json).
 
-`train_run(config, scene, run_dir)` trains one run on a loaded scene, fresh or from a checkpoint; the
-`splatu train` command around it (options, the scene, the run folder, --resume) is splatu.train_command, and
-ensembles are splatu.ensemble_training.
+`train_run(config, scene, run_dir)` trains one run on a loaded scene, fresh or from a checkpoint, holding the run
+folder's lock as `splatu train` does; the `splatu train` command around it (options, the scene, the run folder,
+--resume) is splatu.train_command, and ensembles are splatu.ensemble_training.
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
 from splatu.rasterizer.kernels import set_compile
+from splatu.run_dir import training_lock
 from splatu.run_records import (
     DEGREE_CHOICE_FILE,
     MetricsLog,
@@ -345,8 +346,17 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
 
 def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
               checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict[str, Any]:
-    """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary. The caller holds the
-    folder's `training_lock` if another process might train it too (`train` does)."""
+    """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary. It holds the folder's
+    `training_lock` meanwhile, as `splatu train` does: a second training of the folder is refused, and a render sees
+    the run as training. A caller that holds the lock already calls `train_locked_run`."""
+    with training_lock(run_dir):
+        return train_locked_run(config, scene, run_dir, hooks, checkpoint, wall_start)
+
+
+def train_locked_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
+                     checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict[str, Any]:
+    """`train_run` for a caller that holds `run_dir`'s `training_lock` (a second acquisition, even by the same
+    process, is refused): `splatu train` and an ensemble's members, which choose what to resume under it."""
     wall_start = time.perf_counter() if wall_start is None else wall_start
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)

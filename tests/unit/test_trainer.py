@@ -1243,6 +1243,23 @@ def test_a_second_training_of_the_same_run_is_refused_while_the_first_runs(tmp_p
     assert (run_dir / "summary.json").is_file()
 
 
+def test_train_run_called_from_python_holds_the_runs_lock_as_splatu_train_does(tmp_path, scene):
+    """`trainer.train_run` (the benchmarks' and a script's way in) took no lock: a second process could train the
+    folder at the same time, and a render of it did not see it as training, so named its files as the finished run's.
+    `splatu train`, which holds the lock already, trains through `train_locked_run` (a second acquisition would be
+    refused, even by the same process)."""
+    run_dir = tmp_path / "run"
+    seen: list[bool] = []
+    trainer.train_run(tiny_config(tmp_path), scene, run_dir,
+                      hooks=[lambda step, state: seen.append(run_dir_module.still_training(run_dir))])
+    assert seen and all(seen) and not run_dir_module.still_training(run_dir)
+    log_before = (run_dir / "metrics.jsonl").read_text()
+    with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError) as caught:  # another training holds it
+        trainer.train_run(tiny_config(tmp_path), scene, run_dir)
+    assert caught.value.what == "another `splatu train` is training this run now"
+    assert (run_dir / "metrics.jsonl").read_text() == log_before
+
+
 def test_a_render_probing_whether_a_run_trains_does_not_make_its_resume_refuse(tmp_path):
     """`still_training` (render-uncertainty, eval-ause, open_run) holds the lock shared for an instant; a training
     starting then waits it out rather than refusing as if another training held the run."""
