@@ -42,6 +42,8 @@ DISTORTION_KEYS = {"OPENCV": ("k1", "k2", "p1", "p2", "k3"), "OPENCV_FISHEYE": (
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
 RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 """Radial-only models: their k1, k2 are OpenCV's with p1 = p2 = 0."""
+COEFFICIENT_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+"""Every distortion coefficient a transforms.json may give (nerfstudio reads all six whatever the camera_model)."""
 
 DEFAULT_DEPTH_UNIT = 1e-3
 """nerfstudio's depth_unit_scale_factor when a transforms.json gives none: depth images in millimetres."""
@@ -124,17 +126,37 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     return K, width, height
 
 
+def refuse_misspelt_coefficients(entries: Mapping[str, Any], where: str) -> None:
+    """One line for a key that is a distortion coefficient's name but for case, spaces, underscores or hyphens (k_1,
+    K1, "k1 "): nerfstudio reads only the exact names, so the images were undistorted without it, wrongly."""
+    for key in entries:
+        plain = "".join(key.split()).replace("_", "").replace("-", "").lower()
+        if plain in COEFFICIENT_KEYS and key != plain:
+            raise SplatuError(f"key {key!r} is not a distortion coefficient's name, so it would be ignored", where,
+                              f"rename it {plain!r}, as nerfstudio spells it")
+
+
 def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
+    """The frame's lens distortion; a non-zero coefficient its camera_model does not use is refused, since it would
+    be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none."""
     model = str(frame.get("camera_model", top.get("camera_model", "OPENCV")))
-    if model in PINHOLE_MODELS:
-        return None
-    if model in RADIAL_MODELS:
-        model = "OPENCV"
-    if model not in DISTORTION_KEYS:
+    if model not in (*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS):
         raise SplatuError(f"unknown camera model {model!r}", where,
                           f"use one of {', '.join((*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS))}")
-    coeffs = tuple(_number(frame, top, key, where) or 0.0 for key in DISTORTION_KEYS[model])
-    distortion = Distortion(model, coeffs)  # type: ignore[arg-type]
+    lens = "OPENCV" if model in RADIAL_MODELS else model
+    used = DISTORTION_KEYS.get(lens, ())
+    values = {key: _number(frame, top, key, where) or 0.0 for key in COEFFICIENT_KEYS}
+    dropped = [key for key in COEFFICIENT_KEYS if values[key] and key not in used]
+    if dropped:
+        key = dropped[0]
+        users = [name for name, keys in DISTORTION_KEYS.items() if key in keys]
+        raise SplatuError(f"{'the frame' if key in frame else 'the file'}'s {key} = {values[key]:g} would be ignored: "
+                          f"camera_model {model} uses {', '.join(used) or 'no distortion coefficients'}", where,
+                          f"set camera_model to the lens model {key} belongs to ({' or '.join(users)}), or remove "
+                          f"{key} if the images are already undistorted")
+    if not used:
+        return None
+    distortion = Distortion(lens, tuple(values[key] for key in used))  # type: ignore[arg-type]
     return None if distortion.is_identity() else distortion
 
 
@@ -189,6 +211,7 @@ def _frame_camera(frame: Mapping[str, Any], top: Mapping[str, Any], where: str, 
                   undistorted: dict[tuple, np.ndarray]) -> tuple[Camera, np.ndarray, Distortion | None]:
     """A frame's pinhole camera at full resolution, with the intrinsics its images are undistorted to (computed once
     per distinct camera, in `undistorted`), and the frame's own K and distortion."""
+    refuse_misspelt_coefficients(frame, where)
     K, width, height = _intrinsics(frame, top, where)
     distortion = _distortion(frame, top, where)
     key = (K.tobytes(), width, height, distortion)
@@ -214,6 +237,7 @@ def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {path}", "list the cameras under \"frames\"")
+    refuse_misspelt_coefficients(top, f"in {path}")
     cameras: list[Camera] = []
     undistorted: dict[tuple, np.ndarray] = {}
     for index, frame in enumerate(frames_json):
@@ -230,6 +254,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
+    refuse_misspelt_coefficients(top, f"in {json_path}")
     depth_unit = _depth_unit(top, json_path)
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}

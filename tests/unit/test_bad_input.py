@@ -975,3 +975,70 @@ def test_a_nerf_synthetic_camera_angle_no_camera_has_is_refused(tmp_path):
     error = load_error(tmp_path / "lego", tmp_path)
     assert "times the image's larger side" in error.what and "camera_angle_x" in error.fix
     assert error.where == f"in {tmp_path / 'lego' / 'transforms_train.json'}"
+
+
+@pytest.mark.parametrize("key", ["k_1", "K1", "k1 ", "p_2", "P-1", " k 4"])
+@pytest.mark.parametrize("place", ["top", "frame"])
+def test_a_misspelt_distortion_key_names_the_key_the_file_and_the_spelling(tmp_path, key, place):
+    """nerfstudio reads only k1..k4, p1, p2: a k_1 left the images undistorted without it, without a word."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    right = key.replace("_", "").replace("-", "").replace(" ", "").lower()
+    if place == "top":
+        edit_transforms(root, lambda c: c.update({key: 0.05}))
+    else:
+        edit_transforms(root, lambda c: c["frames"][2].update({key: 0.05}))
+    error = load_error(root, tmp_path)
+    assert error.what == f"key {key!r} is not a distortion coefficient's name, so it would be ignored"
+    json_path = root / "transforms.json"
+    frame = sorted(c.name for c in cameras)[2]
+    assert error.where == (f"in {json_path}" if place == "top" else f"in frame {frame!r} of {json_path}")
+    assert error.fix == f"rename it {right!r}, as nerfstudio spells it"
+
+
+@pytest.mark.parametrize(("model", "key", "uses", "belongs"), [
+    ("PINHOLE", "k1", "no distortion coefficients", "OPENCV or OPENCV_FISHEYE"),
+    ("SIMPLE_PINHOLE", "p2", "no distortion coefficients", "OPENCV"),
+    ("OPENCV", "k4", "k1, k2, p1, p2, k3", "OPENCV_FISHEYE"),
+    ("SIMPLE_RADIAL", "k4", "k1, k2, p1, p2, k3", "OPENCV_FISHEYE"),
+    ("OPENCV_FISHEYE", "p1", "k1, k2, k3, k4", "OPENCV"),
+])
+def test_a_distortion_coefficient_the_camera_model_does_not_use_is_refused_not_dropped(tmp_path, model, key, uses,
+                                                                                        belongs):
+    """nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1-k4, a pinhole none: the
+    loader dropped the others, and trained on images undistorted by another lens than the file's."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, camera_model=model)
+    edit_transforms(root, lambda c: c.update({key: 0.02}))
+    error = load_error(root, tmp_path)
+    assert error.what == f"the file's {key} = 0.02 would be ignored: camera_model {model} uses {uses}"
+    assert error.where == f"in frame {sorted(c.name for c in cameras)[0]!r} of {root / 'transforms.json'}"
+    assert error.fix == (f"set camera_model to the lens model {key} belongs to ({belongs}), or remove {key} if the "
+                         "images are already undistorted")
+
+
+def test_a_frame_s_own_unused_coefficient_is_named_as_the_frame_s(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c["frames"][1].update(camera_model="OPENCV_FISHEYE", p2=0.01))
+    assert load_error(root, tmp_path).what.startswith("the frame's p2 = 0.01 would be ignored: camera_model "
+                                                      "OPENCV_FISHEYE uses k1, k2, k3, k4")
+
+
+@pytest.mark.parametrize(("edit", "what"), [
+    (lambda c: c.update(K1=0.05), "key 'K1' is not a distortion coefficient's name, so it would be ignored"),
+    (lambda c: c.update(camera_model="PINHOLE", k1=0.05),
+     "the file's k1 = 0.05 would be ignored: camera_model PINHOLE uses no distortion coefficients"),
+])
+def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, edit, what):
+    """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a misspelt
+    coefficient, or one it would drop, is one line naming the file."""
+    from splatu.data.nerfstudio import read_cameras
+
+    content = {"w": 48, "h": 80, "fl_x": 40.0, "cx": 24.0, "cy": 40.0,
+               "frames": [{"file_path": "a", "transform_matrix": np.eye(4).tolist()}]}
+    edit(content)
+    (tmp_path / "transforms.json").write_text(json.dumps(content))
+    with pytest.raises(SplatuError) as caught:
+        read_cameras(tmp_path)
+    assert caught.value.what == what and str(tmp_path / "transforms.json") in caught.value.where

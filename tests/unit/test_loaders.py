@@ -832,3 +832,27 @@ def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path,
         torch.testing.assert_close(a.camera.K, b.camera.K, rtol=1e-12, atol=0)
         assert torch.equal(a.camera.world_to_camera, b.camera.world_to_camera)
         assert (a.camera.width, a.camera.height) == (b.camera.width, b.camera.height)
+
+
+def test_nerfstudio_s_other_keys_and_unused_zero_coefficients_load_as_without_them(tmp_path):
+    """Only misspelt or dropped distortion coefficients are refused: nerfstudio's and instant-ngp's other keys, a
+    zero (or null) coefficient the camera model does not use, and keys that merely contain a k or p still load."""
+    cameras = ring_cameras(3, 40, 30)
+    names = ["a.png", "b.png", "c.png"]
+    write_transforms(tmp_path / "plain.json", cameras, names, top_extras={"camera_model": "PINHOLE"})
+    extras = [{"sharpness": 41.5, "mask_path": "masks/a.png", "depth_file_path": "depth/a.png", "k4": 0.0,
+               "colmap_im_id": 3}, {"camera_model": "OPENCV", "k3": 0.0, "k4": None}, {}]
+    write_transforms(tmp_path / "transforms.json", cameras, names, frame_extras=extras, top_extras={
+        "camera_model": "PINHOLE", "k1": 0.0, "p2": 0.0, "aabb_scale": 4, "applied_transform": np.eye(4)[:3].tolist(),
+        "ply_file_path": "sparse_pc.ply", "depth_unit_scale_factor": 1e-3, "orientation_override": "none",
+        "keep1": 1, "kp1": 2, "k11": 3, "integer_depth_scale": 1e-3})
+    for got, want in zip(read_cameras(tmp_path), read_cameras(tmp_path / "plain.json"), strict=True):
+        torch.testing.assert_close(got.K, want.K)
+        torch.testing.assert_close(got.world_to_camera, want.world_to_camera)
+
+
+def test_the_real_fox_transforms_json_passes_the_camera_file_checks():
+    """fox's file (fl_x, fl_y, k1, k2, p1, p2, cx, cy, w, h, camera_angle_x/y, aabb_scale; per frame file_path,
+    sharpness, transform_matrix) keeps loading."""
+    cameras = read_cameras(shared_scene("fox"))
+    assert len(cameras) == 67 and (cameras[0].width, cameras[0].height) == (1080, 1920)
