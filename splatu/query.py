@@ -34,7 +34,13 @@ from splatu.camera import Camera
 from splatu.checkpoint import pinned_while_training, training_note
 from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
+from splatu.data.frames import (
+    FLOAT32_MAX,
+    MAX_IMAGE_SIDE,
+    checked_matrix,
+    misplaced_principal_point,
+    refuse_implausible_focal,
+)
 from splatu.data.resolve import POSTER, load_scene, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
@@ -208,7 +214,8 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
                     height: int) -> tuple[Tensor, Tensor, int, int]:
     """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
-    that is not a rigid motion, or a bad size would otherwise render a wrong or blank image without a word."""
+    that is not a rigid motion, a bad size, or a K of another image size or orientation would otherwise render a
+    wrong or blank image without a word."""
     # the loaders' own check of a pose (finite, rigid within their tolerance, last row 0 0 0 1; 3x4 or 4x4)
     w2c = torch.from_numpy(checked_matrix(world_to_camera, "in RunQuery.render's world_to_camera",
                                           "pass an OpenCV world-to-camera pose without scale"))
@@ -226,14 +233,6 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)
     width, height = int(width), int(height)
     refuse_implausible_focal(intrinsics.numpy(), width, height, "in RunQuery.render", fix)
-    # K for a larger image (the file's full-resolution K at the run's --downscale size) rendered a
-    # zoomed, shifted view without a word; no real camera's principal point lies off its own image
-    cx, cy = float(intrinsics[0, 2]), float(intrinsics[1, 2])
-    if not (0.0 <= cx <= width and 0.0 <= cy <= height):
-        raise SplatuError(f"K's principal point ({cx:.6g}, {cy:.6g}) lies outside the {width}×{height} image, as for "
-                          "a K of another image size", "in RunQuery.render",
-                          "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), "
-                          "or scale K's first two rows by new size / old size")
     # the rasterizer reads fx, fy, cx and cy alone, so any other entry would be dropped without a word
     if float((intrinsics[2] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).abs().max()) > 1e-9:
         raise SplatuError(f"K's last row is {intrinsics[2].tolist()}, not [0, 0, 1]", "in RunQuery.render",
@@ -241,6 +240,14 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if max(abs(float(intrinsics[0, 1])), abs(float(intrinsics[1, 0]))) > 1e-9 * float(intrinsics[:2, :2].abs().max()):
         raise SplatuError(f"K has a skew ({float(intrinsics[0, 1]):.3g}, {float(intrinsics[1, 0]):.3g}), which "
                           "splatu's pinhole camera does not model", "in RunQuery.render", fix)
+    # K for another image size (the file's full-resolution K at the run's --downscale size), or width and height
+    # passed the wrong way round, rendered a zoomed, shifted view without a word
+    fault = misplaced_principal_point(float(intrinsics[0, 2]), float(intrinsics[1, 2]), width, height)
+    if fault is not None:
+        raise SplatuError(f"K's {fault[1]}", "in RunQuery.render",
+                          "pass the width before the height, or swap K's cx and cy" if fault[0] == "swapped" else
+                          "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), "
+                          "or scale K's first two rows by new size / old size")
     return w2c, intrinsics, width, height
 
 

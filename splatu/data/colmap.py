@@ -16,7 +16,14 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, Frame, RawScene, refuse_implausible_focal
+from splatu.data.frames import (
+    FLOAT32_MAX,
+    MAX_IMAGE_SIDE,
+    Frame,
+    RawScene,
+    misplaced_principal_point,
+    refuse_implausible_focal,
+)
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
@@ -109,6 +116,11 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     refuse_implausible_focal(K, camera.width, camera.height, where,
                              "give the camera's focal length in pixels (not mm), or re-run the reconstruction")
+    fault = misplaced_principal_point(cx, cy, camera.width, camera.height)
+    if fault is not None:  # a K and a size that do not belong together; each image's size is checked as it loads
+        raise SplatuError(fault[1], where, "swap the camera's WIDTH and HEIGHT, or its cx and cy, whichever pair is "
+                          "the wrong way round" if fault[0] == "swapped" else
+                          "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction")
     distortion = Distortion("OPENCV", coeffs) if any(coeffs) else None
     return K, distortion
 

@@ -266,9 +266,11 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
     expected_h = recipe.height / recipe.source_downscale
     if abs(width - expected_w) >= 1 or abs(height - expected_h) >= 1:
         noun = {"color": "image", "mask": "mask", "depth": "depth map"}[recipe.kind]
+        swapped = abs(width - expected_h) < 1 and abs(height - expected_w) < 1
         raise SplatuError(f"{noun} is {width}x{height} but its camera says {round(expected_w)}x"
                           f"{round(expected_h)}", f"in {recipe.path}",
-                          "make all images match the intrinsics (w, h) or fix the camera size")
+                          "swap the camera's width and height (and its cx and cy if they are swapped too)" if swapped
+                          else "make all images match the intrinsics (w, h) or fix the camera size")
 
 
 def _undistort(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:

@@ -30,6 +30,7 @@ from splatu.data.frames import (
     RawScene,
     checked_matrix,
     focal_from_angle,
+    misplaced_principal_point,
     refuse_implausible_focal,
     world_to_camera_from_opengl,
 )
@@ -123,6 +124,11 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     refuse_implausible_focal(K, width, height, where,
                              "give fl_x and fl_y in pixels (not mm), or camera_angle_x and camera_angle_y in radians")
+    fault = misplaced_principal_point(cx, cy, width, height)
+    if fault is not None:
+        raise SplatuError(fault[1], where, "swap w and h, or cx and cy, whichever pair is the wrong way round"
+                          if fault[0] == "swapped" else "give fl_x, fl_y, cx and cy in pixels of this w x h image "
+                          "(scaled by w / the width they were made for)")
     return K, width, height
 
 

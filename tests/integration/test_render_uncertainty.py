@@ -701,14 +701,19 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     (lambda w2c, K: (w2c, K + np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])), "K has a skew"),
     (lambda w2c, K: (w2c, K / 8), "K's last row is [0.0, 0.0, 0.125]"),
     # K of the full-resolution images at a --downscale 8 size (or the reverse) rendered a shifted, zoomed view
-    (lambda w2c, K: (w2c, np.diag([8.0, 8.0, 1.0]) @ K), "K's principal point (192, 320) lies outside the 48×80 image"),
+    (lambda w2c, K: (w2c, np.diag([8.0, 8.0, 1.0]) @ K), "K's principal point (192, 320) lies outside the 48x80 image"),
     (lambda w2c, K: (w2c, K - np.array([[0.0, 0.0, 30.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])),
      "K's principal point (-6, 40) lies outside"),
     # cx past the width but within the height, and cy alone off the image: each side against its own size
     (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 36.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])),
-     "K's principal point (60, 40) lies outside the 48×80 image"),
+     "K's principal point (60, 40) lies outside the 48x80 image"),
     (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 50.0], [0.0, 0.0, 0.0]])),
-     "K's principal point (24, 90) lies outside the 48×80 image"),
+     "K's principal point (24, 90) lies outside the 48x80 image"),
+    # K of an 80×48 image (width and height passed the wrong way round), and of a half-size one: inside the image
+    (lambda w2c, K: (w2c, K[[1, 0, 2]][:, [1, 0, 2]]), "K's principal point (40, 24) is 33% of the width off the "
+     "centre of the 48x80 image, but at the centre of a 80x48 one"),
+    (lambda w2c, K: (w2c, np.diag([0.5, 0.5, 1.0]) @ K), "K's principal point (12, 20) is at 25% x 25% of the 48x80 "
+     "image, as for a K made for an image 0.5 times this size"),
     (lambda w2c, K: ([*w2c.tolist()[:3], [0.0, 1.0]], K), "pose is not a 3x4 or 4x4 matrix"),  # ragged
     (lambda w2c, K: ([["a"] * 4] * 4, K), "pose holds 'a', which is not a number"),
     (lambda w2c, K: (w2c, "K"), "K is not an array of numbers"),

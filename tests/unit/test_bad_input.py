@@ -1025,14 +1025,73 @@ def test_a_frame_s_own_unused_coefficient_is_named_as_the_frame_s(tmp_path):
                                                       "OPENCV_FISHEYE uses k1, k2, k3, k4")
 
 
+def swap(frame: dict, first: str, second: str) -> None:
+    frame[first], frame[second] = frame[second], frame[first]
+
+
+@pytest.mark.parametrize(("edit", "what", "fix"), [
+    (lambda f: swap(f, "w", "h"),
+     "principal point (32.3, 17.8) is 40% of the width off the centre of the 36x64 image, but at the centre of a "
+     "64x36 one", "swap w and h, or cx and cy, whichever pair is the wrong way round"),
+    (lambda f: swap(f, "cx", "cy"),
+     "principal point (17.8, 32.3) is 40% of the height off the centre of the 64x36 image, but at the centre of a "
+     "36x64 one", "swap w and h, or cx and cy, whichever pair is the wrong way round"),
+    (lambda f: f.update(fl_x=f["fl_x"] / 2, fl_y=f["fl_y"] / 2, cx=f["cx"] / 2, cy=f["cy"] / 2),  # a K at 1/2 size
+     "principal point (16.15, 8.9) is at 25% x 25% of the 64x36 image, as for a K made for an image 0.5 times this "
+     "size", "give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width they were made for)"),
+    (lambda f: f.update(cx=f["cx"] * 3),
+     "principal point (96.9, 17.8) lies outside the 64x36 image",
+     "give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width they were made for)"),
+])
+def test_a_transforms_json_k_that_does_not_fit_its_size_names_the_frame(tmp_path, edit, what, fix):
+    """A size and K that do not belong together trained (or, from a --cameras file, rendered) a shifted, zoomed
+    view without a word; the loader refuses them before any image is read."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=64, height=36)
+    edit_transforms(root, lambda c: [edit(frame) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert (error.what, error.fix) == (what, fix)
+    assert error.where == f"in frame {sorted(c.name for c in cameras)[0]!r} of {root / 'transforms.json'}"
+
+
+@pytest.mark.parametrize(("camera", "what", "fix"), [
+    ("1 PINHOLE 64 36 50 50 18 32", "principal point (18, 32) is 39% of the height off the centre of the 64x36 image, "
+     "but at the centre of a 36x64 one", "swap the camera's WIDTH and HEIGHT, or its cx and cy, whichever pair is "
+     "the wrong way round"),
+    ("1 SIMPLE_PINHOLE 64 36 25 16 9", "principal point (16, 9) is at 25% x 25% of the 64x36 image, as for a K made "
+     "for an image 0.5 times this size", "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the "
+     "reconstruction"),
+    ("1 PINHOLE 64 36 50 50 70 18", "principal point (70, 18) lies outside the 64x36 image",
+     "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction"),
+])
+def test_a_colmap_camera_whose_k_does_not_fit_its_size_names_the_camera(tmp_path, camera, what, fix):
+    write_colmap(tmp_path / "scene", camera=camera)
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert (error.what, error.fix) == (what, fix) and error.where.endswith("cameras.txt (camera 1)")
+
+
+def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and_height(tmp_path):
+    """A 4:3 swap moves the principal point too little to refuse from the file alone; the image's size shows it."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
+    write_rgb(root / cameras[3].name, noise_image(3, 30, 40))
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == "image is 30x40 but its camera says 40x30" and error.where.endswith(cameras[3].name)
+    assert error.fix == "swap the camera's width and height (and its cx and cy if they are swapped too)"
+
+
 @pytest.mark.parametrize(("edit", "what"), [
     (lambda c: c.update(K1=0.05), "key 'K1' is not a distortion coefficient's name, so it would be ignored"),
     (lambda c: c.update(camera_model="PINHOLE", k1=0.05),
      "the file's k1 = 0.05 would be ignored: camera_model PINHOLE uses no distortion coefficients"),
+    (lambda c: c.update(w=80, h=48), "principal point (24, 40) is 33% of the height off the centre of the 80x48 "
+     "image, but at the centre of a 48x80 one"),
+    (lambda c: c.update(w=96, h=160), "principal point (24, 40) is at 25% x 25% of the 96x160 image, as for a K made "
+     "for an image 0.5 times this size"),
 ])
 def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, edit, what):
-    """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a misspelt
-    coefficient, or one it would drop, is one line naming the file."""
+    """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a candidate's K for
+    another size or orientation, or a coefficient it would drop, is one line naming the file."""
     from splatu.data.nerfstudio import read_cameras
 
     content = {"w": 48, "h": 80, "fl_x": 40.0, "cx": 24.0, "cy": 40.0,
