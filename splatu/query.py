@@ -2,10 +2,10 @@
 
 `open_run(path).render(world_to_camera, K, width, height)` renders a candidate camera given in the data's own
 frame (the frame of the scene's poses and of the run's splat.ply, OpenCV axes), with the run's own uncertainty
-(or an ensemble's, or a baseline's: `open_run(path, method=...)`), without reading the scene's images unless the
-method looks at the training views first. The model lives in the normalised frame it was trained in; the camera
-is moved there rather than the model moved out, so the render is exactly what `splatu render-uncertainty
---method ...` computes for that view.
+(or an ensemble's, or a baseline's: `open_run(path, method=...)`), without decoding the scene's images unless the
+method compares renders with the training images (the residuals). The model lives in the normalised frame it was
+trained in; the camera is moved there rather than the model moved out, so the render is exactly what `splatu
+render-uncertainty --method ...` computes for that view.
 
 K is the pinhole the model saw, not the lens's: a distorted capture (COLMAP SIMPLE_RADIAL or OPENCV, nerfstudio
 OPENCV) trained on images undistorted to OpenCV's alpha=0 pinhole, which differs from the file's K by up to a few
@@ -29,7 +29,7 @@ from torch import Tensor
 
 from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, UncertaintySource, method_list
 from splatu.baselines.ensemble import ENSEMBLE_FILE
-from splatu.baselines.load import build_method, load_any_run, run_data
+from splatu.baselines.load import build_method, load_any_run, method_scene, run_data
 from splatu.camera import Camera
 from splatu.checkpoint import pinned_while_training, training_note
 from splatu.data.assemble import choose_split, scene_normalization
@@ -41,7 +41,7 @@ from splatu.data.frames import (
     misplaced_principal_point,
     refuse_implausible_focal,
 )
-from splatu.data.resolve import POSTER, load_scene, read_scene_files, scene_path
+from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.nearest_view import NearestView, nearest_training_views
@@ -150,7 +150,8 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     """A run's folder (or one of its checkpoints), to render with `method`: ours (optionally one of the run's extra
     uncertainty heads), an ensemble run's member disagreement (`density_aware` as in `splatu eval-ause`), or a
     baseline. The baselines that look at the training views first (visibility, fisher, angle and the residuals) read
-    the scene's images here, once; `data` is the scene's new location if it has moved."""
+    the scene here, once (only the residuals decode its images: they compare renders with them); `data` is the
+    scene's new location if it has moved."""
     target = Path(path).expanduser()
     if method not in QUERY_METHODS:
         raise SplatuError(f"unknown method {method!r}", "in open_run",
@@ -183,7 +184,7 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
         assert frame is not None  # checked above
         for other in run.frames[1:]:
             require_same_frame(other, frame, f"in {path}", "train the ensemble again: its members differ in scene")
-        scene = (load_scene(run_data(run, None if data is None else str(data)))
+        scene = (method_scene(method, run_data(run, None if data is None else str(data)))
                  if method in METHODS_FROM_TRAINING_VIEWS else None)
         source = build_method(method, run, scene, density_aware).source
     except SplatuError as error:  # the CLI's advice, in the arguments a Python caller passes

@@ -36,7 +36,7 @@ from splatu.camera import Camera
 from splatu.checkpoint import pinned_while_training, run_folder, training_note
 from splatu.data.images import write_png
 from splatu.data.nerfstudio import read_cameras, transforms_file
-from splatu.data.scene import Scene, Views
+from splatu.data.scene import CameraScene, Scene, Views
 from splatu.errors import (
     FREE_AND_RERUN,
     SplatuError,
@@ -146,9 +146,10 @@ def _evenly(count: int, limit: int) -> list[int]:
     return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)}) if limit > 1 else [0]
 
 
-def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, downscale: int = 1) -> ViewSpec:
-    """Cameras of the eval or train split (with their ground truth), a generated orbit, or the --cameras file's, at
-    the run's `downscale` as its own cameras are."""
+def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertaintyConfig,
+              downscale: int = 1) -> ViewSpec:
+    """Cameras of the eval or train split (with their ground truth: `scene` is then a `Scene`), a generated orbit, or
+    the --cameras file's, at the run's `downscale` as its own cameras are."""
     frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
     if which == "cameras":
         assert config.cameras is not None  # run() refuses --views cameras without it
@@ -157,14 +158,14 @@ def view_spec(scene: Scene, which: ViewSet, config: RenderUncertaintyConfig, dow
         keep = _evenly(len(cameras), config.max_views)
         return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
                         depth_unit=frame.scale)
-    scene_views = {"eval": scene.eval, "train": scene.train}
     if which == "orbit":
-        frames = orbit_cameras(scene_views["train"].cameras, config.orbit_frames, config.orbit_elevation,
+        frames = orbit_cameras(scene.train.cameras, config.orbit_frames, config.orbit_elevation,
                                config.orbit_radius_scale)
         keep = _evenly(len(frames), config.max_views)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
                         elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale)
-    views = scene_views[which]
+    assert isinstance(scene, Scene)  # `_setup` decodes the images of eval and train views, their ground truth
+    views = {"eval": scene.eval, "train": scene.train}[which]
     if len(views) == 0:
         raise SplatuError(f"the scene's {which} split is empty", "in the run's scene", "pick another --views")
     keep = _evenly(len(views), config.max_views)
@@ -325,12 +326,12 @@ def _load(load: Path, options: UncertaintyOptions):
     return run
 
 
-def _setup(run, options: UncertaintyOptions):
-    """The run's scene and the method's renderer."""
-    from splatu.baselines.load import build_method, run_data
-    from splatu.data.resolve import load_scene
+def _setup(run, options: UncertaintyOptions, views: ViewSet):
+    """The run's scene, its images decoded only when the views' ground truth or the method needs them
+    (`method_scene`), and the method's renderer."""
+    from splatu.baselines.load import build_method, method_scene, run_data
 
-    scene = load_scene(run_data(run, options.data))
+    scene = method_scene(options.method, run_data(run, options.data), ground_truth=views in ("eval", "train"))
     return scene, build_method(options.method, run, scene, options.density_aware, options.fisher_probes,
                                options.seed)
 
@@ -356,7 +357,7 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
                                   "--output elsewhere to write them beside it")
     else:
         creatable_dir(root.parent, "--output folder")
-    scene, built = _setup(run, options)
+    scene, built = _setup(run, options, "eval")
     spec = view_spec(scene, "eval", RenderUncertaintyConfig(load=load))
     views, seconds = render_views(built.source, spec)
     entries = map_entries(views)
@@ -398,7 +399,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                         "--output folder")
     refuse_foreign_output(out, config.output is None)
-    scene, built = _setup(run_info, options)
+    scene, built = _setup(run_info, options, config.views)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
     views, seconds = render_views(built.source, spec)
     nearest = nearest_training_views([c.world_to_camera for c in spec.cameras],

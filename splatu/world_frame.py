@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from splatu.data.scene import Scene
+from splatu.data.scene import CameraScene, Scene
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
 from splatu.sh import num_sh_bases, sh_basis
@@ -68,7 +68,7 @@ class WorldTransform:
         return self.scale * x.double() @ self.rotation.double().T + self.translation.double()
 
 
-def scene_frame(scene: Scene) -> WorldTransform:
+def scene_frame(scene: Scene | CameraScene) -> WorldTransform:
     """The frame a model trained on `scene` lives in: the inverse of the scene's normalisation."""
     return WorldTransform.from_normalization(scene.center, scene.scale)
 

@@ -38,6 +38,10 @@ METHODS_FROM_TRAINING_VIEWS: tuple[UncertaintyMethod, ...] = ("visibility", "fis
                                                               "ours-residual", "ours-residual-angle",
                                                               "ours-view-residual-angle")
 """The methods that look at the scene's training views before they render (so they need the scene loaded)."""
+METHODS_FROM_TRAINING_IMAGES: tuple[UncertaintyMethod, ...] = ("residual", "ours-residual", "ours-residual-angle",
+                                                               "ours-view-residual-angle")
+"""Those of them that compare renders with the training images; the others need only the training cameras (and
+mask files), so a render that needs no ground truth decodes no image for them (`CameraScene`)."""
 
 
 def method_list(methods: tuple[str, ...] = UNCERTAINTY_METHODS) -> str:

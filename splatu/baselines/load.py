@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 
 from splatu.baselines import (
+    METHODS_FROM_TRAINING_IMAGES,
     METHODS_FROM_TRAINING_VIEWS,
     METHODS_WITH_OURS,
     UncertaintyMethod,
@@ -24,7 +25,8 @@ from splatu.baselines.residual import ResidualSource, mean_residuals, training_r
 from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import checkpoint_step, load_run, resolve_checkpoint, unfinished_members
 from splatu.data.config import DataConfig
-from splatu.data.scene import Scene
+from splatu.data.resolve import load_camera_scene, load_scene
+from splatu.data.scene import CameraScene, Scene
 from splatu.errors import SplatuError
 from splatu.json_files import is_finite_number, read_json
 from splatu.model import GaussianModel
@@ -102,7 +104,16 @@ def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:
     return recorded
 
 
-def check_frames(run: LoadedRun, scene: Scene) -> None:
+def method_scene(method: UncertaintyMethod, data: DataConfig, ground_truth: bool = False) -> Scene | CameraScene:
+    """The scene as `method` needs it: a `Scene` with its images decoded for the residuals, which compare renders with
+    them, or when the views rendered need their `ground_truth`; else a `CameraScene`, its training cameras alone
+    (with the mask files that visibility, fisher and angle honour), which decodes no image."""
+    if ground_truth or method in METHODS_FROM_TRAINING_IMAGES:
+        return load_scene(data)
+    return load_camera_scene(data, masks=method in METHODS_FROM_TRAINING_VIEWS)
+
+
+def check_frames(run: LoadedRun, scene: Scene | CameraScene) -> None:
     """Refuse to render a run on a scene normalised differently from the one it was trained on, e.g. a
     `poster` run of the stand-in once the real capture is present: every map would be silently wrong."""
     trained_on = run.config.data.data
@@ -126,16 +137,19 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
                           f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
 
 
-def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | None, density_aware: bool = False,
-                 fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
+def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None,
+                 density_aware: bool = False, fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
     """The renderer of `method` for this run; visibility, Fisher, residual and angle look at the scene's training
-    views first (their setup_seconds). `scene` may be None for the other methods, which render the model alone; the
-    caller then checks the frame its cameras are in."""
+    views first (their setup_seconds), the residuals at their images too (a `Scene`; the others take a
+    `CameraScene`). `scene` may be None for the other methods, which render the model alone; the caller then checks
+    the frame its cameras are in."""
     check_method(method, run)
     if scene is not None:
         check_frames(run, scene)
-    elif method in METHODS_FROM_TRAINING_VIEWS:
+    if scene is None and method in METHODS_FROM_TRAINING_VIEWS:
         raise ValueError(f"method {method!r} needs the scene's training views")
+    if not isinstance(scene, Scene) and method in METHODS_FROM_TRAINING_IMAGES:
+        raise ValueError(f"method {method!r} needs the scene's training images")
     degree = run.config.model.sh_degree
     background = eval_background(run.config)
     model = run.models[0]

@@ -15,7 +15,7 @@ from splatu.data.config import DataConfig
 from splatu.data.frames import Frame, RawScene
 from splatu.data.images import ImageCache, PixelRecipe, load_pixels
 from splatu.data.normalize import normalization, normalize_camera, normalize_points
-from splatu.data.scene import Scene, Views
+from splatu.data.scene import CameraScene, CameraViews, Scene, Views
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
 
@@ -89,6 +89,24 @@ def _filled(arrays: list[np.ndarray | None], shape: tuple[int, ...]) -> np.ndarr
     return np.stack([ones if a is None else a for a in arrays])
 
 
+def _split_size(frames: list[Frame]) -> tuple[int, int]:
+    """The (H, W) all of a split's frames share, else a one-line error naming the odd file."""
+    first = frames[0].camera
+    for frame in frames:
+        if (frame.camera.width, frame.camera.height) != (first.width, first.height):
+            raise SplatuError(
+                f"image size {frame.camera.width}x{frame.camera.height} differs from {first.width}x{first.height} "
+                f"of {frames[0].name!r} in the same split", f"in {frame.image.path}",
+                "give all images of a split the same size (or per-frame intrinsics w, h that match)")
+    return first.height, first.width
+
+
+def _mask_files(frames: list[Frame], cache: ImageCache, size: tuple[int, int]) -> torch.Tensor | None:
+    """The split's mask files as `Views.mask_files` holds them, None when no frame has one."""
+    file_masks = [None if m is None else (m > 0).astype(np.float32) for m in _stack([f.mask for f in frames], cache)]
+    return torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
+
+
 def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: ImageCache,
                 keep_observed: bool) -> Views:
     """Decode one split's frames (all one size, else a one-line error naming the odd file).
@@ -101,20 +119,12 @@ def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: 
     depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
-    first = frames[0].camera
-    for frame in frames:
-        if (frame.camera.width, frame.camera.height) != (first.width, first.height):
-            raise SplatuError(
-                f"image size {frame.camera.width}x{frame.camera.height} differs from {first.width}x{first.height} "
-                f"of {frames[0].name!r} in the same split", f"in {frame.image.path}",
-                "give all images of a split the same size (or per-frame intrinsics w, h that match)")
+    size = _split_size(frames)
     pixels = _stack([f.image for f in frames], cache)
     images = np.stack([p[..., :3] for p in pixels]).astype(np.float32)
     alphas = [p[..., 3] if p.shape[-1] == 4 else None for p in pixels]
-    file_masks = [None if m is None else (m > 0).astype(np.float32) for m in _stack([f.mask for f in frames], cache)]
-    size = images.shape[1:3]
     alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
-    mask_files = torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
+    mask_files = _mask_files(frames, cache, size)
     object_masks = alpha if mask_files is None else mask_files if alpha is None else alpha * mask_files
     depths = _stack([f.depth for f in frames], cache)
     observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
@@ -177,6 +187,17 @@ def assemble(raw: RawScene, cfg: DataConfig, cache: ImageCache) -> Scene:
         own_split=own,
         stand_in=raw.stand_in,
     )
+
+
+def assemble_cameras(raw: RawScene, cfg: DataConfig, cache: ImageCache, masks: bool) -> CameraScene:
+    """Split and normalise a parsed scene as `assemble` does, decoding no image: its training cameras, with their
+    mask files when `masks` asks for them."""
+    check_downscaled_size(raw.frames, cfg.downscale or 1)
+    train = [raw.frames[i] for i in choose_split(raw, cfg)[0]]
+    center, scale = scene_normalization(raw)
+    return CameraScene(center, scale, CameraViews(
+        [normalize_camera(f.camera, center, scale).to(dtype=torch.float32) for f in train], [f.name for f in train],
+        _mask_files(train, cache, _split_size(train)) if masks else None))
 
 
 def refuse_split_flags_the_scene_overrides(cfg: DataConfig, scene: Scene) -> None:

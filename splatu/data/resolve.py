@@ -1,4 +1,5 @@
-"""`--data NAME`: find the scene, detect its format, and load it as a Scene.
+"""`--data NAME`: find the scene, detect its format, and load it as a Scene (or, its images left undecoded, as a
+CameraScene).
 
 `poster` means nerfstudio's real poster capture when the user has it (data/nerfstudio/poster
 or $SPLATU_DATA/poster), else the built-in stand-in; anything else is a path, loaded by
@@ -12,7 +13,7 @@ import os
 from pathlib import Path
 
 from splatu.config_values import changed_options
-from splatu.data.assemble import assemble
+from splatu.data.assemble import assemble, assemble_cameras
 from splatu.data.blender import is_blender, load_blender
 from splatu.data.colmap import empty_sparse_dir, find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
@@ -21,7 +22,7 @@ from splatu.data.images import ImageCache, default_cache_dir
 from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.poster import build_poster_standin
 from splatu.data.poster.config import PosterConfig
-from splatu.data.scene import Scene
+from splatu.data.scene import CameraScene, Scene
 from splatu.errors import SplatuError
 
 POSTER = "poster"
@@ -98,3 +99,11 @@ def load_scene(cfg: DataConfig) -> Scene:
     if cfg.data == POSTER or raw.stand_in:
         raw.name = POSTER  # the real capture or the stand-in, named or given by its path: runs are filed under "poster"
     return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
+
+
+def load_camera_scene(cfg: DataConfig, masks: bool = False) -> CameraScene:
+    """The scene `cfg` names as `load_scene` splits and normalises it, without decoding its images (with its training
+    mask files when `masks` asks for them): for renders that need no ground truth (`CameraScene`)."""
+    cfg.validate()
+    raw = read_scene_files(scene_path(cfg), 1 if cfg.downscale is None else cfg.downscale, cfg.background)
+    return assemble_cameras(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()), masks)

@@ -94,3 +94,25 @@ class Scene:
     stand_in: bool = False
     """Whether this is the built-in poster stand-in, not a real capture: `train` says so in its scene line, and its
     summary.json and eval-ause's report record it, so its numbers are not read as the real poster's."""
+
+
+@dataclass(frozen=True)
+class CameraViews:
+    """A split's cameras and names, without its images: where the training views looked from, not what they show.
+    `mask_files` as in `Views`, decoded only when asked (the methods that count what training views see honour it)."""
+
+    cameras: list[Camera]
+    names: list[str]
+    mask_files: Tensor | None = None
+
+
+@dataclass(frozen=True)
+class CameraScene:
+    """A `Scene` without its pixels: its normalisation (`center`, `scale`) and its training split's cameras. Enough to
+    place cameras given in the data's frame, orbit the capture, name a view's nearest training view, and build the
+    methods that look at where the training views were (visibility, fisher, angle), so those renders decode no
+    image: decoding fox's photos took longer than rendering four candidate views of it (docs/results.md)."""
+
+    center: Tensor
+    scale: float
+    train: CameraViews

@@ -1010,6 +1010,48 @@ def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
     assert open_run(tiny_run, method="ours-spread", head=EXTRA_HEAD).method == "ours-spread"
 
 
+def test_a_render_without_ground_truth_decodes_no_image_unless_its_method_compares_with_them(tiny_run, tmp_path,
+                                                                                            monkeypatch):
+    """Candidate cameras and the orbit need the training cameras alone, and ours, fisher, angle and visibility
+    never look at the training images: decoding fox's photos took longer than rendering four candidates of it. The
+    residuals, which compare renders with the training images, and the eval views, whose ground truth they are,
+    still decode them."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data import assemble
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    source = json.loads(Path(scene.source).read_text())
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
+                                      "frames": [{**source["frames"][0], "file_path": "candidate"}]}))
+    decoded: list[str] = []
+    load_pixels = assemble.load_pixels
+
+    def counted(recipe, cache):
+        decoded.append(recipe.kind)
+        return load_pixels(recipe, cache)
+
+    monkeypatch.setattr(assemble, "load_pixels", counted)
+    for method in ("ours", "fisher"):
+        _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--method", method,
+                "--output", str(tmp_path / method))
+    _render(tiny_run, "--views", "orbit", "--orbit-frames", "2", "--output", str(tmp_path / "orbit"))
+    for method in ("ours", "angle", "visibility"):
+        open_run(tiny_run, method=method)
+    assert decoded == []
+    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--method", "residual",
+            "--output", str(tmp_path / "residual"))
+    assert decoded.count("color") >= len(scene.train)
+    decoded.clear()
+    open_run(tiny_run, method="ours-residual")
+    assert decoded.count("color") > 0
+    decoded.clear()
+    _render(tiny_run, "--views", "eval", "--max-views", "1", "--output", str(tmp_path / "eval"))
+    assert decoded.count("color") > 0
+
+
 def test_empty_space_reads_as_the_view_uncertainty_docstring_says(tiny_run):
     """ViewUncertainty said U reads 1 where nothing is seen for every method but the ensemble; `residual` alone reads
     its worst, 1 / (1 + the typical training residual), there: below 1, so the docstring names it too."""

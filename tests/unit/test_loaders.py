@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -31,7 +32,7 @@ from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
-from splatu.data.resolve import load_scene, refuse_unused_poster_options
+from splatu.data.resolve import load_camera_scene, load_scene, refuse_unused_poster_options
 from splatu.errors import SplatuError
 from tests.conftest import shared_scene
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
@@ -58,6 +59,39 @@ def test_a_mask_file_keeps_every_pixel_that_is_not_0_whatever_its_value(tmp_path
     expected[:, :10] = 0
     for views in (scene.train, scene.eval):
         assert all(torch.equal(mask, expected) for mask in views.mask_files)
+
+
+def test_a_camera_scene_is_the_scenes_training_cameras_and_masks_without_decoding_an_image(tmp_path):
+    """`load_camera_scene` splits and normalises as `load_scene` does, and decodes the mask files only when asked:
+    with every photo gone (and the cache emptied) it still loads, where `load_scene` cannot."""
+    root = tmp_path / "scene"
+    cameras = ring_cameras(6, 40, 30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / camera.name, noise_image(i, 40, 30))
+        mask = np.full((30, 40), 255, np.uint8)
+        mask[:i] = 0
+        cv2.imwrite(str(root / f"mask_{i}.png"), mask)
+    write_transforms(root / "transforms.json", cameras, [c.name for c in cameras],
+                     frame_extras=[{"mask_path": f"mask_{i}.png"} for i in range(6)])
+    cfg = config(root, tmp_path, eval_split="every-n", eval_every=3)
+    scene = load_scene(cfg)
+    for camera in cameras:
+        (root / camera.name).unlink()
+    shutil.rmtree(tmp_path / "cache")
+    with pytest.raises(SplatuError, match="not found"):
+        load_scene(cfg)
+    loaded = load_camera_scene(cfg, masks=True)
+    assert torch.equal(loaded.center, scene.center) and loaded.scale == scene.scale
+    assert loaded.train.names == scene.train.names
+    assert all(torch.equal(a.world_to_camera, b.world_to_camera) and torch.equal(a.K, b.K)
+               for a, b in zip(loaded.train.cameras, scene.train.cameras, strict=True))
+    assert torch.equal(loaded.train.mask_files, scene.train.mask_files)
+    shutil.rmtree(tmp_path / "cache")
+    for i in range(6):
+        (root / f"mask_{i}.png").write_bytes(b"not a png")
+    assert load_camera_scene(cfg).train.mask_files is None  # not asked for: not read
+    with pytest.raises(SplatuError):
+        load_camera_scene(cfg, masks=True)
 
 
 def test_nerfstudio_round_trip_gives_identical_cameras_points_and_pixels(tmp_path):
