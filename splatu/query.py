@@ -151,7 +151,7 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     uncertainty heads), an ensemble run's member disagreement (`density_aware` as in `splatu eval-ause`), or a
     baseline. The baselines that look at the training views first (visibility, fisher, angle and the residuals) read
     the scene here, once (only the residuals decode its images: they compare renders with them); `data` is the
-    scene's new location if it has moved."""
+    scene's new location if it has moved, for those methods alone (the others never read the scene here)."""
     target = Path(path).expanduser()
     if method not in QUERY_METHODS:
         raise SplatuError(f"unknown method {method!r}", "in open_run",
@@ -162,6 +162,10 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
     if head is not None and method not in METHODS_WITH_OURS:
         raise SplatuError(f'head picks an uncertainty head of ours; method="{method}" has none',
                           "in open_run", f"drop head, or pass method= one of {method_list(METHODS_WITH_OURS)}")
+    if data is not None and method not in METHODS_FROM_TRAINING_VIEWS:  # it renders the model alone
+        raise SplatuError(f'data= is where the scene is, which method="{method}" never reads', "in open_run",
+                          "drop data= here, and pass it to run.scene_cameras() and run.training_cameras(), which "
+                          f"read the scene, or pass method= one of {method_list(METHODS_FROM_TRAINING_VIEWS)}")
     is_ensemble = (target / ENSEMBLE_FILE).is_file()
     if is_ensemble != (method == "ensemble"):  # an ensemble's members trained without the loss: they have no U
         raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement" if is_ensemble

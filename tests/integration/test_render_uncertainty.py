@@ -1010,6 +1010,24 @@ def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
     assert open_run(tiny_run, method="ours-spread", head=EXTRA_HEAD).method == "ours-spread"
 
 
+def test_open_run_refuses_data_for_a_method_that_never_reads_the_scene(tiny_run, tmp_path):
+    """ours renders the model alone: open_run read no scene for it, so data= (the scene's new place) was dropped
+    without a word, and a planner that passed it believed it checked. The methods that read the scene read it there."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    with pytest.raises(SplatuError, match='data= is where the scene is, which method="ours" never reads') as error:
+        open_run(tiny_run, data=tmp_path / "moved")
+    assert "run.training_cameras()" in error.value.fix and "--" not in error.value.fix
+    with pytest.raises(SplatuError, match="scene not found") as error:
+        open_run(tiny_run, method="angle", data=tmp_path / "moved")
+    assert str(tmp_path / "moved") in error.value.where
+    moved = tmp_path / "scene"  # the stand-in, named by its path as a moved scene is
+    shutil.copytree(Path(load_scene(run_data(load_any_run(tiny_run))).source).parent, moved)
+    assert open_run(tiny_run, method="angle", data=moved).method == "angle"
+
+
 def test_a_render_without_ground_truth_decodes_no_image_unless_its_method_compares_with_them(tiny_run, tmp_path,
                                                                                             monkeypatch):
     """Candidate cameras and the orbit need the training cameras alone, and ours, fisher, angle and visibility
