@@ -84,24 +84,35 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
     return found[-1]
 
 
-def pinned_while_training(load: Path) -> tuple[Path, bool]:
-    """What `--load` names, and whether a `splatu train` is training it now. A run folder in training is pinned to its
-    newest checkpoint file, as if that file had been passed: what renders or scores it is named after that checkpoint
-    (`ours-step-0001000`), never taken for the finished run's, and set aside with it by a resume from an earlier
-    one. An ensemble counts as in training while `unfinished_members` says so: its members keep their own newest
+def pinned_unless_finished(load: Path) -> tuple[Path, str | None]:
+    """What `--load` names, and a note when that is not a finished model. A run folder that a `splatu train` is
+    training now, or that was stopped before its end (it has no summary.json, which a run writes last), is pinned to
+    its newest checkpoint file, as if that file had been passed: what renders or scores it is named after that
+    checkpoint (`ours-step-0001000`), never taken for the finished run's, and set aside with it by a resume from an
+    earlier one. An ensemble is pinned while `unfinished_members` says so: its members keep their own newest
     checkpoints, and what is written is named after their steps (`UncertaintyOptions.label`)."""
     target = Path(load).expanduser()
     if target.is_file():
-        return Path(load), False
+        return Path(load), None
     if (target / "ensemble.json").is_file():
-        return Path(load), unfinished_members(target)
-    if not still_training(target):
-        return Path(load), False
+        if not unfinished_members(target):
+            return Path(load), None
+        return Path(load), (f"{load} has members still training or left unfinished; their newest checkpoints so far "
+                            "are the models used")
+    training = still_training(target)
+    if not training and (target / "summary.json").is_file():
+        return Path(load), None
     if (target / "members").is_dir() and not (target / CHECKPOINT_DIR).is_dir():  # as load_any_run tells them apart
+        if not training:
+            return Path(load), None  # load_any_run says how to finish it
         raise SplatuError("this ensemble is still training: it has no ensemble.json until its last member finishes",
                           f"in {target}", "wait for its `splatu train` to finish, or load one finished member "
                           "(members/<k>)")
-    return resolve_checkpoint(target), True
+    pinned = resolve_checkpoint(target)
+    if training:
+        return pinned, f"{load} is still training; its newest checkpoint so far, {pinned.name}, is the model used"
+    return pinned, (f"{load} is unfinished (stopped before its last step; `splatu train --resume` finishes it); its "
+                    f"newest checkpoint, {pinned.name}, is the model used")
 
 
 def unfinished_members(ensemble_dir: Path) -> bool:
@@ -111,14 +122,6 @@ def unfinished_members(ensemble_dir: Path) -> bool:
     newest checkpoints are then partly intermediate models, not the finished ensemble's."""
     members = [path for path in (Path(ensemble_dir) / "members").glob("*") if path.is_dir()]
     return any(not (member / "summary.json").is_file() or still_training(member) for member in members)
-
-
-def training_note(load: Path, pinned: Path) -> str:
-    """The note for a run that `pinned_while_training` found in training."""
-    if pinned.is_file():
-        return f"note: {load} is still training; its newest checkpoint so far, {pinned.name}, is the model used"
-    return (f"note: {load} has members still training or left unfinished; their newest checkpoints so far are the "
-            "models used")
 
 
 def run_folder(run_dir_or_checkpoint: Path) -> Path:

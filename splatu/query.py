@@ -31,7 +31,7 @@ from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, Unc
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, method_scene, run_data
 from splatu.camera import Camera
-from splatu.checkpoint import pinned_while_training, training_note
+from splatu.checkpoint import pinned_unless_finished
 from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import (
@@ -172,9 +172,9 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
                           else "method=\"ensemble\" needs an ensemble run (with ensemble.json)", f"in {path}",
                           "pass method=\"ensemble\"" if is_ensemble else
                           "open one trained with `splatu train --method ensemble`, or pass another method=")
-    pinned, training = pinned_while_training(target)
-    if training:  # a ranking of an intermediate model, which the next checkpoint replaces
-        warnings.warn(training_note(Path(path), pinned).removeprefix("note: "), stacklevel=2)
+    pinned, note = pinned_unless_finished(target)
+    if note is not None:  # a ranking of an intermediate model, not the finished run's
+        warnings.warn(note, stacklevel=2)
     try:
         run = load_any_run(pinned, head)
         if method in METHODS_WITH_OURS and run.config.uncertainty.off:

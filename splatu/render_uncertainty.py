@@ -33,7 +33,7 @@ from rich.console import Console
 from splatu.atomic import atomic_write_text, leftover_temporaries, temporary_sibling
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
-from splatu.checkpoint import pinned_while_training, run_folder, training_note
+from splatu.checkpoint import pinned_unless_finished, run_folder
 from splatu.data.images import write_png
 from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import CameraScene, Scene, Views
@@ -306,13 +306,12 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
 
 
 def pinned_load(load: Path, written: str) -> Path:
-    """`--load`, pinned to its newest checkpoint while a `splatu train` trains it (`pinned_while_training`), with a
+    """`--load`, pinned to its newest checkpoint while it is training or unfinished (`pinned_unless_finished`), with a
     note on stderr: `written`, what the command writes, is named after that checkpoint."""
-    pinned, training = pinned_while_training(load)
-    if training:
-        note = training_note(load, pinned)
+    pinned, note = pinned_unless_finished(load)
+    if note is not None:
         named = "it" if pinned.is_file() else "their steps"
-        Console(stderr=True).print(f"{note}; {written} is named after {named}", soft_wrap=True)
+        Console(stderr=True).print(f"note: {note}; {written} is named after {named}", soft_wrap=True)
     return pinned
 
 

@@ -98,10 +98,12 @@ def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
 
 
 def set_aside_final_outputs(run_dir: Path, step: int) -> Path | None:
-    """Training a run on past its end (`--extend-to`) supersedes the model of step `step`: move its summary.json and
-    splat.ply, and the renders, AUSE reports and exports made of it (those naming no checkpoint), into
-    superseded/<time>/, so that none is taken for the longer run's. Its checkpoint stays until newer ones prune it.
-    Returns that folder, or None when there was nothing to move."""
+    """Training a run on from step `step` supersedes what was taken for its final model: after its end (`--extend-to`),
+    the summary.json and splat.ply of step `step` and the renders, AUSE reports and exports made of it (those naming
+    no checkpoint); before it (a resume of a stopped run), any render or report naming no checkpoint, which was made of
+    that unfinished model as if it were the finished one. They move into superseded/<time>/, so that none is taken
+    for the longer run's; the checkpoint stays until newer ones prune it. Returns that folder, or None when there was
+    nothing to move."""
     outputs = [path for path in _outputs_made_after(run_dir, step) if path.exists()]
     if not outputs:
         return None

@@ -388,11 +388,14 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
     if checkpoint is not None and int(checkpoint["config"]["steps"]) < config.steps:  # --extend-to
         # its checkpoint again, with the new length: a resume after a kill from here on still trains on
         _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
-    # a summary that outlived the resume's checks is a finished run's that this one trains on (after a kill, its resume)
-    if checkpoint is not None and (run_dir / "summary.json").is_file():
+    if checkpoint is not None:
+        # a summary that outlived the resume's checks is a finished run's that this one trains on (after a kill, its
+        # resume); without one, a report naming no checkpoint was made of this unfinished run as if it were finished
+        finished = (run_dir / "summary.json").is_file()
         superseded = set_aside_final_outputs(run_dir, state.step)
         if superseded is not None:
-            console.print(f"training on to step {config.steps}: the finished model's summary, export and reports "
-                          f"moved to {superseded}", soft_wrap=True)
+            what = ("the finished model's summary, export and reports" if finished else
+                    f"the renders and reports of the unfinished step-{state.step} model named as the finished one's")
+            console.print(f"training on to step {config.steps}: {what} moved to {superseded}", soft_wrap=True)
     state, config = run_loop(state, config, scene, run_dir, hooks)
     return finish_run(state, config, scene, run_dir)

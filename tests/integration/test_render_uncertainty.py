@@ -1189,17 +1189,17 @@ def test_open_run_renders_the_checkpoint_it_named_though_a_newer_one_lands_befor
     pinned = list_checkpoints(run_dir)[-1]
     later = torch.load(pinned, weights_only=True)
     later["model"]["means"] = later["model"]["means"] + 1.0  # the model trained on: another render
-    pin = query.pinned_while_training
+    pin = query.pinned_unless_finished
 
     def a_checkpoint_lands_meanwhile(load):
         found = pin(load)
         torch.save(later, pinned.with_name("step-9999999.pt"))  # as the training saves its next one
         return found
 
-    monkeypatch.setattr(query, "pinned_while_training", a_checkpoint_lands_meanwhile)
+    monkeypatch.setattr(query, "pinned_unless_finished", a_checkpoint_lands_meanwhile)
     with training_lock(run_dir), pytest.warns(UserWarning, match=re.escape(f"{pinned.name}, is the model used")):
         run = query.open_run(run_dir)
-    monkeypatch.setattr(query, "pinned_while_training", pin)
+    monkeypatch.setattr(query, "pinned_unless_finished", pin)
     assert torch.equal(run.models[0].means, query.open_run(pinned).models[0].means)
 
 
@@ -1301,3 +1301,34 @@ def test_the_query_offers_every_uncertainty_method_but_random():
 
     offered = QUERY_METHODS
     assert offered == tuple(m for m in UNCERTAINTY_METHODS if m != "random")
+
+
+@pytest.mark.parametrize("where", ["run", "ensemble member"])
+def test_an_unfinished_run_renders_its_newest_checkpoint_under_that_checkpoints_name(tiny_run, tmp_path, capsys,
+                                                                                     where):
+    """A run stopped before its end (no summary.json) and not training now rendered and scored its newest checkpoint
+    into `uncertainty/ours-eval` and `ause_ours.json`, the finished run's names, without a word; a `--resume` to the
+    end then left them there as if of the finished model. Now it is pinned to that checkpoint as a run in training
+    is, with a note that says it is unfinished."""
+    from splatu.checkpoint import list_checkpoints
+    from splatu.query import open_run
+
+    folder = tmp_path / "run" if where == "run" else _finished_ensemble(tiny_run, tmp_path / "ensemble") / "members/1"
+    if where == "run":
+        shutil.copytree(tiny_run, folder, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    (folder / "summary.json").rename(tmp_path / "summary.json")  # as a Ctrl-C or a kill leaves it
+    newest = list_checkpoints(folder)[-1]
+    capsys.readouterr()
+    _render(folder, "--max-views", "1")
+    err = capsys.readouterr().err
+    assert "is unfinished" in err and f"{newest.name}, is the model used; what is written is named after it" in err
+    assert "still training" not in err
+    entrypoint(["eval-ause", "--load", str(folder)])
+    assert f"{newest.name}, is the model used; the report is named after it" in capsys.readouterr().err
+    with pytest.warns(UserWarning, match=r"is unfinished \(.*--resume.*\); its newest checkpoint, "
+                      + re.escape(f"{newest.name}, is the model used")):
+        open_run(folder)
+    label = f"ours-{newest.stem}"
+    assert (folder / "uncertainty" / f"{label}-eval" / "render.json").is_file()
+    assert (folder / f"ause_{label}.json").is_file()
+    assert not (folder / "uncertainty" / "ours-eval").exists() and not (folder / "ause_ours.json").exists()

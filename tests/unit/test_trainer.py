@@ -1779,3 +1779,22 @@ def test_a_negative_means_decay_length_is_refused():
     with pytest.raises(SplatuError, match=re.escape("--optim.means-lr-steps must be 0 or more (got -1)")):
         OptimConfig(means_lr_steps=-1).validate()
     OptimConfig(means_lr_steps=0).validate()
+
+
+def test_a_resume_of_a_stopped_run_sets_aside_the_reports_named_as_the_finished_models(tmp_path, scene, capsys):
+    """A render or report of a stopped run that names no checkpoint (`uncertainty/ours-eval`, `ause_ours.json`: made
+    before renders pinned an unfinished run to its checkpoint, or while a resume was starting) is of the step-7 model;
+    a plain `--resume` to the end left it under the finished model's names. Now it moves to superseded/<time>/, and
+    one that names the kept checkpoint stays."""
+    run_dir = _stopped_at_step_7(tmp_path)
+    (run_dir / "uncertainty" / "ours-eval").mkdir(parents=True)
+    (run_dir / "ause_ours.json").write_text("{}")
+    (run_dir / "ause_ours-step-0000007.json").write_text("{}")
+    capsys.readouterr()
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    (superseded,) = (run_dir / run_records.SUPERSEDED_DIR).iterdir()
+    assert (superseded / "ause_ours.json").is_file() and (superseded / "uncertainty" / "ours-eval").is_dir()
+    assert not (run_dir / "uncertainty" / "ours-eval").exists() and not (run_dir / "ause_ours.json").exists()
+    assert (run_dir / "ause_ours-step-0000007.json").is_file() and (run_dir / "summary.json").is_file()
+    assert "unfinished" in capsys.readouterr().err
+
