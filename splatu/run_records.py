@@ -73,6 +73,8 @@ ABANDONED_DIR = "abandoned"
 SUPERSEDED_DIR = "superseded"
 CHECKPOINT_IN_LABEL = re.compile(r"-step-(\d+)")
 """How an output label names the checkpoint file it was made of (`UncertaintyOptions.label`)."""
+STEPS_IN_LABEL = re.compile(r"-steps-(\d+(?:-\d+)*)")
+"""How an ensemble's output label names the steps of its members' checkpoints, in member order (the same)."""
 
 
 def set_aside_later_work(run_dir: Path, step: int) -> Path | None:
@@ -110,6 +112,36 @@ def set_aside_final_outputs(run_dir: Path, step: int) -> Path | None:
     folder = new_timestamped_dir(run_dir / SUPERSEDED_DIR)
     _move_into(folder, run_dir, outputs)
     return folder
+
+
+def set_aside_ensemble_outputs(member_dir: Path, step: int) -> Path | None:
+    """A member of a finished ensemble (it has ensemble.json) resumed from a checkpoint older than its newest abandons
+    the model that the ensemble's renders and AUSE reports were made of: move those into the ensemble's
+    superseded/<time>/, laid out as a single run's, so that none is taken for the ensemble's once the member is
+    retrained. Those made while the member was at `step` or before, which name it among their members' steps
+    (`ensemble-steps-80-7-eval`), stay. Called before the member's own set-aside, so a kill between the two leaves the
+    later checkpoints that make a second resume do it again. Returns that folder, or None."""
+    ensemble_dir = member_dir.parent.parent
+    if member_dir.parent.name != "members" or not (ensemble_dir / "ensemble.json").is_file():
+        return None
+    if not any(checkpoint_step(path) > step for path in list_checkpoints(member_dir)):
+        return None
+    reports = (*ensemble_dir.glob("ause_*"), *ensemble_dir.glob("uncertainty/*"))
+    stale = [path for path in reports if _member_step(path.name, member_dir.name) > step]
+    if not stale:
+        return None
+    folder = new_timestamped_dir(ensemble_dir / SUPERSEDED_DIR)
+    _move_into(folder, ensemble_dir, stale)
+    return folder
+
+
+def _member_step(name: str, member: str) -> int:
+    """The step of member `member` (its folder's number) that an ensemble's render or report was made of: one of an
+    ensemble not whole names its members' steps in order; one that names none was made of the finished ensemble, so of
+    the member's newest model, and counts as made late, as does one whose name cannot say."""
+    named = STEPS_IN_LABEL.search(name)
+    steps = named.group(1).split("-") if named else []
+    return int(steps[int(member)]) if member.isdigit() and int(member) < len(steps) else 1 << 62
 
 
 def _outputs_made_after(run_dir: Path, step: int) -> list[Path]:

@@ -65,6 +65,7 @@ from splatu.run_records import (
     DEGREE_CHOICE_FILE,
     MetricsLog,
     remove_torn_checkpoints,
+    set_aside_ensemble_outputs,
     set_aside_final_outputs,
     set_aside_later_work,
 )
@@ -379,6 +380,10 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
     if checkpoint is not None:  # only once the scene loaded and fits: a failed resume must leave the run whole
         save_config(config, run_dir / "config.yml")
         remove_torn_checkpoints(run_dir)
+        ensemble_reports = set_aside_ensemble_outputs(run_dir, state.step)
+        if ensemble_reports is not None:
+            console.print(f"resuming an ensemble's member from step {state.step}: the ensemble's renders and reports "
+                          f"made of its later model moved to {ensemble_reports}", soft_wrap=True)
         abandoned = set_aside_later_work(run_dir, state.step)
         if abandoned is not None:
             console.print(f"resuming from step {state.step}: what the run did after it moved to "

@@ -1798,3 +1798,25 @@ def test_a_resume_of_a_stopped_run_sets_aside_the_reports_named_as_the_finished_
     assert (run_dir / "ause_ours-step-0000007.json").is_file() and (run_dir / "summary.json").is_file()
     assert "unfinished" in capsys.readouterr().err
 
+
+def test_a_member_resumed_from_an_earlier_checkpoint_sets_aside_the_ensembles_reports_made_of_it(tmp_path, scene,
+                                                                                                 capsys):
+    """`--resume ENSEMBLE/members/1/checkpoints/step-0000002.pt` set that member's later work aside, but the ensemble's
+    renders and reports made of the finished member stayed under the ensemble's finished names. Now they move to the
+    ensemble's superseded/<time>/, laid out as a single run's; those made while that member was at step 2 or before
+    (named after the members' steps) stay."""
+    ensemble = train_command.train(dataclasses.replace(_ensemble_config(tmp_path), checkpoint_every=2))
+    kept = ["ause_ensemble-steps-4-2-4.json", "uncertainty/ensemble-steps-4-1-4-eval"]
+    moved = ["ause_ensemble.json", "ause_ensemble-density-aware.json", "uncertainty/ensemble-eval",
+             "uncertainty/ensemble-steps-4-3-1-density-aware-eval"]
+    for name in kept + moved:
+        (ensemble / name).parent.mkdir(exist_ok=True)
+        (ensemble / name).mkdir() if "uncertainty/" in name else (ensemble / name).write_text("{}")
+    member = ensemble / "members" / "1"
+    capsys.readouterr()
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member / "checkpoints" / "step-0000002.pt"))
+    (superseded,) = (ensemble / run_records.SUPERSEDED_DIR).iterdir()
+    assert {name for name in kept + moved if (ensemble / name).exists()} == set(kept)
+    assert {name for name in kept + moved if (superseded / name).exists()} == set(moved)
+    assert (ensemble / "ensemble.json").is_file() and len(list((member / run_records.ABANDONED_DIR).iterdir())) == 1
+    assert str(superseded) in capsys.readouterr().err
