@@ -24,6 +24,7 @@ from splatu.data.frames import (
 )
 from splatu.data.images import PixelRecipe, read_image
 from splatu.data.nerfstudio import frame_entry
+from splatu.data.transforms_keys import refuse_misspelt_keys
 from splatu.errors import SplatuError
 from splatu.json_files import is_finite_number, read_json
 
@@ -51,6 +52,7 @@ def load_blender(root: Path, downscale: int, background: tuple[float, float, flo
         if not json_path.is_file():
             continue
         content = read_json(json_path)
+        refuse_misspelt_keys(content, ("camera_angle_x", "frames"), f"in {json_path}")
         angle = content.get("camera_angle_x")
         if not is_finite_number(angle) or not 0 < angle < math.pi:  # a bool is no angle
             raise SplatuError(f"camera_angle_x must be an angle in (0, pi) radians (got {angle!r})",

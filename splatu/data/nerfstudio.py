@@ -36,6 +36,14 @@ from splatu.data.frames import (
 )
 from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
 from splatu.data.ply import read_ply_points
+from splatu.data.transforms_keys import (
+    COEFFICIENT_KEYS,
+    FRAME_KEYS,
+    POSE_KEYS,
+    SPLIT_KEYS,
+    TOP_KEYS,
+    refuse_misspelt_keys,
+)
 from splatu.errors import SplatuError
 from splatu.json_files import read_json
 
@@ -43,13 +51,9 @@ DISTORTION_KEYS = {"OPENCV": ("k1", "k2", "p1", "p2", "k3"), "OPENCV_FISHEYE": (
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
 RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 """Radial-only models: their k1, k2 are OpenCV's with p1 = p2 = 0."""
-COEFFICIENT_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-"""Every distortion coefficient a transforms.json may give (nerfstudio reads all six whatever the camera_model)."""
 
 DEFAULT_DEPTH_UNIT = 1e-3
 """nerfstudio's depth_unit_scale_factor when a transforms.json gives none: depth images in millimetres."""
-SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
-"""The file's explicit split lists (nerfstudio keys)."""
 
 
 def frame_name(file_path: str) -> str:
@@ -57,9 +61,14 @@ def frame_name(file_path: str) -> str:
     return PurePosixPath(file_path).as_posix().removeprefix("./")
 
 
-def frame_entry(frame: object, index: int, json_path: Path) -> tuple[str, str, np.ndarray]:
+def frame_entry(frame: object, index: int, json_path: Path,
+                read: tuple[str, ...] = POSE_KEYS) -> tuple[str, str, np.ndarray]:
     """A transforms.json frame's (name, where-text for errors, camera-to-world), validated in one place
-    for both nerfstudio and NeRF-synthetic files."""
+    for both nerfstudio and NeRF-synthetic files, with its keys (`read`) spelt as the loader reads them."""
+    if isinstance(frame, dict):
+        file_path = frame.get("file_path")
+        refuse_misspelt_keys(frame, read, f"in frame {frame_name(file_path)!r} of {json_path}"
+                             if isinstance(file_path, str) else f"in frames[{index}] of {json_path}")
     if not isinstance(frame, dict) or frame.get("file_path") is None:
         raise SplatuError(f"frames[{index}] has no file_path", f"in {json_path}", "give every frame a file_path")
     if not isinstance(frame["file_path"], str):  # a number was read as "has no file_path" though the frame has one
@@ -130,16 +139,6 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
                           if fault[0] == "swapped" else "give fl_x, fl_y, cx and cy in pixels of this w x h image "
                           "(scaled by w / the width they were made for)")
     return K, width, height
-
-
-def refuse_misspelt_coefficients(entries: Mapping[str, Any], where: str) -> None:
-    """One line for a key that is a distortion coefficient's name but for case, spaces, underscores or hyphens (k_1,
-    K1, "k1 "): nerfstudio reads only the exact names, so the images were undistorted without it, wrongly."""
-    for key in entries:
-        plain = "".join(key.split()).replace("_", "").replace("-", "").lower()
-        if plain in COEFFICIENT_KEYS and key != plain:
-            raise SplatuError(f"key {key!r} is not a distortion coefficient's name, so it would be ignored", where,
-                              f"rename it {plain!r}, as nerfstudio spells it")
 
 
 def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
@@ -217,7 +216,6 @@ def _frame_camera(frame: Mapping[str, Any], top: Mapping[str, Any], where: str, 
                   undistorted: dict[tuple, np.ndarray]) -> tuple[Camera, np.ndarray, Distortion | None]:
     """A frame's pinhole camera at full resolution, with the intrinsics its images are undistorted to (computed once
     per distinct camera, in `undistorted`), and the frame's own K and distortion."""
-    refuse_misspelt_coefficients(frame, where)
     K, width, height = _intrinsics(frame, top, where)
     distortion = _distortion(frame, top, where)
     key = (K.tobytes(), width, height, distortion)
@@ -240,14 +238,14 @@ def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
     image need exist; file_path only names the view."""
     path = transforms_file(path)
     top = read_json(path)
+    refuse_misspelt_keys(top, TOP_KEYS, f"in {path}")
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {path}", "list the cameras under \"frames\"")
-    refuse_misspelt_coefficients(top, f"in {path}")
     cameras: list[Camera] = []
     undistorted: dict[tuple, np.ndarray] = {}
     for index, frame in enumerate(frames_json):
-        name, where, c2w = frame_entry(frame, index, path)
+        name, where, c2w = frame_entry(frame, index, path, FRAME_KEYS)
         cameras.append(_frame_camera(frame, top, where, name, c2w, undistorted)[0].scaled(1.0 / downscale))
     return cameras
 
@@ -257,16 +255,16 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     json_path = transforms_file(path)
     root = json_path.parent
     top = read_json(json_path)
+    refuse_misspelt_keys(top, TOP_KEYS, f"in {json_path}")
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:
         raise SplatuError("no frames listed", f"in {json_path}", "list the images under \"frames\"")
-    refuse_misspelt_coefficients(top, f"in {json_path}")
     depth_unit = _depth_unit(top, json_path)
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
     seen: dict[str, int] = {}
     for index, frame in _by_file_path(frames_json):
-        name, where, c2w = frame_entry(frame, index, json_path)
+        name, where, c2w = frame_entry(frame, index, json_path, FRAME_KEYS)
         if name in seen:  # two poses for one image, and split lists could name only one of them
             raise SplatuError(f"frames {seen[name]} and {index} both have file_path {name!r}", f"in {json_path}",
                               "remove the duplicate frame")

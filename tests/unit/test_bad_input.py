@@ -19,6 +19,7 @@ from splatu.data.assemble import assemble, refuse_split_flags_the_scene_override
 from splatu.data.config import DataConfig
 from splatu.data.frames import refuse_implausible_focal
 from splatu.data.images import ImageCache
+from splatu.data.nerfstudio import read_cameras
 from splatu.data.process_images import ProcessImagesConfig, process_images
 from splatu.data.resolve import load_scene, read_scene_files
 from splatu.errors import SplatuError
@@ -977,23 +978,71 @@ def test_a_nerf_synthetic_camera_angle_no_camera_has_is_refused(tmp_path):
     assert error.where == f"in {tmp_path / 'lego' / 'transforms_train.json'}"
 
 
-@pytest.mark.parametrize("key", ["k_1", "K1", "k1 ", "p_2", "P-1", " k 4"])
-@pytest.mark.parametrize("place", ["top", "frame"])
-def test_a_misspelt_distortion_key_names_the_key_the_file_and_the_spelling(tmp_path, key, place):
-    """nerfstudio reads only k1..k4, p1, p2: a k_1 left the images undistorted without it, without a word."""
+MISSPELT_CAMERA_KEYS = [("k_1", "k1"), ("K1", "k1"), ("k1 ", "k1"), ("p_2", "p2"), ("P-1", "p1"), (" k 4", "k4"),
+                        ("camera-model", "camera_model"), ("cameraModel", "camera_model"),
+                        ("Camera_Model", "camera_model"), ("fl-x", "fl_x"), ("flx", "fl_x"), ("FL_X", "fl_x"),
+                        ("c_x", "cx"), ("W", "w"), ("Camera Angle Y", "camera_angle_y"), ("isFisheye", "is_fisheye")]
+MISSPELT_TOP_KEYS = [("Frames", "frames"), ("Depth_Unit_Scale_Factor", "depth_unit_scale_factor"),
+                     ("plyFilePath", "ply_file_path"), ("Train-Filenames", "train_filenames")]
+MISSPELT_FRAME_KEYS = [("Transform_Matrix", "transform_matrix"), ("filePath", "file_path"), ("mask-path", "mask_path"),
+                       ("depthFilePath", "depth_file_path"), ("Observed_Mask_Path", "observed_mask_path")]
+KEY_VALUES = {"camera_model": "PINHOLE", "is_fisheye": True, "camera_angle_y": 0.9, "fl_x": 30.0, "cx": 19.0, "w": 40,
+              "depth_unit_scale_factor": 1e-3, "ply_file_path": "points.ply", "train_filenames": [],
+              "mask_path": "masks/a.png", "depth_file_path": "depth/a.png", "observed_mask_path": "observed/a.png"}
+"""A value for each misspelt key whose right spelling the scene does not have in that place already."""
+
+
+def misspell(entries: dict, key: str, right: str) -> None:
+    """Rename `right` to `key` where it is given, else add `key` with a plausible value."""
+    entries[key] = entries.pop(right) if right in entries else KEY_VALUES.get(right, 0.05)
+
+
+@pytest.mark.parametrize(("key", "right", "place"), [*[(*keys, place) for keys in MISSPELT_CAMERA_KEYS
+                                                      for place in ("top", "frame")],
+                                                     *[(*keys, "top") for keys in MISSPELT_TOP_KEYS],
+                                                     *[(*keys, "frame") for keys in MISSPELT_FRAME_KEYS]])
+def test_a_misspelt_key_names_the_key_the_file_the_frame_and_the_spelling(tmp_path, key, right, place):
+    """nerfstudio, instant-ngp and the loader read only the exact names: a Camera_Model left the model at OPENCV,
+    an fl-x or c_x in a frame let the file's value or the image centre stand, and a k_1 left the images
+    undistorted without it, all without a word; a misspelt file_path or transform_matrix said it was missing."""
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4)
-    right = key.replace("_", "").replace("-", "").replace(" ", "").lower()
-    if place == "top":
-        edit_transforms(root, lambda c: c.update({key: 0.05}))
-    else:
-        edit_transforms(root, lambda c: c["frames"][2].update({key: 0.05}))
+    edit_transforms(root, lambda c: misspell(c if place == "top" else c["frames"][2], key, right))
     error = load_error(root, tmp_path)
-    assert error.what == f"key {key!r} is not a distortion coefficient's name, so it would be ignored"
     json_path = root / "transforms.json"
-    frame = sorted(c.name for c in cameras)[2]
-    assert error.where == (f"in {json_path}" if place == "top" else f"in frame {frame!r} of {json_path}")
-    assert error.fix == f"rename it {right!r}, as nerfstudio spells it"
+    frame = f"frames[2] of {json_path}" if right == "file_path" else f"frame {cameras[2].name!r} of {json_path}"
+    assert (error.what, error.where, error.fix) == (
+        f"key {key!r} is not spelt as the key {right!r}, so it would be ignored",
+        f"in {json_path}" if place == "top" else f"in {frame}", f"rename it {right!r}")
+
+
+def test_a_misspelt_key_in_a_cameras_file_is_refused_too(tmp_path):
+    """render-uncertainty --cameras FILE reads the same keys."""
+    write_nerfstudio_scene(tmp_path, n=3)
+    edit_transforms(tmp_path, lambda c: c["frames"][1].update(CX=c["frames"][1].pop("cx")))
+    with pytest.raises(SplatuError, match="key 'CX' is not spelt as the key 'cx'"):
+        read_cameras(tmp_path / "transforms.json")
+
+
+def test_a_second_spelling_with_the_same_value_passes_and_with_another_is_refused(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(W=frame["w"]) for frame in c["frames"]])
+    load_scene(DataConfig(data=str(root), cache_dir=tmp_path / "cache"))
+    edit_transforms(root, lambda c: c["frames"][0].update(W=c["frames"][0]["w"] + 1))
+    assert load_error(root, tmp_path).what == "key 'W' is not spelt as the key 'w', so it would be ignored"
+
+
+def test_a_misspelt_key_in_a_nerf_synthetic_frame_is_named(tmp_path):
+    """The frame said it had no transform_matrix, without naming the key it had."""
+    write_blender(tmp_path / "lego", ["./train/r_0", "./train/r_1"], ["./test/r_0"])
+    path = tmp_path / "lego" / "transforms_test.json"
+    content = json.loads(path.read_text())
+    content["frames"][0]["transformMatrix"] = content["frames"][0].pop("transform_matrix")
+    path.write_text(json.dumps(content))
+    error = load_error(tmp_path / "lego", tmp_path)
+    assert error.what == "key 'transformMatrix' is not spelt as the key 'transform_matrix', so it would be ignored"
+    assert error.where == f"in frame 'test/r_0' of {path}"
 
 
 @pytest.mark.parametrize(("model", "key", "uses", "belongs"), [
@@ -1081,7 +1130,7 @@ def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and
 
 
 @pytest.mark.parametrize(("edit", "what"), [
-    (lambda c: c.update(K1=0.05), "key 'K1' is not a distortion coefficient's name, so it would be ignored"),
+    (lambda c: c.update(K1=0.05), "key 'K1' is not spelt as the key 'k1', so it would be ignored"),
     (lambda c: c.update(camera_model="PINHOLE", k1=0.05),
      "the file's k1 = 0.05 would be ignored: camera_model PINHOLE uses no distortion coefficients"),
     (lambda c: c.update(w=80, h=48), "principal point (24, 40) is 33% of the height off the centre of the 80x48 "

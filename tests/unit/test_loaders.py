@@ -869,17 +869,20 @@ def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path,
 
 
 def test_nerfstudio_s_other_keys_and_unused_zero_coefficients_load_as_without_them(tmp_path):
-    """Only misspelt or dropped distortion coefficients are refused: nerfstudio's and instant-ngp's other keys, a
-    zero (or null) coefficient the camera model does not use, and keys that merely contain a k or p still load."""
+    """Only misspelt keys and dropped distortion coefficients are refused: nerfstudio's and instant-ngp's other keys
+    (whatever their spelling resembles), a zero (or null) coefficient the camera model does not use, and keys that
+    merely contain a k or p still load."""
     cameras = ring_cameras(3, 40, 30)
     names = ["a.png", "b.png", "c.png"]
     write_transforms(tmp_path / "plain.json", cameras, names, top_extras={"camera_model": "PINHOLE"})
     extras = [{"sharpness": 41.5, "mask_path": "masks/a.png", "depth_file_path": "depth/a.png", "k4": 0.0,
-               "colmap_im_id": 3}, {"camera_model": "OPENCV", "k3": 0.0, "k4": None}, {}]
+               "colmap_im_id": 3, "depth_path": "depth/a.png"}, {"camera_model": "OPENCV", "k3": 0.0, "k4": None}, {}]
     write_transforms(tmp_path / "transforms.json", cameras, names, frame_extras=extras, top_extras={
         "camera_model": "PINHOLE", "k1": 0.0, "p2": 0.0, "aabb_scale": 4, "applied_transform": np.eye(4)[:3].tolist(),
         "ply_file_path": "sparse_pc.ply", "depth_unit_scale_factor": 1e-3, "orientation_override": "none",
-        "keep1": 1, "kp1": 2, "k11": 3, "integer_depth_scale": 1e-3})
+        "keep1": 1, "kp1": 2, "k11": 3, "integer_depth_scale": 1e-3, "is_fisheye": False, "sharpen": 0.0,
+        "scale": 0.33, "offset": [0.5, 0.5, 0.5], "up": [0, 0, 1], "n_extra_learnable_dims": 16, "sk_x": 0.0,
+        "white_transparent": False, "applied_scale": 1.0})
     for got, want in zip(read_cameras(tmp_path), read_cameras(tmp_path / "plain.json"), strict=True):
         torch.testing.assert_close(got.K, want.K)
         torch.testing.assert_close(got.world_to_camera, want.world_to_camera)
