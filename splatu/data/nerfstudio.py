@@ -82,8 +82,16 @@ def frame_entry(frame: object, index: int, json_path: Path,
     return name, where, c2w
 
 
+def _given(frame: Mapping[str, Any], top: Mapping[str, Any], key: str) -> Any:
+    """The frame's value of a camera key, else the file's, else None. null counts as not given, in a frame and in the
+    file (as for mask_path): a frame's "k1": null keeps the file's k1, where it dropped it for that frame alone.
+    nerfstudio and instant-ngp fail on a null, so no file written for them means anything else by one."""
+    value = frame.get(key)
+    return top.get(key) if value is None else value
+
+
 def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: str) -> float | None:
-    value = frame.get(key, top.get(key))
+    value = _given(frame, top, key)
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int | float) or not abs(value) <= FLOAT32_MAX:
@@ -144,7 +152,8 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
 def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
     """The frame's lens distortion; a non-zero coefficient its camera_model does not use is refused, since it would
     be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none."""
-    model = str(frame.get("camera_model", top.get("camera_model", "OPENCV")))
+    given = _given(frame, top, "camera_model")
+    model = "OPENCV" if given is None else str(given)
     if model not in (*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS):
         raise SplatuError(f"unknown camera model {model!r}", where,
                           f"use one of {', '.join((*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS))}")
@@ -155,7 +164,8 @@ def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     if dropped:
         key = dropped[0]
         users = [name for name, keys in DISTORTION_KEYS.items() if key in keys]
-        raise SplatuError(f"{'the frame' if key in frame else 'the file'}'s {key} = {values[key]:g} would be ignored: "
+        owner = "the file" if frame.get(key) is None else "the frame"
+        raise SplatuError(f"{owner}'s {key} = {values[key]:g} would be ignored: "
                           f"camera_model {model} uses {', '.join(used) or 'no distortion coefficients'}", where,
                           f"set camera_model to the lens model {key} belongs to ({' or '.join(users)}), or remove "
                           f"{key} if the images are already undistorted")

@@ -888,6 +888,42 @@ def test_nerfstudio_s_other_keys_and_unused_zero_coefficients_load_as_without_th
         torch.testing.assert_close(got.world_to_camera, want.world_to_camera)
 
 
+def write_shared_camera_file(path: Path, frame_edit=lambda frame: None, **top) -> None:
+    """Three frames sharing the file's camera (OPENCV, k1 = 0.05, cx off the centre); `frame_edit` edits the second."""
+    write_transforms(path, ring_cameras(3, 40, 30), ["a.png", "b.png", "c.png"])
+    content = json.loads(path.read_text())
+    for frame in content["frames"]:
+        for key in ("fl_x", "fl_y", "cx", "cy", "w", "h"):
+            del frame[key]
+    frame_edit(content["frames"][1])
+    content.update({"fl_x": 36.0, "cx": 19.0, "cy": 14.5, "w": 40, "h": 30, "k1": 0.05, **top})
+    path.write_text(json.dumps(content))
+
+
+def assert_same_cameras(got: list, want: list) -> None:
+    for a, b in zip(got, want, strict=True):
+        assert (a.name, a.width, a.height) == (b.name, b.width, b.height)
+        torch.testing.assert_close(a.K, b.K, rtol=0, atol=0)
+        torch.testing.assert_close(a.world_to_camera, b.world_to_camera, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("key", ["k1", "cx", "fl_x", "w", "camera_model", "is_fisheye"])
+def test_a_frame_s_null_is_not_given_so_the_file_s_value_stands(tmp_path, key):
+    """A frame's "k1": null dropped the file's k1 for that frame (its images undistorted without it) and a "cx": null
+    put its principal point at the image centre, while a null fl_x fell back to the file's and a null camera_model
+    was an unknown model "None". null now means not given, for every camera key, as for mask_path."""
+    write_shared_camera_file(tmp_path / "plain.json")
+    write_shared_camera_file(tmp_path / "null.json", lambda frame: frame.update({key: None}))
+    assert_same_cameras(read_cameras(tmp_path / "null.json"), read_cameras(tmp_path / "plain.json"))
+
+
+def test_a_file_s_null_is_not_given_so_the_default_stands(tmp_path):
+    """A top-level "camera_model": null was an unknown model "None"; a null k1 was already no k1."""
+    write_shared_camera_file(tmp_path / "plain.json", k1=0.0)
+    write_shared_camera_file(tmp_path / "null.json", lambda frame: frame.update(k2=None), camera_model=None, k1=None)
+    assert_same_cameras(read_cameras(tmp_path / "null.json"), read_cameras(tmp_path / "plain.json"))
+
+
 def test_the_real_fox_transforms_json_passes_the_camera_file_checks():
     """fox's file (fl_x, fl_y, k1, k2, p1, p2, cx, cy, w, h, camera_angle_x/y, aabb_scale; per frame file_path,
     sharpness, transform_matrix) keeps loading: its principal point is 1.4% off the centre."""
