@@ -2,8 +2,9 @@
 
 Intrinsics (fl_x, fl_y, cx, cy, w, h) and distortion may be global or per frame, the focal lengths also as
 instant-ngp's camera_angle_x / camera_angle_y (radians); poses are OpenGL camera-to-world. Images with distortion
-are undistorted to OpenCV's alpha=0 pinhole K (see splatu/data/images.py). Frames are sorted by file path, as
-nerfstudio does, so contiguous eval blocks follow the capture order of numbered video frames.
+are undistorted to OpenCV's alpha=0 pinhole K (see splatu/data/images.py); instant-ngp's is_fisheye stands for
+nerfstudio's OPENCV_FISHEYE. Frames are sorted by file path, as nerfstudio does, so contiguous eval blocks follow the
+capture order of numbered video frames.
 
 `applied_transform` is accepted and not applied: nerfstudio writes `ply_file_path` points in
 the same frame as the poses, and the transform only maps both back to the original COLMAP
@@ -149,24 +150,45 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     return K, width, height
 
 
-def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
-    """The frame's lens distortion; a non-zero coefficient its camera_model does not use is refused, since it would
-    be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none."""
+def _lens_model(frame: Mapping[str, Any], top: Mapping[str, Any], distorted: bool, where: str) -> tuple[str, str]:
+    """The frame's camera_model, and how errors name it.
+
+    instant-ngp's is_fisheye reads k1..k4 as OpenCV's fisheye (equidistant) model's, nerfstudio's OPENCV_FISHEYE:
+    without a camera_model it picks that model (else OPENCV, the default). With a non-zero coefficient, a
+    camera_model that says otherwise is refused: nerfstudio and instant-ngp would undistort the images differently.
+    """
     given = _given(frame, top, "camera_model")
-    model = "OPENCV" if given is None else str(given)
+    fisheye = _given(frame, top, "is_fisheye")
+    if fisheye is not None and not isinstance(fisheye, bool):
+        raise SplatuError(f"is_fisheye must be true or false (got {fisheye!r})", where,
+                          "write is_fisheye as true or false, without quotes")
+    if given is None:
+        return ("OPENCV_FISHEYE", "is_fisheye true (OPENCV_FISHEYE)") if fisheye else ("OPENCV", "camera_model OPENCV")
+    model = str(given)
     if model not in (*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS):
         raise SplatuError(f"unknown camera model {model!r}", where,
                           f"use one of {', '.join((*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS))}")
+    if distorted and fisheye is not None and fisheye != (model == "OPENCV_FISHEYE"):
+        raise SplatuError(f"is_fisheye {str(fisheye).lower()} contradicts camera_model {model}", where,
+                          "give camera_model OPENCV_FISHEYE with is_fisheye true for a fisheye lens (k1 to k4 of "
+                          "OpenCV's fisheye model), or another camera_model with is_fisheye false or none")
+    return model, f"camera_model {model}"
+
+
+def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
+    """The frame's lens distortion; a non-zero coefficient its camera_model does not use is refused, since it would
+    be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none."""
+    values = {key: _number(frame, top, key, where) or 0.0 for key in COEFFICIENT_KEYS}
+    model, named = _lens_model(frame, top, any(values.values()), where)
     lens = "OPENCV" if model in RADIAL_MODELS else model
     used = DISTORTION_KEYS.get(lens, ())
-    values = {key: _number(frame, top, key, where) or 0.0 for key in COEFFICIENT_KEYS}
     dropped = [key for key in COEFFICIENT_KEYS if values[key] and key not in used]
     if dropped:
         key = dropped[0]
         users = [name for name, keys in DISTORTION_KEYS.items() if key in keys]
         owner = "the file" if frame.get(key) is None else "the frame"
         raise SplatuError(f"{owner}'s {key} = {values[key]:g} would be ignored: "
-                          f"camera_model {model} uses {', '.join(used) or 'no distortion coefficients'}", where,
+                          f"{named} uses {', '.join(used) or 'no distortion coefficients'}", where,
                           f"set camera_model to the lens model {key} belongs to ({' or '.join(users)}), or remove "
                           f"{key} if the images are already undistorted")
     if not used:

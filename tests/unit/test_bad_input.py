@@ -1074,6 +1074,49 @@ def test_a_frame_s_own_unused_coefficient_is_named_as_the_frame_s(tmp_path):
                                                       "OPENCV_FISHEYE uses k1, k2, k3, k4")
 
 
+FISHEYE_FIX = ("give camera_model OPENCV_FISHEYE with is_fisheye true for a fisheye lens (k1 to k4 of OpenCV's "
+               "fisheye model), or another camera_model with is_fisheye false or none")
+
+
+@pytest.mark.parametrize(("top", "frame", "what"), [
+    ({"camera_model": "OPENCV", "is_fisheye": True}, {}, "is_fisheye true contradicts camera_model OPENCV"),
+    ({"camera_model": "SIMPLE_RADIAL", "is_fisheye": True}, {},
+     "is_fisheye true contradicts camera_model SIMPLE_RADIAL"),
+    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": False}, {},
+     "is_fisheye false contradicts camera_model OPENCV_FISHEYE"),
+    ({"camera_model": "OPENCV"}, {"is_fisheye": True}, "is_fisheye true contradicts camera_model OPENCV"),
+])
+def test_an_is_fisheye_the_camera_model_contradicts_is_refused(tmp_path, top, frame, what):
+    """instant-ngp reads the coefficients by is_fisheye, nerfstudio by camera_model: the two would undistort the
+    images differently, and the loader followed camera_model without a word."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, k1=0.02, **top)
+    edit_transforms(root, lambda c: c["frames"][2].update(frame))
+    error = load_error(root, tmp_path)
+    name = sorted(c.name for c in cameras)[2 if frame else 0]
+    assert (error.what, error.where, error.fix) == (what, f"in frame {name!r} of {root / 'transforms.json'}",
+                                                    FISHEYE_FIX)
+
+
+@pytest.mark.parametrize("flag", ["true", 1, [True]])
+def test_an_is_fisheye_that_is_not_true_or_false_is_refused(tmp_path, flag):
+    """instant-ngp fails on any is_fisheye but a boolean, and Python would take a quoted "false" for true."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: c.update(is_fisheye=flag))
+    error = load_error(root, tmp_path)
+    assert (error.what, error.fix) == (f"is_fisheye must be true or false (got {flag!r})",
+                                       "write is_fisheye as true or false, without quotes")
+
+
+def test_a_coefficient_the_fisheye_model_of_is_fisheye_does_not_use_names_is_fisheye(tmp_path):
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4, is_fisheye=True, k1=0.02, p1=0.01)
+    edit_transforms(root, lambda c: c.pop("camera_model"))
+    assert load_error(root, tmp_path).what == ("the file's p1 = 0.01 would be ignored: is_fisheye true "
+                                               "(OPENCV_FISHEYE) uses k1, k2, k3, k4")
+
+
 def swap(frame: dict, first: str, second: str) -> None:
     frame[first], frame[second] = frame[second], frame[first]
 

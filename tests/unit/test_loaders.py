@@ -924,6 +924,51 @@ def test_a_file_s_null_is_not_given_so_the_default_stands(tmp_path):
     assert_same_cameras(read_cameras(tmp_path / "null.json"), read_cameras(tmp_path / "plain.json"))
 
 
+def edit_json(path: Path, edit) -> None:
+    content = json.loads(path.read_text())
+    edit(content)
+    path.write_text(json.dumps(content))
+
+
+FISHEYE_COEFFICIENTS = {"k1": 0.05, "k2": 0.01, "k3": 0.002}
+"""Coefficients both OPENCV and OPENCV_FISHEYE use, so a frame read with either loads."""
+
+
+@pytest.mark.parametrize("place", ["top", "frame"])
+def test_instant_ngp_s_is_fisheye_reads_the_coefficients_as_opencv_fisheye_s(tmp_path, place):
+    """instant-ngp reads k1..k4 as OpenCV's fisheye (equidistant) model's when is_fisheye is true, nerfstudio's
+    OPENCV_FISHEYE; the flag was ignored and the images undistorted with OpenCV's radial k1, k2, k3. A frame's flag
+    is for that frame, as its other camera keys."""
+    for name, model in (("fisheye.json", "OPENCV_FISHEYE"), ("opencv.json", "OPENCV")):
+        write_shared_camera_file(tmp_path / name, camera_model=model, **FISHEYE_COEFFICIENTS)
+    write_shared_camera_file(tmp_path / "flag.json", **FISHEYE_COEFFICIENTS)
+    if place == "top":
+        edit_json(tmp_path / "flag.json", lambda c: (c.pop("camera_model"), c.update(is_fisheye=True)))
+    else:
+        edit_json(tmp_path / "flag.json", lambda c: (c.pop("camera_model"), c["frames"][1].update(is_fisheye=True)))
+    fisheye, opencv, flag = (read_cameras(tmp_path / name) for name in ("fisheye.json", "opencv.json", "flag.json"))
+    assert not torch.equal(fisheye[1].K, opencv[1].K)
+    assert_same_cameras(flag, fisheye if place == "top" else [opencv[0], fisheye[1], opencv[2]])
+
+
+@pytest.mark.parametrize(("model", "flag"), [(None, False), ("OPENCV", False), ("OPENCV_FISHEYE", True),
+                                             ("PINHOLE", True)])
+def test_an_is_fisheye_that_agrees_with_the_camera_model_or_changes_nothing_loads(tmp_path, model, flag):
+    """is_fisheye false is OPENCV, as colmap2nerf writes it for every lens that is no fisheye; with no coefficient
+    to read, a flag the camera_model contradicts changes nothing."""
+    coefficients = {"k1": 0.0} if model == "PINHOLE" else FISHEYE_COEFFICIENTS
+    write_shared_camera_file(tmp_path / "plain.json", camera_model=model or "OPENCV", **coefficients)
+    write_shared_camera_file(tmp_path / "flag.json", is_fisheye=flag, **coefficients)
+
+    def set_model(content: dict) -> None:
+        content.pop("camera_model")
+        if model is not None:
+            content["camera_model"] = model
+
+    edit_json(tmp_path / "flag.json", set_model)
+    assert_same_cameras(read_cameras(tmp_path / "flag.json"), read_cameras(tmp_path / "plain.json"))
+
+
 def test_the_real_fox_transforms_json_passes_the_camera_file_checks():
     """fox's file (fl_x, fl_y, k1, k2, p1, p2, cx, cy, w, h, camera_angle_x/y, aabb_scale; per frame file_path,
     sharpness, transform_matrix) keeps loading: its principal point is 1.4% off the centre."""
