@@ -1169,7 +1169,25 @@ def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and
     write_rgb(root / cameras[3].name, noise_image(3, 30, 40))
     error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
     assert error.what == "image is 30x40 but its camera says 40x30" and error.where.endswith(cameras[3].name)
-    assert error.fix == "swap the camera's width and height (and its cx and cy if they are swapped too)"
+    assert error.fix == ("swap the camera's width and height (and its cx and cy if they are swapped too), or, if the "
+                         "photo is stored on its side (an EXIF orientation, which is not applied), save it upright")
+
+
+@pytest.mark.parametrize(("key", "name", "noun"), [("mask_path", "mask.png", "mask"),
+                                                   ("depth_file_path", "depth.npy", "depth map")])
+def test_a_mask_or_depth_map_turned_on_its_side_says_to_turn_it_not_to_swap_the_camera(tmp_path, key, name, noun):
+    """Each frame's image is decoded and checked before its mask and depth map, so one of those turned on its side is
+    the file's fault: swapping the camera's width and height, as a turned image suggests, would refuse the image."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4, width=40, height=30)
+    if noun == "mask":
+        cv2.imwrite(str(root / name), np.full((40, 30), 255, np.uint8))
+    else:
+        np.save(root / name, np.ones((40, 30), np.float32))
+    edit_transforms(root, lambda c: c["frames"][1].update({key: name}))
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == f"{noun} is 30x40 but its camera says 40x30" and error.where.endswith(name)
+    assert error.fix == f"turn the {noun} a quarter turn, to lie as its image does (whose size is the camera's)"
 
 
 @pytest.mark.parametrize(("edit", "what"), [
