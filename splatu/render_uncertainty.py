@@ -286,16 +286,9 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
     scales = shared_scales(views)
     for key in ("uncertainty", "depth", "error"):
         save_colour_bar(out / f"colorbar_{key}.png", scales[key])
-    for view in views:
-        for key, value in view.maps.items():
-            np.save(out / "npy" / f"{view.name}_{key}.npy", value.astype(np.float32))
-        write_png(out / "png" / f"{view.name}_rgb.png",
-                  (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), FREE_AND_RERUN)
-        for key in ("uncertainty", "depth", "alpha"):
-            write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]), FREE_AND_RERUN)
-        error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
-        save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
-                   scales["uncertainty"], error, scales["error"])
+    with view_progress() as bar:  # PNGs and matplotlib panels: several seconds for a few dozen views
+        for view in bar.track(views, description="write"):
+            write_view(out, view, scales)
     for entry in map_entries(views):  # none for orbit views: they have no ground truth to score
         write_entry(out / "maps", entry)  # `out` is the staging folder, swapped in whole: no staging of its own
     if orbit:
@@ -303,6 +296,19 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
         save_orbit_gif(out / "orbit.gif", [v.maps["rgb"] for v in views], [v.maps["uncertainty"] for v in views],
                        scales["uncertainty"], titles, fps)
     return scales
+
+
+def write_view(out: Path, view: RenderedView, scales: dict[str, ColourScale]) -> None:
+    """One view's raw maps, colour-mapped PNGs and panel, on the render's shared `scales`."""
+    for key, value in view.maps.items():
+        np.save(out / "npy" / f"{view.name}_{key}.npy", value.astype(np.float32))
+    write_png(out / "png" / f"{view.name}_rgb.png",
+              (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), FREE_AND_RERUN)
+    for key in ("uncertainty", "depth", "alpha"):
+        write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]), FREE_AND_RERUN)
+    error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
+    save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
+               scales["uncertainty"], error, scales["error"])
 
 
 def pinned_load(load: Path, written: str) -> Path:

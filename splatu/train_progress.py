@@ -4,6 +4,7 @@ per-view bar of every evaluation and render."""
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -51,6 +52,13 @@ def view_progress(enabled: bool = True) -> Progress:
         transient=True,
         disable=not (enabled and on_terminal()),
     )
+
+
+def view_pass(bar: Progress, description: str, total: int) -> Callable[[], None]:
+    """A new task of `bar` (a `view_progress`) for one pass over `total` views, and the callback that counts one
+    view done: for a pass that runs inside a function taking an `on_view` callback (the baselines' setup)."""
+    task = bar.add_task(description, total=total)
+    return lambda: bar.advance(task)
 
 
 def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:

@@ -13,7 +13,7 @@ gap is composited like a colour (empty space reads 1); it needs one no-grad rend
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -37,13 +37,13 @@ class ViewCoverage:
     centres: Tensor  # (V, 3) training camera centres
 
 
-def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float,
-                  masks: Tensor | None = None) -> ViewCoverage:
+def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+                  on_view: Callable[[], object] = lambda: None) -> ViewCoverage:
     """The coverage of `model` by the training `cameras` (with their mask files, if any) under the uncertainty
     loss's supervision rule (a threshold of 0 counts every Gaussian as seen by every camera, even one outside its
-    image)."""
+    image); `on_view` as in `seen_in_views`."""
     centres = torch.stack([c.center().to(model.means) for c in cameras]) if cameras else model.means.new_zeros(0, 3)
-    return ViewCoverage(seen_in_views(model, cameras, threshold, masks), centres)
+    return ViewCoverage(seen_in_views(model, cameras, threshold, masks, on_view), centres)
 
 
 def view_cosines(means: Tensor, centres: Tensor, viewer: Tensor) -> Iterator[tuple[slice, Tensor]]:

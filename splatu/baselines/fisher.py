@@ -15,6 +15,7 @@ view constrains, small for well-constrained ones; empty pixels read 1.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -28,8 +29,9 @@ EPSILON = 1e-6
 
 
 def fisher_diagonal(model: GaussianModel, cameras: list[Camera], sh_degree: int, probes: int,
-                    generator: torch.Generator) -> Tensor:
-    """(N,) Σ over `cameras` and FISHER_PARAMS of the Rademacher estimate of diag(JᵀJ)."""
+                    generator: torch.Generator, on_view: Callable[[], object] = lambda: None) -> Tensor:
+    """(N,) Σ over `cameras` and FISHER_PARAMS of the Rademacher estimate of diag(JᵀJ); `on_view` is called after
+    each camera (a progress bar's tick: `probes` backward passes per view take a while)."""
     require_at_least(probes, 1, "--fisher-probes")  # the estimate divides by it
     params = [getattr(model, name) for name in FISHER_PARAMS]
     information = torch.zeros(len(model))
@@ -42,6 +44,7 @@ def fisher_diagonal(model: GaussianModel, cameras: list[Camera], sh_degree: int,
                 grads = torch.autograd.grad((rgb * signs).sum(), params, retain_graph=probe < probes - 1)
                 for grad in grads:
                     information += grad.detach().reshape(len(model), -1).square().sum(dim=1)
+            on_view()
     return information / probes
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from rich.progress import Progress
 
 from splatu.baselines import (
     METHODS_FROM_TRAINING_IMAGES,
@@ -26,11 +27,12 @@ from splatu.baselines.visibility import visibility_counts, visibility_feature
 from splatu.checkpoint import checkpoint_step, load_run, resolve_checkpoint, unfinished_members
 from splatu.data.config import DataConfig
 from splatu.data.resolve import load_camera_scene, load_scene
-from splatu.data.scene import CameraScene, Scene
+from splatu.data.scene import CameraScene, Scene, Views
 from splatu.errors import SplatuError
 from splatu.json_files import is_finite_number, read_json
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
+from splatu.train_progress import view_pass, view_progress
 from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 
@@ -140,9 +142,9 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None,
                  density_aware: bool = False, fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
     """The renderer of `method` for this run; visibility, Fisher, residual and angle look at the scene's training
-    views first (their setup_seconds), the residuals at their images too (a `Scene`; the others take a
-    `CameraScene`). `scene` may be None for the other methods, which render the model alone; the caller then checks
-    the frame its cameras are in."""
+    views first (their setup_seconds: 10-40 s for the poster stand-in's 102 views on two cores, so a bar counts them
+    on a terminal), the residuals at their images too (a `Scene`; the others take a `CameraScene`). `scene` may be
+    None for the other methods, which render the model alone; the caller then checks the frame its cameras are in."""
     check_method(method, run)
     if scene is not None:
         check_frames(run, scene)
@@ -150,38 +152,54 @@ def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | Camer
         raise ValueError(f"method {method!r} needs the scene's training views")
     if not isinstance(scene, Scene) and method in METHODS_FROM_TRAINING_IMAGES:
         raise ValueError(f"method {method!r} needs the scene's training images")
+    started = time.perf_counter()
+    with view_progress(enabled=method in METHODS_FROM_TRAINING_VIEWS) as bar:
+        source = _source(method, run, scene, bar, density_aware, fisher_probes, seed)
+    return BuiltMethod(source, time.perf_counter() - started)
+
+
+def _source(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None, bar: Progress,
+            density_aware: bool, fisher_probes: int, seed: int) -> UncertaintySource:
+    """`build_method`'s renderer, each pass over the training views counted on `bar`."""
     degree = run.config.model.sh_degree
     background = eval_background(run.config)
     model = run.models[0]
-    started = time.perf_counter()
+    threshold = run.config.uncertainty.threshold
     if method == "ours":
-        source: UncertaintySource = OursSource(model, degree, background)
-    elif method == "ensemble":
-        source = EnsembleSource(run.models, degree, background, density_aware)
-    elif method == "visibility":
-        counts = visibility_counts(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.mask_files)
-        source = FeatureSource(model, degree, background, visibility_feature(counts))
-    elif method == "fisher":
-        generator = torch.Generator().manual_seed(seed)
-        information = fisher_diagonal(model, scene.train.cameras, degree, fisher_probes, generator)
-        source = FeatureSource(model, degree, background, fisher_feature(information))
-    elif method == "random":
-        source = RandomSource(model, degree, background, seed)
-    elif method in ("spread", "ours-spread"):
-        source = SpreadSource(model, degree, background, with_ours=method == "ours-spread")
-    elif method == "angle":
-        source = AngleSource(model, degree, background,
-                             view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold,
-                                           scene.train.mask_files))
-    elif method in ("residual", "ours-residual", "ours-residual-angle", "ours-view-residual-angle"):
-        directional = (view_residual_sums(model, scene.train, degree, background)
-                       if method == "ours-view-residual-angle" else None)
-        residuals = (training_residuals(model, scene.train, degree, background) if directional is None
-                     else mean_residuals(directional))
-        coverage = (view_coverage(model, scene.train.cameras, run.config.uncertainty.threshold, scene.train.mask_files)
-                    if method.endswith("-angle") else None)
-        source = ResidualSource(model, degree, background, residuals, with_ours=method != "residual",
-                                coverage=coverage, directional=directional)
-    else:
+        return OursSource(model, degree, background)
+    if method == "ensemble":
+        return EnsembleSource(run.models, degree, background, density_aware)
+    if method == "random":
+        return RandomSource(model, degree, background, seed)
+    if method in ("spread", "ours-spread"):
+        return SpreadSource(model, degree, background, with_ours=method == "ours-spread")
+    if method not in METHODS_FROM_TRAINING_VIEWS:
         raise SplatuError(f"unknown uncertainty method {method!r}", "in --method", f"use {method_list()}")
-    return BuiltMethod(source, time.perf_counter() - started)
+    assert scene is not None  # build_method refused it
+    train = scene.train
+    count = len(train.cameras)
+    if method == "visibility":
+        counts = visibility_counts(model, train.cameras, threshold, train.mask_files,
+                                   view_pass(bar, "visibility", count))
+        return FeatureSource(model, degree, background, visibility_feature(counts))
+    if method == "fisher":
+        information = fisher_diagonal(model, train.cameras, degree, fisher_probes, torch.Generator().manual_seed(seed),
+                                      view_pass(bar, "fisher information", count))
+        return FeatureSource(model, degree, background, fisher_feature(information))
+    if method == "angle":
+        return AngleSource(model, degree, background, view_coverage(model, train.cameras, threshold, train.mask_files,
+                                                                    view_pass(bar, "view coverage", count)))
+    assert isinstance(train, Views)  # the residual methods: build_method refused a CameraScene
+    if method == "ours-view-residual-angle":
+        directional = view_residual_sums(model, train, degree, background,
+                                         view_pass(bar, "training residuals", count))
+        residuals = mean_residuals(directional)
+    else:
+        directional = None
+        residuals = training_residuals(model, train, degree, background,
+                                       view_pass(bar, "training residuals", count))
+    coverage = (view_coverage(model, train.cameras, threshold, train.mask_files,
+                              view_pass(bar, "view coverage", count))
+                if method.endswith("-angle") else None)
+    return ResidualSource(model, degree, background, residuals, with_ours=method != "residual", coverage=coverage,
+                          directional=directional)

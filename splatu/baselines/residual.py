@@ -23,7 +23,7 @@ mean over all of them. κ = 0 gives back the plain mean.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import torch
@@ -44,7 +44,8 @@ class ViewResiduals:
     centres: Tensor  # (V, 3) training camera centres
 
 
-def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> Iterator[Tensor]:
+def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor,
+               on_view: Callable[[], object]) -> Iterator[Tensor]:
     """Per view of `views`, (N, 2) float32: Σ_p w_i(p)·e(p) and Σ_p w_i(p) over its valid pixels (targets on
     `background`, invalid pixels of `views.object_masks` ignored)."""
     for i, camera in enumerate(views.cameras):
@@ -58,6 +59,7 @@ def _view_sums(model: GaussianModel, views: Views, sh_degree: int, background: T
             error = (out.rgb.detach().clamp(0.0, 1.0) - target).abs().mean(-1)
             (per_gaussian,) = torch.autograd.grad((out.extra * torch.stack([error * valid, valid], -1)).sum(),
                                                   [probe])
+        on_view()
         yield per_gaussian
 
 
@@ -66,20 +68,23 @@ def _ratio(weighted_error: Tensor, weight: Tensor) -> Tensor:
     return torch.where(seen, weighted_error / torch.where(seen, weight, 1.0), torch.nan).float()
 
 
-def training_residuals(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> Tensor:
+def training_residuals(model: GaussianModel, views: Views, sh_degree: int, background: Tensor,
+                       on_view: Callable[[], object] = lambda: None) -> Tensor:
     """(N,) r_i over `views`; NaN for a Gaussian that contributes to no training pixel (unseen: `ResidualSource`
-    gives it the worst error, 1). O(N) memory: the views are summed as they come."""
+    gives it the worst error, 1). O(N) memory: the views are summed as they come. `on_view` is called after each
+    view (a progress bar's tick: one backward pass per view takes a while)."""
     sums = torch.zeros(len(model), 2, dtype=torch.float64)
-    for per_gaussian in _view_sums(model, views, sh_degree, background):
+    for per_gaussian in _view_sums(model, views, sh_degree, background, on_view):
         sums += per_gaussian.double()
     return _ratio(*sums.unbind(1))
 
 
-def view_residual_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor) -> ViewResiduals:
+def view_residual_sums(model: GaussianModel, views: Views, sh_degree: int, background: Tensor,
+                       on_view: Callable[[], object] = lambda: None) -> ViewResiduals:
     """The sums of `training_residuals`, kept per view: (N, V, 2) float32, 8·N·V bytes (15 MB for 18k Gaussians
-    and 102 views, 480 MB for 200k and 300)."""
+    and 102 views, 480 MB for 200k and 300); `on_view` as in `training_residuals`."""
     sums = torch.zeros(len(model), len(views.cameras), 2)
-    for v, per_gaussian in enumerate(_view_sums(model, views, sh_degree, background)):
+    for v, per_gaussian in enumerate(_view_sums(model, views, sh_degree, background, on_view)):
         sums[:, v] = per_gaussian
     centres = torch.stack([c.center() for c in views.cameras]) if views.cameras else torch.zeros(0, 3)
     return ViewResiduals(sums, centres.to(model.means))

@@ -7,6 +7,8 @@ differ only in being view-dependent or not.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
@@ -15,22 +17,25 @@ from splatu.model import GaussianModel
 
 
 @torch.no_grad()
-def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float,
-                  masks: Tensor | None = None) -> Tensor:
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+                  on_view: Callable[[], object] = lambda: None) -> Tensor:
     """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`, over the
     pixels of its mask (V, H, W; > 0 counts) when the views have mask files, as the training loss counts them.
-    Weights do not depend on colour, so the views render at colour-SH degree 0."""
+    Weights do not depend on colour, so the views render at colour-SH degree 0. `on_view` is called after each
+    view (a progress bar's tick: a full scene's views take a while)."""
     background = torch.zeros(3)
-    columns = [model.render(camera, 0, background,
-                            contribution_mask=None if masks is None else masks[v] > 0).raster.contrib_max >= threshold
-               for v, camera in enumerate(cameras)]
+    columns = []
+    for v, camera in enumerate(cameras):
+        mask = None if masks is None else masks[v] > 0
+        columns.append(model.render(camera, 0, background, contribution_mask=mask).raster.contrib_max >= threshold)
+        on_view()
     return torch.stack(columns, dim=1) if columns else torch.zeros(len(model), 0, dtype=torch.bool)
 
 
-def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float,
-                      masks: Tensor | None = None) -> Tensor:
+def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+                      on_view: Callable[[], object] = lambda: None) -> Tensor:
     """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold` (see seen_in_views)."""
-    return seen_in_views(model, cameras, threshold, masks).sum(dim=1).float()
+    return seen_in_views(model, cameras, threshold, masks, on_view).sum(dim=1).float()
 
 
 def visibility_feature(counts: Tensor) -> Tensor:

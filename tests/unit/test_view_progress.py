@@ -1,21 +1,32 @@
 """The per-view bar of evaluations and renders (train_progress.view_progress): every view counted on a terminal,
-nothing written off one or with --no-progress, and during training drawn under the training bar."""
+nothing written off one or with --no-progress, and during training drawn under the training bar. The same bar counts
+the other waits of several seconds: a baseline's passes over the training views, the writing of a render's files
+and the first build of the poster stand-in."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from splatu import evaluation, train_command, train_progress
+from splatu.baselines import METHODS_FROM_TRAINING_VIEWS
+from splatu.baselines.load import LoadedRun, build_method
 from splatu.baselines.model_sources import OursSource
+from splatu.data.poster import PosterConfig, build_poster_standin
+from splatu.data.scene import Scene
 from splatu.model import GaussianModel, ModelConfig
-from splatu.render_uncertainty import ViewSpec, render_views
+from splatu.render_uncertainty import RenderedView, ViewSpec, render_views, write_outputs
+from splatu.train_config import preset_config
+from tests.small_models import noise_views, overlapping_gaussians
 from tests.unit.test_trainer import tiny_config, tiny_scene
 
 VIEW_BAR = re.compile(r"(\w+) +(\d+)/(\d+) views ")
@@ -112,3 +123,82 @@ def test_a_periodic_evaluation_draws_under_the_training_bar(tmp_path, monkeypatc
     assert ("eval", 2, 2) in view_counts(drawn)
     assert any(re.fullmatch(r"step 6 eval \(2 views\): PSNR \d+\.\d\d dB, SSIM \d\.\d{3}", frame.splitlines()[0])
                for frame in frames(drawn))
+
+
+def small_run() -> tuple[LoadedRun, Scene]:
+    """A run of a few Gaussians over a scene of a few noise views, for the baselines that look at them first."""
+    config = preset_config("fast")
+    config = dataclasses.replace(config, model=dataclasses.replace(config.model, sh_degree=0))
+    views = noise_views()
+    return LoadedRun(Path("run"), config, [overlapping_gaussians()], None, [None]), Scene("t", "t", views, views,
+                                                                                          torch.zeros(0, 3))
+
+
+PASSES = {"visibility": ["visibility"], "fisher": ["information"], "angle": ["coverage"],
+          "residual": ["residuals"], "ours-residual": ["residuals"], "ours-residual-angle": ["residuals", "coverage"],
+          "ours-view-residual-angle": ["residuals", "coverage"]}
+"""The passes over the training views each method makes, by the last word of their bar."""
+
+
+@pytest.mark.parametrize("method", METHODS_FROM_TRAINING_VIEWS)
+def test_a_baseline_counts_its_passes_over_the_training_views_on_a_terminal(monkeypatch, method):
+    """Their setup took ~10-40 s on the poster stand-in with nothing on screen before the render's bar."""
+    run, scene = small_run()
+    with on_a_terminal(monkeypatch) as screen:
+        build_method(method, run, scene)
+    views = len(scene.train)
+    counts = view_counts(screen.getvalue())
+    assert [name for name in dict.fromkeys(name for name, _, _ in counts)] == PASSES[method]
+    assert all((name, views, views) in counts for name in PASSES[method])
+    assert screen.getvalue().endswith("\x1b[2K")  # erased at the end, before the render's bar
+
+
+def test_a_method_that_renders_the_model_alone_draws_nothing_before_its_render(monkeypatch):
+    run, scene = small_run()
+    with on_a_terminal(monkeypatch) as screen:
+        build_method("ours", run, scene)
+    assert screen.getvalue() == ""
+
+
+def test_writing_a_render_counts_its_views_on_a_terminal(monkeypatch, tmp_path):
+    """PNGs and matplotlib panels took 6-9 s for the stand-in's 33 eval views after the render's bar was gone."""
+    maps = {"rgb": np.zeros((4, 6, 3)), "depth": np.ones((4, 6)), "alpha": np.ones((4, 6)),
+            "uncertainty": np.full((4, 6), 0.5)}
+    views = [RenderedView(f"v{k}", dict(maps)) for k in range(3)]
+    with on_a_terminal(monkeypatch) as screen:
+        write_outputs(tmp_path, views, orbit=False, fps=6)
+    assert view_counts(screen.getvalue())[-1] == ("write", 3, 3)
+    assert len(list((tmp_path / "panels").iterdir())) == 3
+
+
+TINY_POSTER = PosterConfig(width=16, height=24, frames=8, eval_block=2, interp_every=3, points=50, supersample=1)
+
+
+def test_the_first_build_of_the_poster_stand_in_counts_its_frames_on_a_terminal(monkeypatch, tmp_path):
+    """~11 s at the default size with nothing on screen; a second load finds it built and draws nothing."""
+    with on_a_terminal(monkeypatch) as screen:
+        build_poster_standin(TINY_POSTER, tmp_path)
+    drawn = [frame for frame in frames(screen.getvalue()) if "building the poster stand-in" in frame]
+    assert drawn and re.search(rf"stand-in +{TINY_POSTER.frames}/{TINY_POSTER.frames} views", drawn[-1])
+    assert screen.getvalue().endswith("\x1b[2K")
+    with on_a_terminal(monkeypatch) as screen:
+        build_poster_standin(TINY_POSTER, tmp_path)
+    assert screen.getvalue() == ""
+
+
+@pytest.mark.parametrize("force_color", [None, "1"])
+def test_off_a_terminal_the_setup_the_writing_and_the_stand_in_draw_nothing(capsys, monkeypatch, tmp_path,
+                                                                          force_color):
+    """Loading a scene, in particular, says nothing in a log or a pipe (test_loaders pins it for load_scene)."""
+    monkeypatch.delenv("TTY_COMPATIBLE", raising=False)
+    if force_color is None:
+        monkeypatch.delenv("FORCE_COLOR", raising=False)
+    else:
+        monkeypatch.setenv("FORCE_COLOR", force_color)
+    run, scene = small_run()
+    build_method("ours-residual-angle", run, scene)
+    maps = {"rgb": np.zeros((4, 6, 3)), "depth": np.ones((4, 6)), "alpha": np.ones((4, 6)),
+            "uncertainty": np.zeros((4, 6))}
+    write_outputs(tmp_path / "render", [RenderedView("v", maps)], orbit=False, fps=6)
+    build_poster_standin(TINY_POSTER, tmp_path / "cache")
+    assert capsys.readouterr() == ("", "")

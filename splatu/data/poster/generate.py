@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from rich.progress import Progress
 
 from splatu.atomic import temporary_sibling
 from splatu.data.frames import STANDIN_KEY, opengl_camera_to_world
@@ -33,6 +34,7 @@ from splatu.data.poster.render import render
 from splatu.data.poster.visibility import observed_mask
 from splatu.data.splits import contiguous_split
 from splatu.errors import SplatuError
+from splatu.train_progress import view_progress
 
 GENERATOR_VERSION = 1
 """Bump when the generator's output changes, so that old caches are not reused."""
@@ -81,7 +83,9 @@ CACHE_FIX = ("free space on that disk (it takes about 32 MB), or pass --cache-di
              "folder")
 
 
-def _generate(cfg: PosterConfig, out: Path) -> None:
+def _generate(cfg: PosterConfig, out: Path, bar: Progress) -> None:
+    """Render every frame of the stand-in into `out`, counting them on `bar` (a first `--data poster` waits ~10 s
+    for it)."""
     scene = build_scene()
     cameras = camera_path(cfg)
     train, val, test = standin_splits(cfg)
@@ -95,7 +99,7 @@ def _generate(cfg: PosterConfig, out: Path) -> None:
     for sub in ("images", "depth", "observed"):
         (out / sub).mkdir(parents=True)
     frames = []
-    for index, camera in enumerate(cameras):
+    for index, camera in enumerate(bar.track(cameras, description="building the poster stand-in")):
         view = render(scene, camera, cfg.supersample)
         if not bool(torch.isfinite(view.depth).all()):
             raise AssertionError(f"ray missed every surface in {camera.name}; the room must enclose all cameras")
@@ -167,8 +171,8 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
     staging = temporary_sibling(final)
     shutil.rmtree(staging, ignore_errors=True)
     try:
-        with _single_thread():
-            _generate(cfg, staging)
+        with _single_thread(), view_progress() as bar:  # on a terminal only: loading a scene says nothing otherwise
+            _generate(cfg, staging, bar)
         os.rename(staging, final)
     except OSError as err:
         if not (final / "transforms.json").is_file():  # else another process finished it first: use that one
