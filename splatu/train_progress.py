@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Column
 
 from splatu.data.scene import Scene
 
@@ -26,9 +27,12 @@ FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the
 
 
 def progress_bar(enabled: bool) -> Progress:
-    """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES)."""
+    """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES). Its elapsed time ticks while
+    the first step compiles the kernels (~10 s, a minute on a cold cache), when nothing else on it moves; it comes
+    second, so that an 80-column terminal, which cuts the bar's end, shows it."""
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
+        TimeElapsedColumn(table_column=Column(min_width=7)),  # h:mm:ss, never squeezed to "…"
         BarColumn(),
         TextColumn("loss {task.fields[loss]:.4f}  train PSNR (EMA) {task.fields[psnr]:5.2f}"
                    "  #G {task.fields[gaussians]:>7}  {task.fields[rate]:5.2f} it/s"),

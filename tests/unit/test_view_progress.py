@@ -202,3 +202,11 @@ def test_off_a_terminal_the_setup_the_writing_and_the_stand_in_draw_nothing(caps
     write_outputs(tmp_path / "render", [RenderedView("v", maps)], orbit=False, fps=6)
     build_poster_standin(TINY_POSTER, tmp_path / "cache")
     assert capsys.readouterr() == ("", "")
+
+
+def test_the_training_bar_shows_the_time_elapsed_while_the_first_step_compiles(tmp_path, monkeypatch):
+    """Step 0 with a rate of 0 and no ETA stayed still for the ~10 s (a minute cold) of the kernels' compile."""
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
+    with on_a_terminal(monkeypatch) as screen:  # 80 columns, which cut the bar's end
+        train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
+    assert any(re.match(r"step +0/2 \d:\d\d:\d\d ", frame) for frame in frames(screen.getvalue()))
