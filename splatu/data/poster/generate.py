@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from rich.progress import Progress
 
 from splatu.atomic import temporary_sibling
 from splatu.data.frames import STANDIN_KEY, opengl_camera_to_world
@@ -83,9 +82,9 @@ CACHE_FIX = ("free space on that disk (it takes about 32 MB), or pass --cache-di
              "folder")
 
 
-def _generate(cfg: PosterConfig, out: Path, bar: Progress) -> None:
-    """Render every frame of the stand-in into `out`, counting them on `bar` (a first `--data poster` waits ~10 s
-    for it)."""
+def _generate(cfg: PosterConfig, out: Path) -> None:
+    """Render every frame of the stand-in into `out`, counted by a bar on a terminal only (a first `--data poster`
+    waits ~11 s for it; off a terminal, loading a scene says nothing)."""
     scene = build_scene()
     cameras = camera_path(cfg)
     train, val, test = standin_splits(cfg)
@@ -99,27 +98,28 @@ def _generate(cfg: PosterConfig, out: Path, bar: Progress) -> None:
     for sub in ("images", "depth", "observed"):
         (out / sub).mkdir(parents=True)
     frames = []
-    for index, camera in enumerate(bar.track(cameras, description="building the poster stand-in")):
-        view = render(scene, camera, cfg.supersample)
-        if not bool(torch.isfinite(view.depth).all()):
-            raise AssertionError(f"ray missed every surface in {camera.name}; the room must enclose all cameras")
-        rgb8 = (view.rgb * 255.0).round().clamp(0, 255).to(torch.uint8).numpy()
-        seen = observed_mask(scene, view.points, train_cameras, camera.center().double())
-        write_png(out / "images" / f"{camera.name}.png", rgb8, CACHE_FIX)
-        np.save(out / "depth" / f"{camera.name}.npy", view.depth.to(torch.float32).numpy())
-        write_png(out / "observed" / f"{camera.name}.png",
-                  (seen.reshape(cfg.height, cfg.width).to(torch.uint8) * 255).numpy(), CACHE_FIX)
-        if index in train_set:
-            picks = torch.randperm(cfg.width * cfg.height, generator=generator)[: quota[len(point_xyz)]]
-            noise = noise_std * torch.randn(picks.numel(), 3, generator=generator, dtype=torch.float64)
-            point_xyz.append((view.points[picks] + noise).numpy())
-            point_rgb.append(rgb8.reshape(-1, 3)[picks.numpy()])
-        frames.append({
-            "file_path": f"images/{camera.name}.png",
-            "transform_matrix": opengl_camera_to_world(camera),
-            "depth_file_path": f"depth/{camera.name}.npy",
-            "observed_mask_path": f"observed/{camera.name}.png",
-        })
+    with view_progress() as bar:
+        for index, camera in enumerate(bar.track(cameras, description="building the poster stand-in")):
+            view = render(scene, camera, cfg.supersample)
+            if not bool(torch.isfinite(view.depth).all()):
+                raise AssertionError(f"ray missed every surface in {camera.name}; the room must enclose all cameras")
+            rgb8 = (view.rgb * 255.0).round().clamp(0, 255).to(torch.uint8).numpy()
+            seen = observed_mask(scene, view.points, train_cameras, camera.center().double())
+            write_png(out / "images" / f"{camera.name}.png", rgb8, CACHE_FIX)
+            np.save(out / "depth" / f"{camera.name}.npy", view.depth.to(torch.float32).numpy())
+            write_png(out / "observed" / f"{camera.name}.png",
+                      (seen.reshape(cfg.height, cfg.width).to(torch.uint8) * 255).numpy(), CACHE_FIX)
+            if index in train_set:
+                picks = torch.randperm(cfg.width * cfg.height, generator=generator)[: quota[len(point_xyz)]]
+                noise = noise_std * torch.randn(picks.numel(), 3, generator=generator, dtype=torch.float64)
+                point_xyz.append((view.points[picks] + noise).numpy())
+                point_rgb.append(rgb8.reshape(-1, 3)[picks.numpy()])
+            frames.append({
+                "file_path": f"images/{camera.name}.png",
+                "transform_matrix": opengl_camera_to_world(camera),
+                "depth_file_path": f"depth/{camera.name}.npy",
+                "observed_mask_path": f"observed/{camera.name}.png",
+            })
     write_ply_points(out / "points3D.ply", np.concatenate(point_xyz), np.concatenate(point_rgb) / 255.0)
     K = cameras[0].K
     transforms = {
@@ -171,8 +171,8 @@ def build_poster_standin(cfg: PosterConfig, cache_root: Path) -> Path:
     staging = temporary_sibling(final)
     shutil.rmtree(staging, ignore_errors=True)
     try:
-        with _single_thread(), view_progress() as bar:  # on a terminal only: loading a scene says nothing otherwise
-            _generate(cfg, staging, bar)
+        with _single_thread():
+            _generate(cfg, staging)
         os.rename(staging, final)
     except OSError as err:
         if not (final / "transforms.json").is_file():  # else another process finished it first: use that one
