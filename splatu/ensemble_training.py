@@ -62,7 +62,17 @@ def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
 
 def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
                    hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
-    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time.
+    """Train an ensemble into `run_dir` (`train_locked_ensemble`) holding the folder's `training_lock`, as `splatu
+    train` does: a second session on it, which would write config.yml, ensemble_sessions.json and ensemble.json from
+    what it read at its start, is refused. A caller that holds the lock already calls `train_locked_ensemble`."""
+    with training_lock(run_dir):
+        return train_locked_ensemble(config, scene, run_dir, wall_start, hooks)
+
+
+def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
+                          hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
+    """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time; the caller
+    holds `run_dir`'s `training_lock`.
 
     Calling it again on the same `run_dir` resumes: finished members are skipped, an interrupted one
     continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest

@@ -26,7 +26,7 @@ from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
 from splatu.degree_choice import held_out_block, with_choice_heads
-from splatu.ensemble_training import ensemble_config, ensemble_members, train_ensemble
+from splatu.ensemble_training import ensemble_config, ensemble_members, train_locked_ensemble
 from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
@@ -162,7 +162,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     point_latest(run_dir)
     with training_lock(run_dir):
         if config.ensemble > 1:
-            train_ensemble(config, scene, run_dir, wall_start, hooks)
+            train_locked_ensemble(config, scene, run_dir, wall_start, hooks)
         else:
             train_locked_run(config, scene, run_dir, hooks, wall_start=wall_start)
     return run_dir
@@ -186,7 +186,7 @@ def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wal
     if started:  # members not yet started would otherwise train on whatever scene --data now names
         require_same_frame(saved_frame(read_checkpoint(started[0])), scene_frame(scene), f"in {run_dir}",
                            "resume with the scene as it was, or start a new run")
-    train_ensemble(saved, scene, run_dir, wall_start, hooks)
+    train_locked_ensemble(saved, scene, run_dir, wall_start, hooks)
     return run_dir
 
 
