@@ -9,11 +9,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from splatu.atomic import atomic_write_text
+from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.checkpoint import RESUME_KEYS, list_checkpoints, read_checkpoint
 from splatu.data.scene import Scene
 from splatu.errors import SplatuError
@@ -78,9 +80,10 @@ def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall
     continues from its newest checkpoint, one never started starts fresh. `wall_seconds` is honest
     across sessions: every call (session) that trains a member adds its own wall time, from `wall_start`
     (the start of `train`, so scene loading counts) until it finishes, is interrupted or fails, to
-    ensemble_sessions.json, and `wall_seconds` is their sum. A session refused before it trains one (a
-    member's lock held by another `splatu train`) did no work and adds nothing. A session killed outright
-    (SIGKILL, power loss) cannot record itself and is missing from the sum.
+    ensemble_sessions.json, and `wall_seconds` is their sum; so does a `--resume` of a member's own folder
+    (`counted_in_ensemble`). A session refused before it trains one (a member's lock held by another
+    `splatu train`) did no work and adds nothing. A session killed outright (SIGKILL, power loss) cannot
+    record itself and is missing from the sum.
     """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
@@ -104,12 +107,60 @@ def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall
     finally:
         if trained:
             sessions.append(time.perf_counter() - wall_start)
-            atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
-    record = {"members": [str(m.relative_to(run_dir)) for m in members],
+            _write_sessions(run_dir, sessions)
+    return _write_record(run_dir, config, sessions)
+
+
+def _write_sessions(run_dir: Path, sessions: list[float]) -> None:
+    atomic_write_text(run_dir / ENSEMBLE_SESSIONS, json.dumps({"session_seconds": sessions}, indent=2))
+
+
+def _write_record(run_dir: Path, config: TrainConfig, sessions: list[float]) -> dict[str, Any]:
+    """ensemble.json: what renders and scores the ensemble reads, its wall time included."""
+    record = {"members": [str(m.relative_to(run_dir)) for m in ensemble_members(run_dir, config)],
               "seeds": [config.seed + k for k in range(config.ensemble)],
               "wall_seconds": sum(sessions), "session_seconds": sessions}
-    atomic_write_text(run_dir / "ensemble.json", json.dumps(record, indent=2))
+    atomic_write_text(run_dir / ENSEMBLE_FILE, json.dumps(record, indent=2))
     return record
+
+
+def enclosing_ensemble(run_dir: Path) -> Path | None:
+    """The ensemble run whose member `run_dir` is (ENSEMBLE/members/k, k below its member count), else None."""
+    ensemble = run_dir.parent.parent
+    config = ensemble_config(ensemble) if run_dir.parent.name == "members" else None
+    return ensemble if config is not None and run_dir in ensemble_members(ensemble, config) else None
+
+
+@contextmanager
+def enclosing_ensemble_lock(run_dir: Path) -> Iterator[Path | None]:
+    """Hold the `training_lock` of the ensemble that `run_dir` is a member of, if any, and yield that ensemble: a
+    `--resume` of the member trains the ensemble too (`counted_in_ensemble` records it there), so it must not run
+    beside a session of the whole ensemble, which writes the same records."""
+    ensemble = enclosing_ensemble(run_dir)
+    if ensemble is None:
+        yield None
+        return
+    with training_lock(ensemble):
+        yield ensemble
+
+
+@contextmanager
+def counted_in_ensemble(ensemble: Path | None, wall_start: float) -> Iterator[None]:
+    """Add the wall time of a `--resume` of a member folder, from `wall_start` until it ends however it ends, to its
+    `ensemble`'s sessions (a no-op for None), and rewrite ensemble.json's wall_seconds when the ensemble has one
+    (else the `--resume` of the ensemble that writes it sums them): the member's training is the ensemble's cost,
+    which render and eval-ause timings report. The caller holds the ensemble's lock (`enclosing_ensemble_lock`)."""
+    if ensemble is None:
+        yield
+        return
+    config, sessions = load_config(ensemble / "config.yml"), recorded_sessions(ensemble)  # damaged: refused now
+    try:
+        yield
+    finally:
+        sessions.append(time.perf_counter() - wall_start)
+        _write_sessions(ensemble, sessions)
+        if (ensemble / ENSEMBLE_FILE).is_file():
+            _write_record(ensemble, config, sessions)
 
 
 def ensemble_config(run_dir: Path) -> TrainConfig | None:

@@ -26,7 +26,13 @@ from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
 from splatu.degree_choice import held_out_block, with_choice_heads
-from splatu.ensemble_training import ensemble_config, ensemble_members, train_locked_ensemble
+from splatu.ensemble_training import (
+    counted_in_ensemble,
+    enclosing_ensemble_lock,
+    ensemble_config,
+    ensemble_members,
+    train_locked_ensemble,
+)
 from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
@@ -142,8 +148,10 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
                 return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
         path = _resume_point(config.resume)
         run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
-        with training_lock(run_dir):  # then choose again: a training that just ended may have pruned it or saved one
-            return _resume_run(config, _resume_point(config.resume), run_dir, wall_start, hooks)
+        # a member's resume holds its ensemble's lock too; then choose again: a training that just ended may have
+        # pruned the checkpoint or saved a newer one
+        with enclosing_ensemble_lock(run_dir) as ensemble, training_lock(run_dir):
+            return _resume_run(config, _resume_point(config.resume), run_dir, ensemble, wall_start, hooks)
     config = filed_as_trained(config)
     if config.degree_choice.on:
         config = with_choice_heads(config)
@@ -200,15 +208,16 @@ def _resume_point(resume: Path) -> Path | None:
     return path
 
 
-def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_start: float,
+def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble: Path | None, wall_start: float,
                 hooks: Sequence[StepHook]) -> Path:
-    """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None."""
+    """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None;
+    `ensemble` is the ensemble run that `run_dir` is a member of, whose wall time the session then adds to."""
     checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
                            else from_dict(checkpoint["config"], str(path)), run_dir)
     step = 0 if checkpoint is None else int(checkpoint["step"])
     if config.extend_to is not None:
-        if run_dir.parent.name == "members" and ensemble_config(run_dir.parent.parent) is not None:
+        if ensemble is not None:
             raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "
                               "at their length)", f"in {run_dir}", "train a new ensemble with --steps N")
         saved = extended(saved, config.extend_to, step, run_dir)
@@ -223,7 +232,8 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, wall_star
     scene = load_scene(saved.data)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
+    with counted_in_ensemble(ensemble, wall_start):
+        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
     return run_dir
 
 

@@ -1,4 +1,4 @@
-"""An ensemble's folder lock."""
+"""An ensemble's folder lock and its record of every session that trained a member (ensemble_sessions.json)."""
 
 import dataclasses
 import json
@@ -10,8 +10,9 @@ from splatu import ensemble_training, train_command
 from splatu import run_dir as run_dir_module
 from splatu.checkpoint import list_checkpoints
 from splatu.errors import SplatuError
+from splatu.interrupts import TrainingInterrupted
 from splatu.methods import get_method
-from splatu.train_config import TrainConfig
+from splatu.train_config import TrainConfig, save_config
 from tests.unit.test_trainer import tiny_config, tiny_scene
 
 
@@ -56,3 +57,56 @@ def test_train_ensemble_called_from_python_holds_the_ensembles_lock(tmp_path, sc
     record = json.loads((run_dir / "ensemble.json").read_text())
     assert record["seeds"] == [0, 1] and len(record["session_seconds"]) == 1
 
+
+def sessions_in_record(run_dir: Path) -> list[float]:
+    record = json.loads((run_dir / "ensemble.json").read_text())
+    assert record["wall_seconds"] == pytest.approx(sum(record["session_seconds"]))
+    return record["session_seconds"]
+
+
+def ctrl_c(step: int, state: object) -> None:
+    raise KeyboardInterrupt
+
+
+def test_a_members_own_resume_counts_in_the_ensembles_wall_time(tmp_path, scene):
+    """A member retrained by `splatu train --resume ENSEMBLE/members/k/...` was missing from ensemble_sessions.json,
+    so ensemble.json's wall_seconds (the ensemble's training time in render and eval-ause timings) left it out: both
+    when the ensemble had finished once (ensemble.json was never rewritten) and when a later `--resume ENSEMBLE`
+    wrote it. A session stopped by Ctrl-C counts too, as an ensemble's own does."""
+    run_dir = train_command.train(ensemble_of_2(tmp_path))
+    sessions = sessions_in_record(run_dir)
+    member = run_dir / "members" / "1"
+    resume_member = dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(member)[0])
+    with pytest.raises(TrainingInterrupted):
+        train_command.train(resume_member, hooks=[ctrl_c])
+    assert sessions_in_record(run_dir)[:1] == sessions and len(sessions := sessions_in_record(run_dir)) == 2
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member))  # finishes it
+    assert sessions_in_record(run_dir)[:2] == sessions and len(sessions := sessions_in_record(run_dir)) == 3
+
+    (run_dir / "ensemble.json").unlink()  # as before an unfinished ensemble's first whole resume
+    train_command.train(dataclasses.replace(resume_member, resume=list_checkpoints(member)[0]))  # an earlier one
+    assert not (run_dir / "ensemble.json").exists()  # its resume writes it, once every member is trained
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert sessions_in_record(run_dir)[:3] == sessions and len(sessions_in_record(run_dir)) == 4
+
+
+def test_a_members_own_resume_is_refused_while_the_ensemble_trains(tmp_path, scene):
+    """The member's session is the ensemble's too: it holds the ensemble's lock, so it cannot record its time beside a
+    training of the ensemble that rewrites the same files."""
+    run_dir = train_command.train(ensemble_of_2(tmp_path))
+    before = (run_dir / "ensemble_sessions.json").read_bytes()
+    with run_dir_module.training_lock(run_dir), pytest.raises(SplatuError) as caught:
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir / "members" / "1"))
+    assert caught.value.where == f"in {run_dir}"
+    assert (run_dir / "ensemble_sessions.json").read_bytes() == before
+
+
+def test_only_a_member_folder_of_an_ensemble_counts_as_one(tmp_path):
+    """members/k is an ensemble's member only beside an ensemble's config.yml and for k below its member count."""
+    single, ensemble = tmp_path / "single", tmp_path / "ensemble"
+    save_config(tiny_config(tmp_path), single / "config.yml")
+    save_config(ensemble_of_2(tmp_path), ensemble / "config.yml")
+    assert ensemble_training.enclosing_ensemble(ensemble / "members" / "1") == ensemble
+    assert ensemble_training.enclosing_ensemble(ensemble / "members" / "2") is None
+    assert ensemble_training.enclosing_ensemble(single / "members" / "0") is None
+    assert ensemble_training.enclosing_ensemble(tmp_path / "elsewhere") is None
