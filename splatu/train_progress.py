@@ -7,8 +7,17 @@ from collections import deque
 from collections.abc import Callable
 
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    Progress,
+    ProgressColumn,
+    Task,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Column
+from rich.text import Text
 
 from splatu.data.scene import Scene
 
@@ -26,18 +35,31 @@ PLAIN_PROGRESS_LINES = 20
 FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the run and at the last step."""
 
 
+class ElapsedAndRemaining(ProgressColumn):
+    """`0:01:12<0:02:30`, time elapsed and time left in one column as tqdm shows them: the elapsed time ticks while
+    the first step compiles the kernels (~10 s, a minute on a cold cache), when nothing else on the bar moves."""
+
+    def render(self, task: Task) -> Text:
+        left = "-:--:--" if task.time_remaining is None else _clock(task.time_remaining)
+        return Text(f"{_clock(task.elapsed or 0.0)}<{left}")
+
+
+def _clock(seconds: float) -> str:
+    whole = int(seconds)
+    return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
+
+
 def progress_bar(enabled: bool) -> Progress:
-    """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES). Its elapsed time ticks while
-    the first step compiles the kernels (~10 s, a minute on a cold cache), when nothing else on it moves; it comes
-    second, so that an 80-column terminal, which cuts the bar's end, shows it."""
+    """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES). Its figures fit 80 columns with
+    a few cells of bar: a wider layout lost it/s and the ETA off the end of such a terminal."""
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
-        TimeElapsedColumn(table_column=Column(min_width=7)),  # h:mm:ss, never squeezed to "…"
-        BarColumn(),
-        TextColumn("loss {task.fields[loss]:.4f}  train PSNR (EMA) {task.fields[psnr]:5.2f}"
-                   "  #G {task.fields[gaussians]:>7}  {task.fields[rate]:5.2f} it/s"),
-        TimeRemainingColumn(),
+        TextColumn("loss {task.fields[loss]:.4f} PSNR {task.fields[psnr]:5.2f} #G {task.fields[gaussians]:>6}"
+                   " {task.fields[rate]:4.1f} it/s"),
+        ElapsedAndRemaining(table_column=Column(min_width=15)),  # never squeezed to "…"
+        BarColumn(bar_width=None, table_column=Column(ratio=1)),
         console=console,
+        expand=True,  # the bar, last, takes what the figures leave
         disable=not enabled,
     )
 

@@ -209,4 +209,15 @@ def test_the_training_bar_shows_the_time_elapsed_while_the_first_step_compiles(t
     monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
     with on_a_terminal(monkeypatch) as screen:  # 80 columns, which cut the bar's end
         train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
-    assert any(re.match(r"step +0/2 \d:\d\d:\d\d ", frame) for frame in frames(screen.getvalue()))
+    drawn = frames(screen.getvalue())
+    assert any(re.match(r"step +0/2 .* 0\.0 it/s \d:\d\d:\d\d<", frame) for frame in drawn)
+
+
+def test_the_training_bar_keeps_every_figure_on_an_80_column_terminal(tmp_path, monkeypatch):
+    """The issue's figures (step, loss, PSNR, Gaussians, it/s, ETA) all on the line: the bar, last, takes the rest."""
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
+    with on_a_terminal(monkeypatch) as screen:
+        assert train_progress.console.width == 80
+        train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
+    last = [frame for frame in frames(screen.getvalue()) if frame.startswith("step ") and "/2" in frame][-1]
+    assert re.match(r"step +2/2 +loss \d\.\d{4} PSNR +[\d.]+ #G +\d+ +[\d.]+ it/s \d:\d\d:\d\d<\d:\d\d:\d\d ━", last)
