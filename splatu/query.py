@@ -38,9 +38,9 @@ from splatu.data.frames import (
     FLOAT32_MAX,
     MAX_IMAGE_SIDE,
     checked_matrix,
-    misplaced_principal_point,
     refuse_implausible_focal,
 )
+from splatu.data.principal_point import misplaced_principal_point
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
 from splatu.model import GaussianModel
@@ -252,7 +252,8 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
         raise SplatuError(f"K's {fault[1]}", "in RunQuery.render",
                           "pass the width before the height, or swap K's cx and cy" if fault[0] == "swapped" else
                           "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), "
-                          "or scale K's first two rows by new size / old size")
+                          "or scale K's first two rows by new size / old size; for a tile or crop of a larger photo, "
+                          "pass the whole photo's camera and cut the tile out of its render")
     return w2c, intrinsics, width, height
 
 

@@ -21,10 +21,10 @@ from splatu.data.frames import (
     MAX_IMAGE_SIDE,
     Frame,
     RawScene,
-    misplaced_principal_point,
     refuse_implausible_focal,
 )
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
+from splatu.data.principal_point import Misplaced, PrincipalPointFault, misplaced_principal_point, warn_misplaced
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
 
@@ -116,13 +116,15 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     refuse_implausible_focal(K, camera.width, camera.height, where,
                              "give the camera's focal length in pixels (not mm), or re-run the reconstruction")
-    fault = misplaced_principal_point(cx, cy, camera.width, camera.height)
-    if fault is not None:  # a K and a size that do not belong together; each image's size is checked as it loads
-        raise SplatuError(fault[1], where, "swap the camera's WIDTH and HEIGHT, or its cx and cy, whichever pair is "
-                          "the wrong way round" if fault[0] == "swapped" else
-                          "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction")
     distortion = Distortion("OPENCV", coeffs) if any(coeffs) else None
     return K, distortion
+
+
+def _principal_point_fix(kind: PrincipalPointFault) -> str:
+    """How to mend a camera whose principal point `misplaced_principal_point` reads as mistake `kind`."""
+    if kind == "swapped":
+        return "swap the camera's WIDTH and HEIGHT, or its cx and cy, whichever pair is the wrong way round"
+    return "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction"
 
 
 def _source_path(images_dir: Path, name: str, downscale: int) -> tuple[Path, int]:
@@ -383,6 +385,7 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     files = model_files(sparse_dir)
     intrinsics: dict[int, tuple[np.ndarray, Distortion | None, np.ndarray]] = {}
     frames: list[Frame] = []
+    misplaced: list[Misplaced] = []
     for image in registered_images(reconstruction, files["images"]):
         colmap_camera = reconstruction.cameras[image.camera_id]
         if image.camera_id not in intrinsics:
@@ -392,6 +395,8 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
                 raise SplatuError(f"camera size {width}x{height} is not a plausible image size", where,
                                   "give the camera its image width and height in pixels")
             K, distortion = opencv_camera(colmap_camera, where)
+            if (fault := misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), width, height)) is not None:
+                misplaced.append((f"camera {image.camera_id}", *fault))
             K_new = undistorted_intrinsics(K, distortion, colmap_camera.width, colmap_camera.height, where)
             intrinsics[image.camera_id] = (K, distortion, K_new)
         K, distortion, K_new = intrinsics[image.camera_id]
@@ -412,4 +417,5 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
     refuse_unusable_point(points, sorted(reconstruction.points3D), files["points3D"])
     colors = np.array([p.color for p in points3d], dtype=np.float32).reshape(-1, 3) / 255.0
+    warn_misplaced(misplaced, len(intrinsics), "cameras", files["cameras"], _principal_point_fix)
     return RawScene(name=root.name, source=str(sparse_dir), frames=frames, points=points, point_colors=colors)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 import torch
@@ -120,42 +119,6 @@ def refuse_implausible_focal(K: np.ndarray, width: int, height: int, where: str,
     if max(K[0, 0], K[1, 1]) > MAX_FOCAL_PER_SIDE * max(width, height):
         raise SplatuError(f"{shown} is over {MAX_FOCAL_PER_SIDE:g} times the image's larger side (a field of view "
                           f"of {fov[0]:.2g} x {fov[1]:.2g} degrees), longer than any camera's", where, fix)
-
-
-PRINCIPAL_POINT_FAR = 0.2
-"""How far from the image's centre, as a fraction of that side, a principal point may lie before another reading of
-the camera is looked for. Real captures put it within a few per cent of the centre (fox 1.4%, lund_door 0%); an
-off-centre crop can move it further, so a point this far off is only refused when a simple mistake explains it."""
-PRINCIPAL_POINT_NEAR = 0.05
-"""How close to the centre, as a fraction of each side, the mistake's correction must bring the principal point."""
-
-PrincipalPointFault = Literal["outside", "swapped", "resized"]
-
-
-def misplaced_principal_point(cx: float, cy: float, width: int, height: int) -> tuple[PrincipalPointFault, str] | None:
-    """What is unambiguously wrong with principal point (cx, cy) for a width x height image, as (kind, what), or
-    None. A camera file's K and size that do not belong together render a shifted, zoomed view without a word:
-    - outside: no real camera's principal point lies off its own image (a K made for a larger image);
-    - swapped: far from the centre, but near it with width and height swapped (a portrait K on a landscape size);
-    - resized: far from the centre, at the same fraction of both sides, so that one scale of K would centre it (a
-      K made for a smaller or larger image, such as a --downscale's).
-    Images near square (4:3) swapped move it too little to tell from a crop, and pass: a loader still compares each
-    image's real size with w and h."""
-    point = f"principal point ({cx:.6g}, {cy:.6g})"
-    if not (0.0 <= cx <= width and 0.0 <= cy <= height):
-        return "outside", f"{point} lies outside the {width}x{height} image"
-    fraction = (cx / width, cy / height)
-    off, side = max((abs(fraction[0] - 0.5), "width"), (abs(fraction[1] - 0.5), "height"))
-    if off <= PRINCIPAL_POINT_FAR:
-        return None
-    if max(abs(cx / height - 0.5), abs(cy / width - 0.5)) <= PRINCIPAL_POINT_NEAR:
-        return "swapped", (f"{point} is {off:.0%} of the {side} off the centre of the {width}x{height} image, "
-                           f"but at the centre of a {height}x{width} one")
-    made_for = sum(fraction)  # the size, relative to this one, of the image where that scale of K is centred
-    if min(fraction) > 0 and max(abs(f / made_for - 0.5) for f in fraction) <= PRINCIPAL_POINT_NEAR:
-        return "resized", (f"{point} is at {fraction[0]:.0%} x {fraction[1]:.0%} of the {width}x{height} image, "
-                           f"as for a K made for an image {made_for:.2g} times this size")
-    return None
 
 
 def world_to_camera_from_opengl(camera_to_world_gl: np.ndarray) -> np.ndarray:

@@ -31,12 +31,12 @@ from splatu.data.frames import (
     RawScene,
     checked_matrix,
     focal_from_angle,
-    misplaced_principal_point,
     refuse_implausible_focal,
     world_to_camera_from_opengl,
 )
 from splatu.data.images import Distortion, PixelKind, PixelRecipe, undistorted_intrinsics
 from splatu.data.ply import read_ply_points
+from splatu.data.principal_point import Misplaced, PrincipalPointFault, misplaced_principal_point, warn_misplaced
 from splatu.data.transforms_keys import (
     COEFFICIENT_KEYS,
     FRAME_KEYS,
@@ -142,12 +142,14 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     refuse_implausible_focal(K, width, height, where,
                              "give fl_x and fl_y in pixels (not mm), or camera_angle_x and camera_angle_y in radians")
-    fault = misplaced_principal_point(cx, cy, width, height)
-    if fault is not None:
-        raise SplatuError(fault[1], where, "swap w and h, or cx and cy, whichever pair is the wrong way round"
-                          if fault[0] == "swapped" else "give fl_x, fl_y, cx and cy in pixels of this w x h image "
-                          "(scaled by w / the width they were made for)")
     return K, width, height
+
+
+def _principal_point_fix(kind: PrincipalPointFault) -> str:
+    """How to mend a camera whose principal point `misplaced_principal_point` reads as mistake `kind`."""
+    if kind == "swapped":
+        return "swap w and h, or cx and cy, whichever pair is the wrong way round"
+    return "give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width they were made for)"
 
 
 def _lens_model(frame: Mapping[str, Any], top: Mapping[str, Any], distorted: bool, where: str) -> tuple[str, str]:
@@ -247,7 +249,8 @@ def _depth_unit(top: Mapping[str, Any], json_path: Path) -> float:
 def _frame_camera(frame: Mapping[str, Any], top: Mapping[str, Any], where: str, name: str, c2w: np.ndarray,
                   undistorted: dict[tuple, np.ndarray]) -> tuple[Camera, np.ndarray, Distortion | None]:
     """A frame's pinhole camera at full resolution, with the intrinsics its images are undistorted to (computed once
-    per distinct camera, in `undistorted`), and the frame's own K and distortion."""
+    per distinct camera, in `undistorted`), and the frame's own K and distortion. Its principal point is left to
+    the caller (`misplaced_principal_point`): refused for a candidate camera, reported for a training scene."""
     K, width, height = _intrinsics(frame, top, where)
     distortion = _distortion(frame, top, where)
     key = (K.tobytes(), width, height, distortion)
@@ -278,7 +281,13 @@ def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
     undistorted: dict[tuple, np.ndarray] = {}
     for index, frame in enumerate(frames_json):
         name, where, c2w = frame_entry(frame, index, path, FRAME_KEYS)
-        cameras.append(_frame_camera(frame, top, where, name, c2w, undistorted)[0].scaled(1.0 / downscale))
+        camera, K, _ = _frame_camera(frame, top, where, name, c2w, undistorted)
+        fault = misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), camera.width, camera.height)
+        if fault is not None:  # no image shows which of K and w, h is wrong, and either renders a shifted view
+            raise SplatuError(fault[1], where, _principal_point_fix(fault[0]) + (
+                "" if fault[0] == "swapped" else "; for a tile or crop of a larger photo, give the whole photo's "
+                "camera and cut the tile out of its render (a scene's own tiles render with --views train or eval)"))
+        cameras.append(camera.scaled(1.0 / downscale))
     return cameras
 
 
@@ -295,6 +304,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     frames: list[Frame] = []
     undistorted_cache: dict[tuple, np.ndarray] = {}
     seen: dict[str, int] = {}
+    misplaced: list[Misplaced] = []
     for index, frame in _by_file_path(frames_json):
         name, where, c2w = frame_entry(frame, index, json_path, FRAME_KEYS)
         if name in seen:  # two poses for one image, and split lists could name only one of them
@@ -302,6 +312,9 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
                               "remove the duplicate frame")
         seen[name] = index
         full, K, distortion = _frame_camera(frame, top, where, name, c2w, undistorted_cache)
+        fault = misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), full.width, full.height)
+        if fault is not None:
+            misplaced.append((f"frame {name!r}", *fault))
         camera = full.scaled(1.0 / downscale)
         source, source_downscale = _source_path(root, frame["file_path"], downscale)
 
@@ -323,8 +336,10 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     points, colors = np.zeros((0, 3), np.float32), None
     if top.get("ply_file_path"):
         points, colors = read_ply_points(root / str(top["ply_file_path"]))
+    splits = _file_splits(top, [f.name for f in frames], json_path)
+    warn_misplaced(misplaced, len(frames), "frames", json_path, _principal_point_fix)  # once the file has loaded
     return RawScene(name=root.name, source=str(json_path), frames=frames, points=points, point_colors=colors,
-                    file_splits=_file_splits(top, [f.name for f in frames], json_path), stand_in=STANDIN_KEY in top)
+                    file_splits=splits, stand_in=STANDIN_KEY in top)
 
 
 def _listed_frames(value: object, key: str, index: Mapping[str, int], json_path: Path) -> list[int]:

@@ -709,6 +709,13 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
      "K's principal point (60, 40) lies outside the 48x80 image"),
     (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 50.0], [0.0, 0.0, 0.0]])),
      "K's principal point (24, 90) lies outside the 48x80 image"),
+    # a 2x2 grid's tiles: the top-left one (its point on its corner at (1, 1)) refused as the other three are
+    (lambda w2c, K: (w2c, np.diag([2.0, 2.0, 1.0]) @ K), "K's principal point (48, 80) lies on the edge of the 48x80 "
+     "image, as for a K made for an image 2 times this size, in RunQuery.render"),
+    (lambda w2c, K: (w2c, K - np.array([[0.0, 0.0, 24.0], [0.0, 0.0, 40.0], [0.0, 0.0, 0.0]])),
+     "K's principal point (0, 0) lies on the edge of the 48x80 image, in RunQuery.render, pass the K of this size"),
+    (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 24.0], [0.0, 0.0, -40.0], [0.0, 0.0, 0.0]])),
+     "; for a tile or crop of a larger photo, pass the whole photo's camera and cut the tile out of its render"),
     # K of an 80×48 image (width and height passed the wrong way round), and of a half-size one: inside the image
     (lambda w2c, K: (w2c, K[[1, 0, 2]][:, [1, 0, 2]]), "K's principal point (40, 24) is 33% of the width off the "
      "centre of the 48x80 image, but at the centre of a 80x48 one"),

@@ -1135,15 +1135,25 @@ def swap(frame: dict, first: str, second: str) -> None:
      "principal point (96.9, 17.8) lies outside the 64x36 image",
      "give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width they were made for)"),
 ])
-def test_a_transforms_json_k_that_does_not_fit_its_size_names_the_frame(tmp_path, edit, what, fix):
+def test_a_transforms_json_k_that_does_not_fit_its_size_is_one_warning_line_and_refused_as_a_candidate(
+        tmp_path, capsys, edit, what, fix):
     """A size and K that do not belong together trained (or, from a --cameras file, rendered) a shifted, zoomed
-    view without a word; the loader refuses them before any image is read."""
+    view without a word. A training scene's images are there, and a tile of a larger photo has such a K, so loading
+    it says so in one line for the whole file and goes on; a --cameras file has no image to tell, so it is refused."""
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4, width=64, height=36)
     edit_transforms(root, lambda c: [edit(frame) for frame in c["frames"]])
-    error = load_error(root, tmp_path)
-    assert (error.what, error.fix) == (what, fix)
-    assert error.where == f"in frame {sorted(c.name for c in cameras)[0]!r} of {root / 'transforms.json'}"
+    first = sorted(c.name for c in cameras)[0]
+    assert len(read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames) == 4
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(
+        f"warning: 4 of 4 frames in {root / 'transforms.json'} have a principal point far from the image's centre "
+        f"(frame {first!r}: {what}); training goes on with the cameras as given")
+    assert err.rstrip().endswith(f"if the camera is wrong, {fix}")
+    with pytest.raises(SplatuError) as caught:
+        read_cameras(root)
+    assert caught.value.what == what and caught.value.fix.startswith(fix)
+    assert caught.value.where == f"in frame {first!r} of {root / 'transforms.json'}"
 
 
 @pytest.mark.parametrize(("camera", "what", "fix"), [
@@ -1156,10 +1166,16 @@ def test_a_transforms_json_k_that_does_not_fit_its_size_names_the_frame(tmp_path
     ("1 PINHOLE 64 36 50 50 70 18", "principal point (70, 18) lies outside the 64x36 image",
      "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction"),
 ])
-def test_a_colmap_camera_whose_k_does_not_fit_its_size_names_the_camera(tmp_path, camera, what, fix):
+def test_a_colmap_camera_whose_k_does_not_fit_its_size_is_one_warning_line(tmp_path, capsys, camera, what, fix):
+    """As for a transforms.json: counted by camera, the first named, and the model loads."""
     write_colmap(tmp_path / "scene", camera=camera)
-    error = load_error(tmp_path / "scene", tmp_path)
-    assert (error.what, error.fix) == (what, fix) and error.where.endswith("cameras.txt (camera 1)")
+    assert len(read_scene_files(tmp_path / "scene", 1, (1.0, 1.0, 1.0)).frames) == 2
+    out, err = capsys.readouterr()
+    cameras_file = tmp_path / "scene" / "sparse" / "0" / "cameras.txt"
+    assert out == "" and err == (f"warning: 1 of 1 cameras in {cameras_file} has a principal point far from the "
+                                 f"image's centre (camera 1: {what}); training goes on with the cameras as given, "
+                                 "which is right for tiles or crops cut from a larger photo, but if the camera is "
+                                 f"wrong, {fix}\n")
 
 
 def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and_height(tmp_path):
@@ -1198,6 +1214,9 @@ def test_a_mask_or_depth_map_turned_on_its_side_says_to_turn_it_not_to_swap_the_
      "image, but at the centre of a 48x80 one"),
     (lambda c: c.update(w=96, h=160), "principal point (24, 40) is at 25% x 25% of the 96x160 image, as for a K made "
      "for an image 0.5 times this size"),
+    (lambda c: c.update(w=24, h=40), "principal point (24, 40) lies on the edge of the 24x40 image, as for a K made "
+     "for an image 2 times this size"),  # a 2x2 grid's top-left tile: refused as its three neighbours are
+    (lambda c: c.update(cx=0.0, cy=0.0, w=24, h=40), "principal point (0, 0) lies on the edge of the 24x40 image"),
 ])
 def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, edit, what):
     """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a candidate's K for
@@ -1211,3 +1230,16 @@ def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, 
     with pytest.raises(SplatuError) as caught:
         read_cameras(tmp_path)
     assert caught.value.what == what and str(tmp_path / "transforms.json") in caught.value.where
+
+
+def test_a_candidate_tile_camera_is_told_how_to_render_it(tmp_path):
+    """A tile's camera cannot be told from a K of another size without its image: the refusal says what works."""
+    (tmp_path / "transforms.json").write_text(json.dumps({
+        "w": 24, "h": 40, "fl_x": 40.0, "cx": 0.0, "cy": 40.0,
+        "frames": [{"file_path": "a", "transform_matrix": np.eye(4).tolist()}]}))
+    with pytest.raises(SplatuError) as caught:
+        read_cameras(tmp_path)
+    assert caught.value.fix == ("give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width "
+                                "they were made for); for a tile or crop of a larger photo, give the whole photo's "
+                                "camera and cut the tile out of its render (a scene's own tiles render with --views "
+                                "train or eval)")

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import misplaced_principal_point
+from splatu.data.principal_point import misplaced_principal_point
 
 
 def test_scaled_camera_scales_each_axis_by_its_own_size_ratio():
@@ -39,3 +39,30 @@ def test_a_principal_point_is_refused_only_where_a_simple_mistake_explains_it(cx
     assert (found and found[0]) == fault
     if found:
         assert found[1].startswith(f"principal point ({cx:.6g}, {cy:.6g})") and f"{width}x{height} image" in found[1]
+
+
+@pytest.mark.parametrize("grid", [2, 3, 4])
+def test_every_tile_of_a_grid_off_the_photo_s_centre_gets_the_same_answer(grid):
+    """Tiles of a 600x400 photo centred at (300, 200): every tile whose principal point is not inside it is "outside"
+    alike. At 2x2 the top-left tile, whose point is on its corner at (1, 1) of its size, was "resized" and the three
+    others, at a fraction of 0 (where no scale of K moves it), passed."""
+    width, height = 600 // grid, 400 // grid
+    middle = (grid // 2, grid // 2) if grid % 2 else None  # an odd grid's middle tile has the photo's centre
+    tiles = [(row, col) for row in range(grid) for col in range(grid) if (row, col) != middle]
+    faults = {misplaced_principal_point(300.0 - col * width, 200.0 - row * height, width, height)[0]
+              for row, col in tiles}
+    assert faults == {"outside"}
+    assert middle is None or misplaced_principal_point(width / 2, height / 2, width, height) is None
+
+
+@pytest.mark.parametrize(("cx", "cy", "what"), [
+    (0.0, 0.0, "principal point (0, 0) lies on the edge of the 64x48 image"),
+    (64.0, 24.0, "principal point (64, 24) lies on the edge of the 64x48 image"),
+    (64.0, 48.0, "principal point (64, 48) lies on the edge of the 64x48 image, as for a K made for an image 2 times "
+     "this size"),
+    (96.0, 72.0, "principal point (96, 72) lies outside the 64x48 image, as for a K made for an image 3 times this "
+     "size"),
+    (96.0, -1.0, "principal point (96, -1) lies outside the 64x48 image"),
+])
+def test_a_principal_point_on_or_off_the_edge_says_which_and_the_size_one_scale_of_k_was_made_for(cx, cy, what):
+    assert misplaced_principal_point(cx, cy, 64, 48) == ("outside", what)

@@ -32,7 +32,7 @@ from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
-from splatu.data.resolve import load_camera_scene, load_scene, refuse_unused_poster_options
+from splatu.data.resolve import load_camera_scene, load_scene, read_scene_files, refuse_unused_poster_options
 from splatu.errors import SplatuError
 from tests.conftest import shared_scene
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
@@ -679,6 +679,41 @@ def test_principal_point_defaults_to_the_image_centre(tmp_path):
     K = load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.K
     assert (float(K[0, 2]), float(K[1, 2])) == (20.5, 15.5)
     assert float(K[1, 1]) == 40.0  # fl_y defaults to fl_x
+
+
+def test_tiles_cut_from_larger_photos_load_with_one_warning_line(tmp_path, capsys):
+    """Aerial grids: each photo cut into 3x3 tiles, every tile with the photo's pose and K shifted to the tile, so 8
+    of 9 have the principal point off the tile. Their images check out against w and h, so the scene loads and
+    trains, with one line for the whole file, not one per frame."""
+    root, width, height = tmp_path / "scene", 32, 24  # a tile's size, of a 96x72 photo
+    tiles, names = [], []
+    for i, photo in enumerate(ring_cameras(2, 3 * width, 3 * height)):
+        pixels = noise_image(i, 3 * width, 3 * height)
+        for row in range(3):
+            for col in range(3):
+                K = photo.K.clone()
+                K[0, 2] -= col * width
+                K[1, 2] -= row * height
+                tiles.append(dataclasses.replace(photo, K=K, width=width, height=height))
+                names.append(f"tiles/{i}_{row}{col}.png")
+                write_rgb(root / names[-1], pixels[row * height:(row + 1) * height, col * width:(col + 1) * width])
+    write_transforms(root / "transforms.json", tiles, names)
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=6))
+    assert len(scene.train) + len(scene.eval) == 18
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1
+    assert err.startswith(f"warning: 16 of 18 frames in {root / 'transforms.json'} have a principal point far from "
+                          "the image's centre (frame 'tiles/0_00.png': principal point (48.3, 35.8) lies outside the "
+                          "32x24 image, as for a K made for an image 3 times this size); training goes on")
+
+
+@pytest.mark.parametrize("scene", ["fox", "lund_door"])
+def test_the_real_scenes_load_without_a_word_at_every_downscale(scene, capsys):
+    """Their principal points sit within 1.4% of the centre: no warning, at any --downscale."""
+    path = shared_scene(scene)
+    for downscale in (1, 2, 4, 8):
+        assert read_scene_files(path, downscale, (1.0, 1.0, 1.0)).frames
+    assert capsys.readouterr() == ("", "")
 
 
 def test_downscaled_colour_is_the_mean_of_each_block(tmp_path):
