@@ -41,6 +41,7 @@ from splatu.data.transforms_keys import (
     COEFFICIENT_KEYS,
     FRAME_KEYS,
     POSE_KEYS,
+    RATIONAL_KEYS,
     SPLIT_KEYS,
     TOP_KEYS,
     refuse_misspelt_keys,
@@ -177,9 +178,21 @@ def _lens_model(frame: Mapping[str, Any], top: Mapping[str, Any], distorted: boo
     return model, f"camera_model {model}"
 
 
+def _owner(frame: Mapping[str, Any], key: str) -> str:
+    """Whose value of camera key `key` a frame reads, for an error: its own, or the file's (see `_given`)."""
+    return "the file" if frame.get(key) is None else "the frame"
+
+
 def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) -> Distortion | None:
     """The frame's lens distortion; a non-zero coefficient its camera_model does not use is refused, since it would
-    be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none."""
+    be dropped: nerfstudio's OPENCV uses k1, k2, p1, p2 (and OpenCV's k3), OPENCV_FISHEYE k1 to k4, a pinhole none,
+    and no model k5 or k6."""
+    for key in RATIONAL_KEYS:
+        if value := _number(frame, top, key, where):
+            raise SplatuError(f"{_owner(frame, key)}'s {key} = {value:g} belongs to OpenCV's rational lens model "
+                              "(COLMAP FULL_OPENCV), which splatu does not model", where,
+                              "undistort the images first (colmap image_undistorter does) and give the pinhole camera "
+                              f"they were undistorted to, or remove {key} if the images are already undistorted")
     values = {key: _number(frame, top, key, where) or 0.0 for key in COEFFICIENT_KEYS}
     model, named = _lens_model(frame, top, any(values.values()), where)
     lens = "OPENCV" if model in RADIAL_MODELS else model
@@ -188,8 +201,7 @@ def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     if dropped:
         key = dropped[0]
         users = [name for name, keys in DISTORTION_KEYS.items() if key in keys]
-        owner = "the file" if frame.get(key) is None else "the frame"
-        raise SplatuError(f"{owner}'s {key} = {values[key]:g} would be ignored: "
+        raise SplatuError(f"{_owner(frame, key)}'s {key} = {values[key]:g} would be ignored: "
                           f"{named} uses {', '.join(used) or 'no distortion coefficients'}", where,
                           f"set camera_model to the lens model {key} belongs to ({' or '.join(users)}), or remove "
                           f"{key} if the images are already undistorted")

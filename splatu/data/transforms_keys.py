@@ -15,8 +15,11 @@ from splatu.errors import SplatuError
 
 COEFFICIENT_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 """Every distortion coefficient a transforms.json may give (nerfstudio reads all six whatever the camera_model)."""
+RATIONAL_KEYS = ("k5", "k6")
+"""OpenCV's rational lens model's further coefficients (COLMAP FULL_OPENCV's), which neither nerfstudio nor splatu
+models: read only to refuse a non-zero one, which was dropped without a word."""
 CAMERA_KEYS = ("camera_model", "is_fisheye", "fl_x", "fl_y", "camera_angle_x", "camera_angle_y", "cx", "cy", "w", "h",
-               *COEFFICIENT_KEYS)
+               *COEFFICIENT_KEYS, *RATIONAL_KEYS)
 """A camera's keys: at the top level for every frame, or in a frame for that frame alone."""
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 """The file's explicit split lists (nerfstudio keys)."""

@@ -103,7 +103,8 @@ def write_colmap(root: Path, camera: str = "1 PINHOLE 8 6 5 5 4 3",
 def test_unknown_colmap_camera_model(tmp_path):
     write_colmap(tmp_path / "scene", camera="1 FULL_OPENCV 8 6 5 5 4 3 0.1 0 0 0 0 0 0 0")
     error = load_error(tmp_path / "scene", tmp_path)
-    assert "FULL_OPENCV" in error.what and "cameras.txt" in error.where
+    assert error.what == "unsupported COLMAP camera model FULL_OPENCV" and "cameras.txt" in error.where
+    assert error.fix.endswith("(or run colmap image_undistorter first)")
 
 
 @pytest.mark.parametrize(("edits", "message", "file", "line"), [
@@ -1117,6 +1118,23 @@ def test_a_coefficient_the_fisheye_model_of_is_fisheye_does_not_use_names_is_fis
                                                "(OPENCV_FISHEYE) uses k1, k2, k3, k4")
 
 
+@pytest.mark.parametrize(("key", "place"), [("k5", "file"), ("k6", "frame")])
+def test_a_rational_model_coefficient_is_refused_not_dropped(tmp_path, key, place):
+    """OpenCV's rational model (COLMAP FULL_OPENCV) adds k5 and k6, which no transforms.json model reads: they were
+    dropped without a word, and the images undistorted without them. A zero one changes nothing and loads."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4, k1=0.01, k5=0.0, k6=0.0)
+    assert len(read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames) == 4
+    edit_transforms(root, lambda c: (c if place == "file" else c["frames"][0]).update({key: 0.02}))
+    error = load_error(root, tmp_path)
+    assert (error.what, error.fix) == (
+        f"the {place}'s {key} = 0.02 belongs to OpenCV's rational lens model (COLMAP FULL_OPENCV), which splatu does "
+        "not model", "undistort the images first (colmap image_undistorter does) and give the pinhole camera they "
+        f"were undistorted to, or remove {key} if the images are already undistorted")
+    with pytest.raises(SplatuError, match=f"{key} = 0.02 belongs to OpenCV's rational lens model"):
+        read_cameras(root)
+
+
 def swap(frame: dict, first: str, second: str) -> None:
     frame[first], frame[second] = frame[second], frame[first]
 
@@ -1217,6 +1235,8 @@ def test_a_mask_or_depth_map_turned_on_its_side_says_to_turn_it_not_to_swap_the_
     (lambda c: c.update(w=24, h=40), "principal point (24, 40) lies on the edge of the 24x40 image, as for a K made "
      "for an image 2 times this size"),  # a 2x2 grid's top-left tile: refused as its three neighbours are
     (lambda c: c.update(cx=0.0, cy=0.0, w=24, h=40), "principal point (0, 0) lies on the edge of the 24x40 image"),
+    (lambda c: c.update(k5=0.01), "the file's k5 = 0.01 belongs to OpenCV's rational lens model (COLMAP FULL_OPENCV), "
+     "which splatu does not model"),
 ])
 def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, edit, what):
     """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a candidate's K for
