@@ -86,10 +86,11 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, world_to_camera: Tenso
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     means2d = torch.stack([fx * x / z + cx, fy * y / z + cy], dim=-1)
 
-    lim_x = FOV_CLAMP * 0.5 * width / fx
-    lim_y = FOV_CLAMP * 0.5 * height / fy
-    xc = torch.clamp(x / z, -lim_x, lim_x) * z
-    yc = torch.clamp(y / z, -lim_y, lim_y) * z
+    # the visible x/z range widened by (FOV_CLAMP - 1) half fields of view each side (±FOV_CLAMP·tan(half-FoV) when
+    # the principal point is centred)
+    margin_x, margin_y = (FOV_CLAMP - 1) * 0.5 * width / fx, (FOV_CLAMP - 1) * 0.5 * height / fy
+    xc = torch.minimum(torch.maximum(x / z, -cx / fx - margin_x), (width - cx) / fx + margin_x) * z
+    yc = torch.minimum(torch.maximum(y / z, -cy / fy - margin_y), (height - cy) / fy + margin_y) * z
     zero = torch.zeros_like(z)
     J = torch.stack([
         torch.stack([fx / z, zero, -fx * xc / (z * z)], dim=-1),

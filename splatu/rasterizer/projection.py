@@ -1,7 +1,8 @@
 """EWA projection of 3D Gaussians to 2D screen-space ellipses, differentiable by autograd.
 
 Follows the 3DGS conventions: camera-space mean t = R m + tvec (OpenCV axes), the Jacobian of the
-perspective projection at t with t.x/t.z and t.y/t.z clamped to ±1.3·tan(half-FoV) before forming J,
+perspective projection at t with t.x/t.z and t.y/t.z clamped before forming J to the image's own range widened
+by 0.3·tan(half-FoV) on each side (±1.3·tan(half-FoV) for a centred principal point, as 3DGS writes it),
 cov2d = J W Σ Wᵀ Jᵀ + blur·I (3DGS: 0.3 px², the default), conic = inv(cov2d) with det clamped ≥ 1e-10. `antialiased`
 also scales each opacity by sqrt(det(J W Σ Wᵀ Jᵀ) / det(cov2d)), Mip-Splatting's 2D filter,
 so that a Gaussian smaller than a pixel fades with its footprint's area instead of being widened to the blur at full
@@ -151,10 +152,11 @@ def _projected(
     u = fx * t_cam[:, 0] / z_safe + cx
     v = fy * t_cam[:, 1] / z_safe + cy
 
-    lim_x = 1.3 * (0.5 * width / fx)
-    lim_y = 1.3 * (0.5 * height / fy)
-    tx = torch.maximum(torch.minimum(t_cam[:, 0] / z_safe, lim_x), -lim_x) * z_safe
-    ty = torch.maximum(torch.minimum(t_cam[:, 1] / z_safe, lim_y), -lim_y) * z_safe
+    # the image's own x/z range, [-cx/fx, (width - cx)/fx], widened by 0.3 of the half field of view on each side:
+    # ±1.3·tan(half-FoV) for a centred principal point, and the right range for a crop's or a tile's off-centre one
+    margin_x, margin_y = 0.3 * (0.5 * width / fx), 0.3 * (0.5 * height / fy)
+    tx = torch.maximum(torch.minimum(t_cam[:, 0] / z_safe, (width - cx) / fx + margin_x), -cx / fx - margin_x) * z_safe
+    ty = torch.maximum(torch.minimum(t_cam[:, 1] / z_safe, (height - cy) / fy + margin_y), -cy / fy - margin_y) * z_safe
     zero = torch.zeros_like(z_safe)
     J = torch.stack(
         [fx / z_safe, zero, -fx * tx / (z_safe * z_safe), zero, fy / z_safe, -fy * ty / (z_safe * z_safe)], dim=-1

@@ -103,6 +103,30 @@ def test_reference_jacobian_clamp():
     assert proj.cov2d[0, 0, 0].item() == pytest.approx(expected)
 
 
+@pytest.mark.parametrize(("x", "clamped_to"),
+                         [(-2.0, -2.0), (-1.55, -1.55), (-3.0, -2.52), (-1.0, -1.48), (2.0, -1.48)])
+def test_reference_jacobian_clamp_follows_an_off_centre_principal_point(x, clamped_to):
+    """A tile of a wider photo (cx = 24 on an 8-px width, f = 10) sees x/z from -2.4 to -1.6: the clamp is that range
+    widened by 0.3·(half width / f) = 0.12 on each side, [-2.52, -1.48] (not ±0.52 about the axis, which would clamp
+    every Gaussian on the tile)."""
+    scene = axis_scene([[x, 0.0, 1.0]], [0.9])
+    scene.K[0, 2] = 24.0
+    proj = project(scene.means, scene.quats, scene.scales, scene.world_to_camera, scene.K, 8, 6, 0.01, 1e10)
+    jx = torch.tensor([10.0, 0.0, -10.0 * clamped_to], dtype=D)
+    assert proj.cov2d[0, 0, 0].item() == pytest.approx(0.01 * (jx @ jx) + 0.3)
+
+
+def test_an_off_centre_principal_point_projects_as_the_same_camera_centred_on_a_wider_image(fast):
+    """A tile of a photo is the photo's camera with cx moved: the left third of a centred 72-px-wide camera (f = 10,
+    cx = 36, x/z from -3.6 to 3.6) is a 24-px camera with cx = 36, which sees x/z from -3.6 to -1.2. Its Gaussians
+    render as in the wide image; the clamp at ±1.3 half fields of view about the axis (±1.56) bent every one."""
+    means = [[x, y, 2.0] for x in (-7.0, -6.0, -5.0, -4.0, -3.0, -2.6) for y in (-0.6, 0.0, 0.6)]
+    tile = axis_scene(means, [0.7] * 18, scale=0.08, width=24, height=16)
+    wide = axis_scene(means, [0.7] * 18, scale=0.08, width=72, height=16)
+    tile.K[0, 2] = 36.0
+    torch.testing.assert_close(tile.render(fast.rasterize).image, wide.render(fast.rasterize).image[:, :24])
+
+
 # ---------------------------------------------------------------- fast vs reference
 
 
@@ -118,6 +142,8 @@ class Case:
     background: bool = True
     opaque: bool = False
     antialiased: bool = False
+    principal_point: tuple[float, float] = (0.5, 0.5)
+    """(cx, cy) as fractions of the width and height: off-centre for a crop, off the image for a tile of a photo."""
 
     def options(self) -> dict:
         """Rasterizer keywords: log scales, and Mip-Splatting's 2D filter (blur 0.1 px², opacity compensated)."""
@@ -148,8 +174,12 @@ CASES = [
     Case(20, 60, 24, 20, antialiased=True),
     Case(21, 150, 20, 16, anisotropy=100.0, log_scales=True, antialiased=True),
     Case(22, 200, 16, 12, opaque=True, antialiased=True),
+    Case(23, 120, 24, 20, principal_point=(0.2, 0.75)),
+    Case(24, 150, 20, 16, anisotropy=30.0, principal_point=(-0.5, 1.5)),
 ]
-IDS = [f"seed{c.seed}-n{c.n}-{c.width}x{c.height}{'-antialiased' if c.antialiased else ''}" for c in CASES]
+IDS = [f"seed{c.seed}-n{c.n}-{c.width}x{c.height}{'-antialiased' if c.antialiased else ''}"
+       + ("" if c.principal_point == (0.5, 0.5) else "-principal-point-{}-{}".format(*c.principal_point))
+       for c in CASES]
 
 
 def case_scene(case: Case) -> GaussianScene:
@@ -157,6 +187,7 @@ def case_scene(case: Case) -> GaussianScene:
     scene = random_scene(case.seed, case.n, case.width, case.height, anisotropy=case.anisotropy,
                          opacity_range=opacity_range)
     scene.far = case.far
+    scene.K[0, 2], scene.K[1, 2] = case.principal_point[0] * case.width, case.principal_point[1] * case.height
     if not case.background:
         scene.background = None
     if case.log_scales:
@@ -232,10 +263,12 @@ def test_cases_exercise_every_rule():
     for case in CASES:
         scene, ref = case_scene(case), reference_case(case).out
         t = scene.means @ scene.world_to_camera[:3, :3].T + scene.world_to_camera[:3, 3]
-        lim_x = 1.3 * 0.5 * scene.width / scene.K[0, 0]
-        lim_y = 1.3 * 0.5 * scene.height / scene.K[1, 1]
+        (fx, _, cx), (_, fy, cy) = scene.K[:2].tolist()
+        margin_x, margin_y = 0.3 * 0.5 * scene.width / fx, 0.3 * 0.5 * scene.height / fy
         in_depth = (t[:, 2] > scene.near) & (t[:, 2] < scene.far)
-        beyond = ((t[:, 0] / t[:, 2]).abs() > lim_x) | ((t[:, 1] / t[:, 2]).abs() > lim_y)
+        x, y = t[:, 0] / t[:, 2], t[:, 1] / t[:, 2]
+        beyond = ((x < -cx / fx - margin_x) | (x > (scene.width - cx) / fx + margin_x)
+                  | (y < -cy / fy - margin_y) | (y > (scene.height - cy) / fy + margin_y))
         terminated += int(ref.terminated.any())
         clamped += int((beyond & (ref.radii > 0)).sum())
         beyond_far += int((t[:, 2] >= scene.far).sum())
