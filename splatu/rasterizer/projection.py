@@ -153,10 +153,12 @@ def _projected(
     v = fy * t_cam[:, 1] / z_safe + cy
 
     # the image's own x/z range, [-cx/fx, (width - cx)/fx], widened by 0.3 of the half field of view on each side:
-    # ±1.3·tan(half-FoV) for a centred principal point, and the right range for a crop's or a tile's off-centre one
-    margin_x, margin_y = 0.3 * (0.5 * width / fx), 0.3 * (0.5 * height / fy)
-    tx = torch.maximum(torch.minimum(t_cam[:, 0] / z_safe, (width - cx) / fx + margin_x), -cx / fx - margin_x) * z_safe
-    ty = torch.maximum(torch.minimum(t_cam[:, 1] / z_safe, (height - cy) / fy + margin_y), -cy / fy - margin_y) * z_safe
+    # 3DGS's ±1.3·tan(half-FoV) about the axis, shifted by the principal point's offset from the centre (0 when
+    # centred, which leaves 3DGS's arithmetic bit for bit), so a crop's or a tile's Gaussians are not bent
+    lim_x, lim_y = 1.3 * (0.5 * width / fx), 1.3 * (0.5 * height / fy)
+    shift_x, shift_y = (cx - 0.5 * width) / fx, (cy - 0.5 * height) / fy
+    tx = torch.maximum(torch.minimum(t_cam[:, 0] / z_safe, lim_x - shift_x), -lim_x - shift_x) * z_safe
+    ty = torch.maximum(torch.minimum(t_cam[:, 1] / z_safe, lim_y - shift_y), -lim_y - shift_y) * z_safe
     zero = torch.zeros_like(z_safe)
     J = torch.stack(
         [fx / z_safe, zero, -fx * tx / (z_safe * z_safe), zero, fy / z_safe, -fy * ty / (z_safe * z_safe)], dim=-1
