@@ -92,7 +92,8 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
 
 def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float = DEFAULT_ELEVATION_DEGREES,
                   radius_scale: float = DEFAULT_RADIUS_SCALE) -> list[OrbitFrame]:
-    """`frames` cameras circling the capture once; elevation = max·cos(azimuth), so half look from below."""
+    """`frames` cameras circling the capture once; elevation = max·cos(azimuth), so half look from below. Each has
+    the first camera's focal length and image size, and looks at the capture's centre from its image's centre."""
     if frames < 2:
         raise SplatuError(f"an orbit needs at least 2 frames, got {frames}", "in --orbit-frames", "pass 2 or more")
     if not 0.0 <= max_elevation_degrees <= 85.0:
@@ -100,7 +101,13 @@ def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: flo
                           "in --orbit-elevation", "pass e.g. 60 (looking straight down or up is degenerate)")
     frame = capture_frame(cameras)
     side = torch.linalg.cross(frame.up, frame.forward_axis)
-    template = cameras[0]
+    # the first camera's focal length and size, with its principal point at the image's centre, where the capture's
+    # centre is looked at: a tile of a larger photo has it far off the tile (or off it), and its orbit showed a
+    # window beside the centre, or none of it
+    first = cameras[0]
+    K = first.K.clone()
+    K[0, 2], K[1, 2] = 0.5 * first.width, 0.5 * first.height
+    template = replace(first, K=K)
     dtype = template.world_to_camera.dtype
     result = []
     for k in range(frames):
