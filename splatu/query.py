@@ -34,12 +34,7 @@ from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished
 from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
-from splatu.data.frames import (
-    FLOAT32_MAX,
-    MAX_IMAGE_SIDE,
-    checked_matrix,
-    refuse_implausible_focal,
-)
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
 from splatu.data.principal_point import misplaced_principal_point
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError

@@ -16,13 +16,7 @@ import numpy as np
 import torch
 
 from splatu.camera import Camera
-from splatu.data.frames import (
-    FLOAT32_MAX,
-    MAX_IMAGE_SIDE,
-    Frame,
-    RawScene,
-    refuse_implausible_focal,
-)
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, Frame, RawScene, refuse_implausible_focal
 from splatu.data.images import Distortion, PixelRecipe, undistorted_intrinsics
 from splatu.data.principal_point import Misplaced, PrincipalPointFault, misplaced_principal_point, warn_misplaced
 from splatu.data.pycolmap_quiet import pycolmap

@@ -267,18 +267,17 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
     if abs(width - expected_w) >= 1 or abs(height - expected_h) >= 1:
         noun = {"color": "image", "mask": "mask", "depth": "depth map"}[recipe.kind]
         raise SplatuError(f"{noun} is {width}x{height} but its camera says {round(expected_w)}x"
-                          f"{round(expected_h)}", f"in {recipe.path}", _size_fix(recipe, noun, height, width))
+                          f"{round(expected_h)}", f"in {recipe.path}",
+                          _size_fix(recipe.kind, noun, abs(width - expected_h) < 1 and abs(height - expected_w) < 1))
 
 
-def _size_fix(recipe: PixelRecipe, noun: str, height: int, width: int) -> str:
+def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:
     """What to do about a file whose size is not its camera's. Turned on its side, a colour image may be the camera's
     w and h given the wrong way round, or a photo stored on its side (its EXIF orientation, which is not applied); a
     mask or depth map is its own fault, since each frame's colour image is decoded, and checked, first."""
-    expected_w = recipe.width / recipe.source_downscale
-    expected_h = recipe.height / recipe.source_downscale
-    if not (abs(width - expected_h) < 1 and abs(height - expected_w) < 1):
+    if not turned:
         return "make all images match the intrinsics (w, h) or fix the camera size"
-    if recipe.kind != "color":
+    if kind != "color":
         return f"turn the {noun} a quarter turn, to lie as its image does (whose size is the camera's)"
     return ("swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
             "stored on its side (an EXIF orientation, which is not applied), save it upright")
