@@ -1,8 +1,9 @@
 """nerfstudio / instant-ngp `transforms.json`: parse it into frames, and write it.
 
 Intrinsics (fl_x, fl_y, cx, cy, w, h) and distortion may be global or per frame, the focal lengths also as
-instant-ngp's camera_angle_x / camera_angle_y (radians); poses are OpenGL camera-to-world. Images with distortion
-are undistorted to OpenCV's alpha=0 pinhole K (see splatu/data/images.py); instant-ngp's is_fisheye stands for
+instant-ngp's x_fov / y_fov (degrees) or camera_angle_x / camera_angle_y (radians); poses are OpenGL
+camera-to-world (instant-ngp's transform_matrix_start for a camera that did not move). Images with distortion are
+undistorted to OpenCV's alpha=0 pinhole K (see splatu/data/images.py); instant-ngp's is_fisheye stands for
 nerfstudio's OPENCV_FISHEYE. Frames are sorted by file path, as nerfstudio does, so contiguous eval blocks follow the
 capture order of numbered video frames.
 
@@ -78,10 +79,28 @@ def frame_entry(frame: object, index: int, json_path: Path,
                           "write the file_path in quotes, as a path or a name")
     name = frame_name(frame["file_path"])
     where = f"in frame {name!r} of {json_path}"
-    if "transform_matrix" not in frame:
+    if "transform_matrix" in frame:
+        fix = "fix or remove the frame's transform_matrix"
+        return name, where, checked_matrix(frame["transform_matrix"], where, fix)
+    if "transform_matrix_start" not in frame:
         raise SplatuError("frame has no transform_matrix", where, "give every frame its 4x4 camera-to-world matrix")
-    c2w = checked_matrix(frame.get("transform_matrix"), where, "fix or remove the frame's transform_matrix")
-    return name, where, c2w
+    return name, where, _still_pose(frame, where)
+
+
+def _still_pose(frame: Mapping[str, Any], where: str) -> np.ndarray:
+    """The pose of a frame that gives instant-ngp's transform_matrix_start (and _end: where a rolling shutter or a
+    motion blur starts and ends) instead of a transform_matrix. A static camera's start is its pose, as instant-ngp's
+    own scripts read it; one that moved would train as if it had not, so a move is refused."""
+    start = checked_matrix(frame["transform_matrix_start"], where, "fix or remove the frame's transform_matrix_start")
+    if frame.get("transform_matrix_end") is None:
+        return start
+    end = checked_matrix(frame["transform_matrix_end"], where, "fix or remove the frame's transform_matrix_end")
+    moved = float(np.abs(end - start).max())
+    if moved > 1e-6 * max(1.0, float(np.abs(start[:3, 3]).max())):
+        raise SplatuError(f"transform_matrix_start and transform_matrix_end differ by up to {moved:.3g}: the camera "
+                          "moved during the exposure (a rolling shutter or a motion blur), which splatu does not model",
+                          where, "give the frame a transform_matrix, such as the pose at the middle of the exposure")
+    return start
 
 
 def _given(frame: Mapping[str, Any], top: Mapping[str, Any], key: str) -> Any:
@@ -103,11 +122,24 @@ def _number(frame: Mapping[str, Any], top: Mapping[str, Any], key: str, where: s
 
 
 def _focal(frame: Mapping[str, Any], top: Mapping[str, Any], axis: str, side: int, where: str) -> float | None:
-    """The focal length along `axis` in pixels: fl_x (fl_y), or instant-ngp's camera_angle_x (camera_angle_y),
-    the field of view in radians across the image's `side` pixels. As in instant-ngp, a frame's own values
-    override the file's, and fl_ wins over camera_angle_ where one place gives both."""
+    """The focal length along `axis` in pixels: fl_x (fl_y), or instant-ngp's x_fov (y_fov) in degrees or
+    camera_angle_x (camera_angle_y) in radians, each the field of view across the image's `side` pixels. As in
+    instant-ngp, a frame's own values override the file's, and fl_ wins over camera_angle_ where one place gives
+    both. instant-ngp reads x_fov before fl_x and nerfstudio after it, so where one place gives both they must agree."""
     for source in (frame, top):
         focal = _number(source, {}, f"fl_{axis}", where)
+        degrees = _number(source, {}, f"{axis}_fov", where)
+        if degrees is not None:
+            if not 0 < degrees < 180:
+                raise SplatuError(f"{axis}_fov must be an angle in (0, 180) degrees (got {degrees!r})", where,
+                                  f"fix {axis}_fov, or give fl_{axis} in pixels instead")
+            from_fov = focal_from_angle(math.radians(degrees), side)
+            if focal is not None and not math.isclose(focal, from_fov, rel_tol=1e-3):
+                raise SplatuError(f"fl_{axis} {focal:.6g} px and {axis}_fov {degrees:.6g} degrees (fl_{axis} "
+                                  f"{from_fov:.6g} px) disagree, and instant-ngp reads {axis}_fov first where "
+                                  f"nerfstudio reads fl_{axis}", where,
+                                  f"remove the wrong one of fl_{axis} and {axis}_fov")
+            focal = from_fov if focal is None else focal
         if focal is not None:
             return focal
         angle = _number(source, {}, f"camera_angle_{axis}", where)

@@ -18,13 +18,14 @@ COEFFICIENT_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 RATIONAL_KEYS = ("k5", "k6")
 """OpenCV's rational lens model's further coefficients (COLMAP FULL_OPENCV's), which neither nerfstudio nor splatu
 models: read only to refuse a non-zero one, which was dropped without a word."""
-CAMERA_KEYS = ("camera_model", "is_fisheye", "fl_x", "fl_y", "camera_angle_x", "camera_angle_y", "cx", "cy", "w", "h",
-               *COEFFICIENT_KEYS, *RATIONAL_KEYS)
+CAMERA_KEYS = ("camera_model", "is_fisheye", "fl_x", "fl_y", "x_fov", "y_fov", "camera_angle_x", "camera_angle_y", "cx",
+               "cy", "w", "h", *COEFFICIENT_KEYS, *RATIONAL_KEYS)
 """A camera's keys: at the top level for every frame, or in a frame for that frame alone."""
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 """The file's explicit split lists (nerfstudio keys)."""
 TOP_KEYS = ("frames", *CAMERA_KEYS, "depth_unit_scale_factor", "ply_file_path", *SPLIT_KEYS, STANDIN_KEY)
-FRAME_KEYS = ("file_path", "transform_matrix", *CAMERA_KEYS, "mask_path", "depth_file_path", "observed_mask_path")
+FRAME_KEYS = ("file_path", "transform_matrix", "transform_matrix_start", "transform_matrix_end", *CAMERA_KEYS,
+              "mask_path", "depth_file_path", "observed_mask_path")
 POSE_KEYS = ("file_path", "transform_matrix")
 """What every transforms.json frame has, NeRF-synthetic's too."""
 

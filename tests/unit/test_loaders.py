@@ -903,6 +903,71 @@ def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path,
         assert (a.camera.width, a.camera.height) == (b.camera.width, b.camera.height)
 
 
+def _rewrite_frames(root: Path, edit) -> None:
+    content = json.loads((root / "transforms.json").read_text())
+    for frame in content["frames"]:
+        edit(frame)
+    (root / "transforms.json").write_text(json.dumps(content))
+
+
+def test_instant_ngp_fields_of_view_in_degrees_give_the_cameras_fl_x_and_fl_y_give(tmp_path):
+    """instant-ngp's x_fov and y_fov (degrees) were refused as "missing intrinsics fl_x"; fl = ½w / tan(½fov). Given
+    beside a matching fl_x they change nothing."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=3)
+    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+
+    def to_degrees(frame: dict) -> None:
+        fl_x, fl_y = frame.pop("fl_x"), frame.pop("fl_y")
+        frame.update(x_fov=math.degrees(2 * math.atan(frame["w"] / 2 / fl_x)),
+                     y_fov=math.degrees(2 * math.atan(frame["h"] / 2 / fl_y)))
+    _rewrite_frames(root, to_degrees)
+    for a, b in zip(load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames, given.frames, strict=True):
+        torch.testing.assert_close(a.camera.K, b.camera.K, rtol=1e-12, atol=0)
+    _rewrite_frames(root, lambda frame: frame.update(fl_x=float(given.frames[0].camera.K[0, 0])))
+    assert float(load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.K[0, 0]) == pytest.approx(36.0, rel=1e-12)
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    ({"x_fov": 90.0}, "fl_x 36 px and x_fov 90 degrees (fl_x 20 px) disagree, and instant-ngp reads x_fov first "
+                      "where nerfstudio reads fl_x"),
+    ({"x_fov": 180.0}, "x_fov must be an angle in (0, 180) degrees (got 180.0)"),
+    ({"y_fov": 0.0}, "y_fov must be an angle in (0, 180) degrees (got 0.0)"),
+])
+def test_an_instant_ngp_field_of_view_that_is_out_of_range_or_disagrees_with_fl_is_refused(tmp_path, fields, message):
+    """instant-ngp reads x_fov before fl_x and nerfstudio after it, so a file giving two focal lengths trains with
+    one or the other depending on the reader: refused, as is an angle no lens has."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=3)  # fl_x = 36 across 40 px
+    _rewrite_frames(root, lambda frame: frame.update(fields))
+    with pytest.raises(SplatuError) as caught:
+        load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    assert caught.value.what == message and "of " in caught.value.where
+
+
+def test_an_instant_ngp_still_camera_given_as_transform_matrix_start_loads_and_a_moving_one_is_refused(tmp_path):
+    """instant-ngp's rolling-shutter frames give transform_matrix_start and _end instead of transform_matrix. A camera
+    that did not move (no _end, or the same) loads with that pose; one that moved during the exposure is refused,
+    since splatu would train it as still."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=3)
+    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    _rewrite_frames(root, lambda frame: frame.update(transform_matrix_start=frame.pop("transform_matrix")))
+    started = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    _rewrite_frames(root, lambda frame: frame.update(transform_matrix_end=frame["transform_matrix_start"]))
+    still = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    for loaded in (started, still):
+        for a, b in zip(loaded.frames, given.frames, strict=True):
+            assert torch.equal(a.camera.world_to_camera, b.camera.world_to_camera)
+
+    def move(frame: dict) -> None:
+        frame["transform_matrix_end"] = [[*row[:3], row[3] + 0.01] for row in frame["transform_matrix_start"][:3]]
+    _rewrite_frames(root, move)
+    with pytest.raises(SplatuError) as caught:
+        load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    assert "the camera moved during the exposure" in caught.value.what and "transform_matrix" in caught.value.fix
+
+
 def test_nerfstudio_s_other_keys_and_unused_zero_coefficients_load_as_without_them(tmp_path):
     """Only misspelt keys and dropped distortion coefficients are refused: nerfstudio's and instant-ngp's other keys
     (whatever their spelling resembles), a zero (or null) coefficient the camera model does not use, and keys that
