@@ -87,6 +87,12 @@ def view_pass(bar: Progress, description: str, total: int) -> Callable[[], None]
     return lambda: bar.advance(task)
 
 
+COMPILE_LINE = ("compiling the rasterizer's kernels, once per process (torch.compile: about 10 s with a warm "
+                "cache, a minute or more cold; --no-compile-kernels skips it)")
+"""Printed off a terminal before a session's first render compiles, which otherwise leaves a log silent for that
+long (on a terminal the bar's elapsed time ticks through it)."""
+
+
 def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
     """One console line per evaluated set: a run's quality on screen and in its log, not only in metrics.jsonl."""
     observed = f", observed pixels {metrics['psnr_observed']:.2f} dB" if "psnr_observed" in metrics else ""

@@ -59,7 +59,7 @@ from splatu.losses import uncertainty_heads
 from splatu.model import GaussianModel
 from splatu.optim import Optimizers
 from splatu.ply import save_ply
-from splatu.rasterizer.kernels import set_compile
+from splatu.rasterizer.kernels import compile_pending, set_compile
 from splatu.run_dir import training_lock
 from splatu.run_records import (
     DEGREE_CHOICE_FILE,
@@ -75,6 +75,7 @@ from splatu.train_config import (
     save_config,
 )
 from splatu.train_progress import (
+    COMPILE_LINE,
     PLAIN_PROGRESS_LINES,
     StepRate,
     console,
@@ -164,12 +165,14 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     images = TrainImages(training_views(scene.train, config, state.step))
     log = MetricsLog(run_dir / "metrics.jsonl")
     log.drop_after(state.step)
+    terminal = on_terminal()
+    plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not terminal else 0
+    if plain_every and compile_pending() and state.step < config.steps:
+        console.print(COMPILE_LINE, highlight=False, soft_wrap=True)
     if _eval_due(state.step, config):  # a resume redoes its step's evaluation, which a stop may have skipped
         _log_eval(state, config, scene, log)
     smoothed_psnr = float("nan")
     step_rate = StepRate(time.perf_counter())
-    terminal = on_terminal()
-    plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not terminal else 0
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
     with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:

@@ -211,6 +211,12 @@ def kernels_compiled() -> bool:
     return _use_compile
 
 
+def compile_pending() -> bool:
+    """Whether the next render will compile: the kernels go through torch.compile and none has run in this process
+    yet (later runs of the process, such as an ensemble's further members, reuse what the first compiled)."""
+    return _use_compile and not _compiled
+
+
 def kernel(name: str) -> Callable:
     """The eager or compiled version of kernel `name`, as chosen by `set_compile`."""
     return compiled(_EAGER[name])

@@ -32,6 +32,7 @@ from splatu.methods import METHODS, get_method, method_of
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
+from splatu.rasterizer import kernels
 from splatu.run_dir import new_timestamped_dir
 from splatu.train_config import (
     MAX_SEED,
@@ -749,6 +750,29 @@ def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluatio
     final = json.loads((run_dir / "summary.json").read_text())["eval"]["eval"]
     assert evals[-1] == train_progress.eval_line(30, "eval", final)
     assert f"PSNR {final['psnr']:.2f} dB, SSIM {final['ssim']:.3f}" in evals[-1]
+
+
+@pytest.mark.parametrize("pending", [True, False])
+def test_off_a_terminal_a_compiling_first_render_is_announced_once(tmp_path, scene, capsys, monkeypatch, pending):
+    """A log showed nothing for the 10-60 s the first step compiles; now one line says why, before any step, and
+    only when a compile is due (an ensemble's later members reuse the first one's kernels)."""
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    monkeypatch.setattr(trainer, "compile_pending", lambda: pending)
+    train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=True))
+    err = capsys.readouterr().err.splitlines()
+    announced = [i for i, line in enumerate(err) if line == train_progress.COMPILE_LINE]
+    first_step = next(i for i, line in enumerate(err) if PROGRESS_LINE.match(line))
+    assert len(announced) == pending and all(i < first_step for i in announced)
+
+
+def test_a_compile_is_pending_until_the_first_compiled_kernel_runs(monkeypatch):
+    monkeypatch.setattr(kernels, "_compiled", {})
+    monkeypatch.setattr(kernels, "_use_compile", False)
+    assert not kernels.compile_pending()  # eager kernels never compile
+    monkeypatch.setattr(kernels, "_use_compile", True)
+    assert kernels.compile_pending()
+    kernels._compiled[abs] = abs  # what `compiled` records when a kernel first runs through torch.compile
+    assert not kernels.compile_pending()
 
 
 def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
