@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -18,6 +18,7 @@ from splatu.atomic import atomic_write_text
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.checkpoint import RESUME_KEYS, list_checkpoints, read_checkpoint
 from splatu.data.scene import Scene
+from splatu.ensemble_dirs import enclosing_ensemble, ensemble_members
 from splatu.errors import SplatuError
 from splatu.interrupts import TrainingInterrupted, signal_of
 from splatu.json_files import is_finite_number, read_json
@@ -30,18 +31,31 @@ from splatu.training_step import StepHook
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"
 
 
-def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = ()) -> None:
+def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = (),
+                 began: Callable[[], None] | None = None) -> None:
     """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it; the
-    caller holds the member's `training_lock`, under which this choice is made."""
+    caller holds the member's `training_lock`, under which this choice is made. `began` as in `train_locked_run`."""
     if (member_dir / "summary.json").is_file():
         console.print(f"already trained: {member_dir}", soft_wrap=True)
         return
     found = list_checkpoints(member_dir)
     if not found:
-        train_locked_run(member, scene, member_dir, hooks)
+        train_locked_run(member, scene, member_dir, hooks, began=began)
         return
     checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
-    train_locked_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint)
+    train_locked_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint,
+                     began=began)
+
+
+@dataclasses.dataclass
+class Began:
+    """Passed to `train_locked_run` as its `began`: whether a session's training began, so that a session refused
+    before it (one that did no work) is not counted in an ensemble's wall time."""
+
+    trained: bool = False
+
+    def __call__(self) -> None:
+        self.trained = True
 
 
 def recorded_sessions(run_dir: Path) -> list[float]:
@@ -55,11 +69,6 @@ def recorded_sessions(run_dir: Path) -> list[float]:
         raise SplatuError("session_seconds is not a list of numbers", f"in {path}",
                           "fix the file, or delete it (the ensemble's wall time then counts from this session)")
     return [float(s) for s in sessions]
-
-
-def ensemble_members(run_dir: Path, config: TrainConfig) -> list[Path]:
-    """Each member's run folder inside an ensemble run."""
-    return [run_dir / "members" / str(k) for k in range(config.ensemble)]
 
 
 def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
@@ -81,23 +90,23 @@ def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall
     across sessions: every call (session) that trains a member adds its own wall time, from `wall_start`
     (the start of `train`, so scene loading counts) until it finishes, is interrupted or fails, to
     ensemble_sessions.json, and `wall_seconds` is their sum; so does a `--resume` of a member's own folder
-    (`counted_in_ensemble`). A session refused before it trains one (a member's lock held by another
-    `splatu train`) did no work and adds nothing. A session killed outright (SIGKILL, power loss) cannot
-    record itself and is missing from the sum.
+    (`counted_in_ensemble`). A session that trains none did no work and adds nothing: every member finished
+    already, or it was refused before a member's training began (`train_locked_run`'s `began`: a member's
+    lock held by another `splatu train`, a checkpoint that does not fit the scene). A session killed
+    outright (SIGKILL, power loss) cannot record itself and is missing from the sum.
     """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     members = ensemble_members(run_dir, config)
     sessions = recorded_sessions(run_dir)
-    trained = False
+    began = Began()
     try:
         for k, member_dir in enumerate(members):
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)
             console.print(f"ensemble member {k + 1}/{config.ensemble} (seed {member.seed})")
             try:
                 with training_lock(member_dir):  # also against a `--resume` of the member folder itself
-                    trained = trained or not (member_dir / "summary.json").is_file()  # train_member works on it
-                    train_member(member, scene, member_dir, hooks)
+                    train_member(member, scene, member_dir, hooks, began)
             except TrainingInterrupted as stop:  # point the resume hint at the ensemble, not the member
                 raise TrainingInterrupted(f"ensemble member {k + 1}/{config.ensemble}: {stop.what}",
                                           run_dir, stop.step, stop.signal_number) from None
@@ -105,7 +114,7 @@ def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall
                 raise TrainingInterrupted(f"interrupted at ensemble member {k + 1}/{config.ensemble}", run_dir, 0,
                                           signal_of(stop)) from None
     finally:
-        if trained:
+        if began.trained:
             sessions.append(time.perf_counter() - wall_start)
             _write_sessions(run_dir, sessions)
     return _write_record(run_dir, config, sessions)
@@ -124,13 +133,6 @@ def _write_record(run_dir: Path, config: TrainConfig, sessions: list[float]) -> 
     return record
 
 
-def enclosing_ensemble(run_dir: Path) -> Path | None:
-    """The ensemble run whose member `run_dir` is (ENSEMBLE/members/k, k below its member count), else None."""
-    ensemble = run_dir.parent.parent
-    config = ensemble_config(ensemble) if run_dir.parent.name == "members" else None
-    return ensemble if config is not None and run_dir in ensemble_members(ensemble, config) else None
-
-
 @contextmanager
 def enclosing_ensemble_lock(run_dir: Path) -> Iterator[Path | None]:
     """Hold the `training_lock` of the ensemble that `run_dir` is a member of, if any, and yield that ensemble: a
@@ -145,28 +147,23 @@ def enclosing_ensemble_lock(run_dir: Path) -> Iterator[Path | None]:
 
 
 @contextmanager
-def counted_in_ensemble(ensemble: Path | None, wall_start: float) -> Iterator[None]:
+def counted_in_ensemble(ensemble: Path | None, wall_start: float) -> Iterator[Callable[[], None]]:
     """Add the wall time of a `--resume` of a member folder, from `wall_start` until it ends however it ends, to its
     `ensemble`'s sessions (a no-op for None), and rewrite ensemble.json's wall_seconds when the ensemble has one
     (else the `--resume` of the ensemble that writes it sums them): the member's training is the ensemble's cost,
-    which render and eval-ause timings report. The caller holds the ensemble's lock (`enclosing_ensemble_lock`)."""
+    which render and eval-ause timings report. Only a session that trained counts: it yields the `began` to pass to
+    `train_locked_run`, and a resume refused before that (its checkpoint does not fit the scene) adds nothing, as
+    none of an ensemble's own sessions does. The caller holds the ensemble's lock (`enclosing_ensemble_lock`)."""
+    began = Began()
     if ensemble is None:
-        yield
+        yield began
         return
     config, sessions = load_config(ensemble / "config.yml"), recorded_sessions(ensemble)  # damaged: refused now
     try:
-        yield
+        yield began
     finally:
-        sessions.append(time.perf_counter() - wall_start)
-        _write_sessions(ensemble, sessions)
-        if (ensemble / ENSEMBLE_FILE).is_file():
-            _write_record(ensemble, config, sessions)
-
-
-def ensemble_config(run_dir: Path) -> TrainConfig | None:
-    """The saved config when `run_dir` is an ensemble run directory, else None."""
-    path = Path(run_dir).expanduser() / "config.yml"
-    if not path.is_file():
-        return None
-    config = load_config(path)
-    return config if config.ensemble > 1 else None
+        if began.trained:
+            sessions.append(time.perf_counter() - wall_start)
+            _write_sessions(ensemble, sessions)
+            if (ensemble / ENSEMBLE_FILE).is_file():
+                _write_record(ensemble, config, sessions)

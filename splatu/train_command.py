@@ -26,13 +26,8 @@ from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
 from splatu.degree_choice import held_out_block, with_choice_heads
-from splatu.ensemble_training import (
-    counted_in_ensemble,
-    enclosing_ensemble_lock,
-    ensemble_config,
-    ensemble_members,
-    train_locked_ensemble,
-)
+from splatu.ensemble_dirs import ensemble_config, ensemble_members
+from splatu.ensemble_training import counted_in_ensemble, enclosing_ensemble_lock, train_locked_ensemble
 from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
@@ -232,8 +227,8 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     scene = load_scene(saved.data)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    with counted_in_ensemble(ensemble, wall_start):
-        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
+    with counted_in_ensemble(ensemble, wall_start) as began:
+        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start, began)
     return run_dir
 
 

@@ -17,7 +17,7 @@ import math
 import random
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,7 @@ from splatu.degree_choice import (
     with_choice_heads,
 )
 from splatu.densify import DensityController
+from splatu.ensemble_dirs import enclosing_ensemble
 from splatu.errors import SplatuError
 from splatu.evaluation import evaluate_scene
 from splatu.interrupts import (
@@ -352,15 +353,28 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
               checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict[str, Any]:
     """Train one model into `run_dir` (fresh, or continuing `checkpoint`); returns the summary. It holds the folder's
     `training_lock` meanwhile, as `splatu train` does: a second training of the folder is refused, and a render sees
-    the run as training. A caller that holds the lock already calls `train_locked_run`."""
+    the run as training. A caller that holds the lock already calls `train_locked_run`.
+
+    An ensemble's member folder is refused: its session would be missing from the ensemble's wall time, and a config
+    other than the member's would make it a model the ensemble did not train; `splatu train --resume MEMBER`
+    (`splatu.train_command.train`) trains it with its saved options and counts it."""
+    ensemble = enclosing_ensemble(run_dir)
+    if ensemble is not None:
+        raise SplatuError(f"this folder is a member of the ensemble {ensemble}, which train_run would train outside "
+                          "its record of wall time", f"in {run_dir}",
+                          f"resume it with `splatu train --resume {run_dir}` (from Python: splatu.train_command.train "
+                          "with resume set), which counts it")
     with training_lock(run_dir):
         return train_locked_run(config, scene, run_dir, hooks, checkpoint, wall_start)
 
 
 def train_locked_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
-                     checkpoint: dict[str, Any] | None = None, wall_start: float | None = None) -> dict[str, Any]:
+                     checkpoint: dict[str, Any] | None = None, wall_start: float | None = None,
+                     began: Callable[[], None] | None = None) -> dict[str, Any]:
     """`train_run` for a caller that holds `run_dir`'s `training_lock` (a second acquisition, even by the same
-    process, is refused): `splatu train` and an ensemble's members, which choose what to resume under it."""
+    process, is refused): `splatu train` and an ensemble's members, which choose what to resume under it. `began` is
+    called once the state is built and fits the scene, when the training begins: an ensemble counts the wall time of
+    a session that reached it, not of one refused before."""
     wall_start = time.perf_counter() if wall_start is None else wall_start
     if config.compile_kernels:  # here, so every way in (train, ensemble members, the benchmarks) compiles
         set_compile(True)
@@ -370,6 +384,8 @@ def train_locked_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Se
         save_config(config, run_dir / "config.yml")  # first: a stop from here on leaves a run that `restartable` takes
     try:
         state = fresh_state(config, scene) if checkpoint is None else restored_state(checkpoint, config, scene)
+        if began is not None:
+            began()
         return _train_state(state, config, scene, run_dir, hooks, checkpoint, wall_start)
     except TrainingInterrupted:
         raise

@@ -5,14 +5,15 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
-from splatu import ensemble_training, train_command
+from splatu import ensemble_dirs, ensemble_training, train_command, trainer
 from splatu import run_dir as run_dir_module
-from splatu.checkpoint import list_checkpoints
+from splatu.checkpoint import RESUME_KEYS, list_checkpoints, read_checkpoint
 from splatu.errors import SplatuError
 from splatu.interrupts import TrainingInterrupted
 from splatu.methods import get_method
-from splatu.train_config import TrainConfig, save_config
+from splatu.train_config import TrainConfig, from_dict, save_config
 from tests.unit.test_trainer import tiny_config, tiny_scene
 
 
@@ -106,7 +107,50 @@ def test_only_a_member_folder_of_an_ensemble_counts_as_one(tmp_path):
     single, ensemble = tmp_path / "single", tmp_path / "ensemble"
     save_config(tiny_config(tmp_path), single / "config.yml")
     save_config(ensemble_of_2(tmp_path), ensemble / "config.yml")
-    assert ensemble_training.enclosing_ensemble(ensemble / "members" / "1") == ensemble
-    assert ensemble_training.enclosing_ensemble(ensemble / "members" / "2") is None
-    assert ensemble_training.enclosing_ensemble(single / "members" / "0") is None
-    assert ensemble_training.enclosing_ensemble(tmp_path / "elsewhere") is None
+    assert ensemble_dirs.enclosing_ensemble(ensemble / "members" / "1") == ensemble
+    assert ensemble_dirs.enclosing_ensemble(ensemble / "members" / "2") is None
+    assert ensemble_dirs.enclosing_ensemble(single / "members" / "0") is None
+    assert ensemble_dirs.enclosing_ensemble(tmp_path / "elsewhere") is None
+
+
+def test_train_run_refuses_an_ensembles_member_folder_in_one_line(tmp_path, scene):
+    """`train_run` on ENSEMBLE/members/k from Python trained the member without the ensemble's lock and left its
+    session out of ensemble_sessions.json, which `splatu train --resume MEMBER` counts. It is refused now, before
+    it writes anything, and the message names the command that counts it."""
+    run_dir = train_command.train(ensemble_of_2(tmp_path))
+    member = run_dir / "members" / "1"
+    first = list_checkpoints(member)[0]
+    checkpoint = read_checkpoint(first, RESUME_KEYS)
+    before = {path: path.read_bytes() for path in [*run_dir.glob("*.json"), *member.rglob("*")] if path.is_file()}
+    with pytest.raises(SplatuError) as caught:
+        trainer.train_run(from_dict(checkpoint["config"], str(first)), scene, member, checkpoint=checkpoint)
+    assert caught.value.where == f"in {member}"
+    assert f"splatu train --resume {member}" in caught.value.fix and "\n" not in str(caught.value)
+    assert {path: path.read_bytes() for path in before} == before
+    assert sorted(p for p in [*run_dir.glob("*.json"), *member.rglob("*")] if p.is_file()) == sorted(before)
+    trainer.train_run(tiny_config(tmp_path), scene, tmp_path / "single")  # a folder of no ensemble still trains
+
+
+def test_a_members_resume_refused_before_it_trains_adds_no_session(tmp_path, scene, monkeypatch):
+    """A member's `--resume` that ended before training (its checkpoint did not fit the scene, a SplatuError raised
+    once the ensemble's lock was held) still added its seconds to ensemble_sessions.json; so did a Python
+    `train_ensemble` refused at an unfinished member the same way. Only a session that trained counts; one that
+    found the member finished, or its lock held, never did and still does not."""
+    run_dir = train_command.train(ensemble_of_2(tmp_path))
+    sessions = sessions_in_record(run_dir)
+    member = run_dir / "members" / "1"
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member))  # already finished
+    with run_dir_module.training_lock(member), pytest.raises(SplatuError):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member))  # its lock is held
+    assert sessions_in_record(run_dir) == sessions
+    moved = dataclasses.replace(scene, center=torch.tensor([0.0, 0.0, 1.0]))  # normalised unlike the trained one
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: moved)
+    with pytest.raises(SplatuError, match="normalis"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(member)[0]))
+    assert sessions_in_record(run_dir) == sessions
+    assert json.loads((run_dir / "ensemble_sessions.json").read_text())["session_seconds"] == sessions
+
+    (member / "summary.json").unlink()  # member 1 unfinished again, its newest checkpoint the scene's misfit
+    with pytest.raises(SplatuError, match="normalis"):
+        ensemble_training.train_ensemble(ensemble_of_2(tmp_path), moved, run_dir, 0.0)
+    assert json.loads((run_dir / "ensemble_sessions.json").read_text())["session_seconds"] == sessions
