@@ -340,6 +340,8 @@ def markdown(results: dict[str, Any], budget: Budget) -> str:
              f"{len(A.RANDOM_SEEDS)} seeds of uniform noise on the same images; oracle = AUSC-MAE, the area under "
              "the oracle curve (its AUSE is 0 by construction); "
              "start-norm = curves divided by O(0) instead of the joint max (exposes anti-correlation). "
+             "train wall s (the JSON's train_seconds): the wall time of each training, timed around the trainer call "
+             "the same way for every method (not summary.json's train_seconds, the time inside steps). "
              "visibility / Fisher / spread / residual / angle / random use the ours (antipodal) model; their train "
              "time adds their post-training cost (the *-residual rows: the residual pass over the training views; "
              "*-angle: also the pass that records which training views saw each Gaussian). "
@@ -362,7 +364,7 @@ def markdown(results: dict[str, Any], budget: Budget) -> str:
         lines += [f"## {scene_name} ({scene['size'][0]}x{scene['size'][1]}, {scene['views']['train']} train / "
                   f"{scene['views']['eval']} eval views, contiguous eval block)", "", stamp, "",
                   "| method | AUSE-MAE | AUSE-RMSE | random AUSE-MAE | oracle AUSC-MAE | AUSE-MAE start-norm "
-                  "(random) | AUROC-unobserved | PSNR dB | train s | render s/view |",
+                  "(random) | AUROC-unobserved | PSNR dB | train wall s | render s/view |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for name, row in rows.items():
             m = row["mean"]
@@ -415,7 +417,8 @@ def plots(results: dict[str, Any], out_dir: Path) -> None:
                            for b, s in measured.items())
         plot_speed_against_error(out_dir / f"uncertainty_study_{scene_name}_speed.png",
                                  {b: speed_points(s["rows"]) for b, s in measured.items()},
-                                 f"{scene_name}: train time (baselines: ours + their own cost) vs error; each budget "
+                                 f"{scene_name}: training wall time (baselines: ours + their own cost) vs error; "
+                                 "each budget "
                                  f"scores its own eval images ({stamps})")
 
 

@@ -147,7 +147,9 @@ def save_whole(fig: plt.Figure, path: Path) -> None:
 class SpeedPoint:
     """One method at one training budget: what it cost and what it scored."""
 
-    train_seconds: float
+    wall_seconds: float
+    """Wall time of its training (and of its own pass, for a baseline), measured the same way for every method: the
+    study times each training around the trainer call (not summary.json's train_seconds, the time inside steps)."""
     ause_ratio: float
     """AUSE-MAE ÷ the random baseline on the same images: budgets score different images, so raw AUSE does not
     compare across them."""
@@ -166,18 +168,18 @@ def budget_markers(budgets: Sequence[str]) -> dict[str, str]:
 
 
 def method_lines(budgets: Mapping[str, Mapping[str, SpeedPoint]], field: str) -> dict[str, list[tuple[float, float]]]:
-    """Per method, its (train seconds, `field`) points over the budgets that have one, cheapest first."""
+    """Per method, its (training wall seconds, `field`) points over the budgets that have one, cheapest first."""
     lines: dict[str, list[tuple[float, float]]] = {}
     for points in budgets.values():
         for method, point in points.items():
             value = getattr(point, field)
             if value is not None:
-                lines.setdefault(method, []).append((point.train_seconds, value))
+                lines.setdefault(method, []).append((point.wall_seconds, value))
     return {method: sorted(points) for method, points in lines.items()}
 
 
 def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, SpeedPoint]], title: str) -> None:
-    """Two panels, train time against AUSE ÷ random and against PSNR: a colour per method, a marker per budget
+    """Two panels, training wall time against AUSE ÷ random and against PSNR: a colour per method, a marker per budget
     (preset), and a line joining one method's budgets, so what more training buys each method reads directly."""
     methods = list(dict.fromkeys(m for points in budgets.values() for m in points))
     palette = [*plt.get_cmap("tab10").colors, *plt.get_cmap("Dark2").colors]  # neighbours stay distinct
@@ -191,9 +193,9 @@ def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, Spee
         for budget, points in budgets.items():
             for method, point in points.items():
                 if (value := getattr(point, field)) is not None:
-                    ax.scatter(point.train_seconds, value, color=colours[method], marker=markers[budget],
+                    ax.scatter(point.wall_seconds, value, color=colours[method], marker=markers[budget],
                                edgecolors="black", linewidths=0.4, zorder=3)
-    seconds = [p.train_seconds for points in budgets.values() for p in points.values()]
+    seconds = [p.wall_seconds for points in budgets.values() for p in points.values()]
     subs = (1.0, 2.0, 5.0) if seconds and max(seconds) <= 100.0 * min(seconds) else (1.0,)
     method_keys = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=m) for m in methods]
     budget_keys = [plt.Line2D([], [], color="white", markeredgecolor="black", marker=mk, ls="",
@@ -206,7 +208,7 @@ def plot_speed_against_error(path: Path, budgets: Mapping[str, Mapping[str, Spee
         ax.xaxis.set_major_locator(LogLocator(subs=subs))  # labelled ticks only where they fit
         ax.xaxis.set_major_formatter(ScalarFormatter())
         ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel("train time, s (log)")
+        ax.set_xlabel("training wall time, s (log)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     fig.suptitle(textwrap.fill(title, 120), fontsize=9)

@@ -23,7 +23,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -64,6 +64,9 @@ from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
 from splatu.world_frame import normalised_world_to_camera, scene_frame
+
+if TYPE_CHECKING:
+    from splatu.baselines.load import LoadedRun  # at run time imported where used: it pulls in the trainer stack
 
 ViewSet = Literal["eval", "train", "orbit", "cameras"]
 
@@ -369,10 +372,18 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     if not entries:
         raise SplatuError("no eval view has a pixel to score (each is excluded by its mask file)",
                           "in the scene's mask files", "fix the masks, or hold out other views (--eval-split)")
-    timing = {"train_seconds": run.train_seconds, "setup_seconds": built.setup_seconds,
+    timing = {**train_timing(run), "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored
     return EvalMaps(root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in, label)
+
+
+def train_timing(run: LoadedRun) -> dict[str, float | None]:
+    """What the run's training cost, as render.json and eval-ause's timing.json name it: `train_step_seconds`, the
+    time inside training steps (summary.json's train_seconds; an ensemble's, its members' summed), is the one measure
+    every method reports, so ours and the ensemble compare on it; `train_wall_seconds` (scene loading, evaluations,
+    every session of an ensemble) is beside it. Both None for a run or ensemble not finished."""
+    return {"train_step_seconds": run.train_seconds, "train_wall_seconds": run.wall_seconds}
 
 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")
@@ -414,7 +425,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         view.nearest_training_view = closest._asdict()
         view.source_name = camera.name or view.name
     with no_empty_folders_left(out):
-        record = write_in_place(out, views, config, run_info.train_seconds, built.setup_seconds, seconds)
+        record = write_in_place(out, views, config, train_timing(run_info), built.setup_seconds, seconds)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
     which = "candidate" if config.views == "cameras" else config.views
     Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
@@ -424,14 +435,14 @@ def run(config: RenderUncertaintyConfig) -> None:
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
-                   train_seconds: float | None, setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
+                   training: dict[str, float | None], setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
     """Write the render into a staging folder inside `out`, then swap it in whole (see `swap_in`); the staging
     folder is removed whatever happens. Returns what render.json holds."""
     remove(leftover_temporaries(out, STAGING))  # a render killed outright (SIGKILL, OOM) left its staging
     staging = temporary_sibling(out / STAGING)
     try:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
-            record = write_render(staging, views, config, train_seconds, setup_seconds, seconds)
+            record = write_render(staging, views, config, training, setup_seconds, seconds)
             swap_in(staging, out)
     except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
         if os_error_behind(err) is None:
@@ -442,15 +453,15 @@ def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertain
     return record
 
 
-def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig, train_seconds: float | None,
-                 setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
-    """Every file of a render, render.json last; returns what render.json holds."""
+def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
+                 training: dict[str, float | None], setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
+    """Every file of a render, render.json last (`training`: `train_timing`); returns what render.json holds."""
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         **config.uncertainty.record(), "views": config.views,
         # the file --views cameras ranked: every candidate file renders into the same default folder
         "cameras": None if config.cameras is None else str(transforms_file(config.cameras).resolve()),
-        "train_seconds": train_seconds, "setup_seconds": setup_seconds,
+        **training, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
         # name: the stem of the view's files; source_name: the name the scene or --cameras gave it (close0.2, whose

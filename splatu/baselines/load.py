@@ -44,12 +44,16 @@ class LoadedRun:
     config: TrainConfig
     models: list[GaussianModel]
     train_seconds: float | None
-    """Training time as the run recorded it (an ensemble: the wall time of all members)."""
+    """Time inside training steps, summary.json's train_seconds (an ensemble: the sum of its members'), the one
+    measure of cost that ours and the ensemble are compared on; None for a run or ensemble not finished."""
     frames: list[WorldTransform | None]
     """Per model, the frame (scene normalisation) it was trained in; None in older checkpoints."""
     member_steps: tuple[int, ...] | None = None
     """An ensemble that is not whole now (`unfinished_members`): the step of each member's checkpoint loaded, which
     names what is made of it; None for a finished ensemble and a single run."""
+    wall_seconds: float | None = None
+    """Wall time of the training, scene loading and evaluations included: summary.json's wall_seconds (an ensemble:
+    ensemble.json's, every session that trained a member); None when `train_seconds` is."""
 
 
 @dataclass
@@ -59,14 +63,24 @@ class BuiltMethod:
     """Post-training cost of the method (visibility counting, Fisher accumulation); 0 for the others."""
 
 
-def _summary_seconds(run_dir: Path) -> float | None:
+def _summary_seconds(run_dir: Path) -> tuple[float | None, float | None]:
+    """summary.json's train_seconds and wall_seconds; (None, None) for a run not finished (it has none)."""
     path = run_dir / "summary.json"
     if not path.is_file():
-        return None
-    seconds = read_json(path).get("train_seconds")
-    if seconds is not None and not is_finite_number(seconds):
-        raise SplatuError(f"train_seconds is {seconds!r}, not a number", f"in {path}", "fix or regenerate the file")
-    return seconds
+        return None, None
+    summary = read_json(path)
+    for key in ("train_seconds", "wall_seconds"):
+        if summary.get(key) is not None and not is_finite_number(summary[key]):
+            raise SplatuError(f"{key} is {summary[key]!r}, not a number", f"in {path}", "fix or regenerate the file")
+    return summary.get("train_seconds"), summary.get("wall_seconds")
+
+
+def _ensemble_seconds(record_wall: float | None, members: list[Path]) -> tuple[float | None, float | None]:
+    """An ensemble's time in steps, the sum of its members' (each summary.json's, as a single run reports its own),
+    and its wall time from ensemble.json; (None, None) unless every member has its time in steps."""
+    seconds = [_summary_seconds(member)[0] for member in members]
+    known = [s for s in seconds if s is not None]
+    return (sum(known), record_wall) if len(known) == len(seconds) else (None, None)
 
 
 def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
@@ -85,13 +99,18 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
         checkpoints = [resolve_checkpoint(member) for member in record.members]
         loaded = [load_run(checkpoint) for checkpoint in checkpoints]
         steps = tuple(map(checkpoint_step, checkpoints)) if unfinished else None
-        return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], record.wall_seconds,
-                         [m.frame for m in loaded], steps)
+        # an ensemble not whole now is made of partly intermediate models: no finished ensemble's cost, as a single
+        # run's checkpoint pinned before its end reports none
+        train_seconds, wall_seconds = (None, None) if unfinished else _ensemble_seconds(record.wall_seconds,
+                                                                                        record.members)
+        return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], train_seconds,
+                         [m.frame for m in loaded], steps, wall_seconds)
     if (run_dir / "members").is_dir() and not (run_dir / "checkpoints").is_dir():
         raise SplatuError("this ensemble is unfinished (it has members but no ensemble.json yet)", f"in {run_dir}",
                           f"finish it with `splatu train --resume {run_dir}`")
     config, model, frame = load_run(run_dir, head)
-    return LoadedRun(run_dir, config, [model], _summary_seconds(run_dir), [frame])
+    train_seconds, wall_seconds = _summary_seconds(run_dir)
+    return LoadedRun(run_dir, config, [model], train_seconds, [frame], wall_seconds=wall_seconds)
 
 
 def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:

@@ -511,7 +511,7 @@ def test_unwritable_outputs_are_one_line_errors(tiny_run, tmp_path, capsys):
 def test_a_damaged_summary_is_a_one_line_error(tiny_run, tmp_path, capsys):
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
-    for damaged in ('{"train_sec', '{"train_seconds": "slow"}'):
+    for damaged in ('{"train_sec', '{"train_seconds": "slow"}', '{"train_seconds": 1.0, "wall_seconds": [1]}'):
         (copy / "summary.json").write_text(damaged)
         for command in ("render-uncertainty", "eval-ause"):
             line = _one_line(capsys, [command, "--load", str(copy)])
@@ -547,6 +547,29 @@ def test_eval_ause_passes_its_seed_to_the_random_method_and_files_each_seed_apar
         capsys, ["eval-ause", "--load", str(tiny_run), "--method", "visibility", "--seed", "2"])
 
 
+def test_ours_and_the_ensemble_report_their_cost_in_the_same_measure(tiny_run, tmp_path):
+    """render.json and eval-ause's timing.json gave a single run's time inside training steps (summary.json's
+    train_seconds) but an ensemble's wall time (ensemble.json's), both as train_seconds, so comparing their costs
+    mixed two measures. Each now gives the time in steps (an ensemble: its members' summed) as train_step_seconds,
+    and the wall time beside it as train_wall_seconds."""
+    ensemble = tmp_path / "ensemble"
+    for k in range(2):
+        shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    summary = json.loads((tiny_run / "summary.json").read_text())
+    (ensemble / "members" / "1" / "summary.json").write_text(json.dumps({**summary, "train_seconds": 40.0}))
+    (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"],
+                                                        "wall_seconds": 1000.0}))
+    for run, method, steps, wall in ((tiny_run, "ours", summary["train_seconds"], summary["wall_seconds"]),
+                                     (ensemble, "ensemble", summary["train_seconds"] + 40.0, 1000.0)):
+        _render(run, "--method", method, "--max-views", "1", "--output", str(tmp_path / method))
+        entrypoint(["eval-ause", "--load", str(run), "--method", method, "--output", str(tmp_path / f"{method}.json")])
+        rendered = json.loads((tmp_path / method / "render.json").read_text())
+        timing = json.loads((tmp_path / f"{method}-maps" / "timing.json").read_text())
+        for record in (rendered, timing):
+            assert "train_seconds" not in record
+            assert (record["train_step_seconds"], record["train_wall_seconds"]) == (steps, wall)
+
+
 def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty_space(tiny_run, tmp_path):
     ensemble = tmp_path / "ensemble"
     for k in range(2):
@@ -557,7 +580,8 @@ def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty
     _render(ensemble, "--method", "ensemble", "--density-aware", "--max-views", "2",
             "--output", str(tmp_path / "aware"))
     record = json.loads((tmp_path / "plain" / "render.json").read_text())
-    assert record["train_seconds"] == 12.5
+    member = json.loads((tiny_run / "summary.json").read_text())  # each member's
+    assert (record["train_step_seconds"], record["train_wall_seconds"]) == (2 * member["train_seconds"], 12.5)
     assert (record["method"], record["density_aware"]) == ("ensemble", False)
     assert json.loads((tmp_path / "aware" / "render.json").read_text())["density_aware"] is True
     for view in record["per_view"]:
