@@ -68,7 +68,9 @@ class ViewUncertainty:
 
 
 class SceneCamera(NamedTuple):
-    """A camera of the run's scene as the run saw it, in the data's frame: `run.render(*camera)` renders it."""
+    """A camera of the run's scene as the run saw it, in the data's frame: `run.render(*camera)` renders it, and
+    `run.render(*camera, off_centre_ok=True)` a tile's or crop's (whose principal point lies far off-centre or off
+    the image, which trained with a warning), refused without it as a candidate K of another size would be."""
 
     world_to_camera: np.ndarray  # (4, 4) float64, OpenCV axes: the pose in the scene's files
     K: np.ndarray  # (3, 3) float64: the pinhole its image was undistorted to, at the run's --downscale
@@ -96,12 +98,20 @@ class RunQuery:
 
     @torch.no_grad()
     def render(self, world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
-               height: int) -> ViewUncertainty:
+               height: int, *, off_centre_ok: bool = False) -> ViewUncertainty:
         """Render a camera: world-to-camera (4, 4) in the data's frame with OpenCV axes (x right, y down, z
         forward), pinhole intrinsics K (3, 3) in pixels, and the image size. Pixel (i, j) has its centre at
         (j + 0.5, i + 0.5), as in COLMAP and nerfstudio (OpenCV's calibration puts it at (j, i): add 0.5 to its cx
-        and cy). For a distorted lens pass the pinhole the images were undistorted to (see `scene_cameras`)."""
-        w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height)
+        and cy). For a distorted lens pass the pinhole the images were undistorted to (see `scene_cameras`).
+
+        A principal point that a K of another size, or width and height swapped, explains is refused: a candidate
+        has no image to show the mistake, which renders a shifted, zoomed view. A tile or crop of a larger photo
+        (a tile scene's own `scene_cameras` too) has its point there by design: `off_centre_ok=True` says so and
+        renders it. An explicit keyword, not a match against the scene's cameras, keeps the render a function of
+        its arguments alone, as gsplat's rasterizer is: no hidden read of the scene's files (which may have
+        moved), the same answer in every process, and a pasted K is still checked unless the caller vouches for it.
+        """
+        w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height, off_centre_ok)
         camera = Camera(intrinsics, normalised_world_to_camera(w2c, self.frame), width, height)
         if float(torch.cat([camera.world_to_camera.abs().flatten(), intrinsics.abs().flatten()]).max()) > FLOAT32_MAX:
             raise SplatuError("the camera lies beyond float32's range (±3.4e38) in the model's frame, where it renders",
@@ -115,7 +125,8 @@ class RunQuery:
         frame's file_path such as images/0001.jpg), as the run saw it: the pose from
         the scene's files and the undistorted, downscaled K and size its images trained at. Reads the scene's
         files, not its images (a NeRF-synthetic scene's first image per split, for its size); `data` is the scene's
-        new location if it has moved."""
+        new location if it has moved. A tile or crop of a larger photo renders with `off_centre_ok=True` (see
+        `render`)."""
         return scene_cameras(self.config.data, self.frame, data)
 
     def training_cameras(self, data: str | Path | None = None) -> dict[str, SceneCamera]:
@@ -211,11 +222,11 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
                                 f.camera.width, f.camera.height) for f in frames}
 
 
-def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int,
-                    height: int) -> tuple[Tensor, Tensor, int, int]:
+def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int, height: int,
+                    off_centre_ok: bool) -> tuple[Tensor, Tensor, int, int]:
     """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
-    that is not a rigid motion, a bad size, or a K of another image size or orientation would otherwise render a
-    wrong or blank image without a word."""
+    that is not a rigid motion, a bad size, or a K of another image size or orientation (unless `off_centre_ok`
+    vouches for a tile's principal point) would otherwise render a wrong or blank image without a word."""
     # the loaders' own check of a pose (finite, rigid within their tolerance, last row 0 0 0 1; 3x4 or 4x4)
     w2c = torch.from_numpy(checked_matrix(world_to_camera, "in RunQuery.render's world_to_camera",
                                           "pass an OpenCV world-to-camera pose without scale"))
@@ -242,13 +253,15 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
                           "splatu's pinhole camera does not model", "in RunQuery.render", fix)
     # K for another image size (the file's full-resolution K at the run's --downscale size), or width and height
     # passed the wrong way round, rendered a zoomed, shifted view without a word
-    fault = misplaced_principal_point(float(intrinsics[0, 2]), float(intrinsics[1, 2]), width, height)
+    fault = None if off_centre_ok else misplaced_principal_point(float(intrinsics[0, 2]), float(intrinsics[1, 2]),
+                                                                  width, height)
     if fault is not None:
+        fix = ("pass the width before the height, or swap K's cx and cy" if fault[0] == "swapped" else
+               "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), or scale "
+               "K's first two rows by new size / old size")
         raise SplatuError(f"K's {fault[1]}", "in RunQuery.render",
-                          "pass the width before the height, or swap K's cx and cy" if fault[0] == "swapped" else
-                          "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), "
-                          "or scale K's first two rows by new size / old size; for a tile or crop of a larger photo, "
-                          "pass the whole photo's camera and cut the tile out of its render")
+                          f"{fix}; for a tile or crop of a larger photo (a tile scene's own cameras too), pass "
+                          "off_centre_ok=True")
     return w2c, intrinsics, width, height
 
 

@@ -90,6 +90,10 @@ class RenderUncertaintyConfig:
     render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose [R(qvec) | tvec] is written as
     its inverse with the y and z columns negated. Empty space counts as U = 1, so a view of nothing ranks first
     (render.json gives each view's coverage)."""
+    off_centre_ok: bool = False
+    """With --cameras: its cameras are tiles or crops of larger photos (a tile scene's own, say), whose principal
+    point lies far off-centre or off the image by design; without it such a camera is refused, as a K made for
+    another size or with w and h swapped would render a shifted, zoomed view without a word."""
     output: Path | None = None
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
@@ -157,7 +161,7 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
     if which == "cameras":
         assert config.cameras is not None  # run() refuses --views cameras without it
         cameras = [dataclasses.replace(c, world_to_camera=normalised_world_to_camera(c.world_to_camera, frame))
-                   for c in read_cameras(config.cameras, downscale)]
+                   for c in read_cameras(config.cameras, downscale, config.off_centre_ok)]
         keep = _evenly(len(cameras), config.max_views)
         return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
                         depth_unit=frame.scale)
@@ -403,6 +407,9 @@ def run(config: RenderUncertaintyConfig) -> None:
     if (config.cameras is None) == (config.views == "cameras"):
         raise SplatuError("--cameras FILE and --views cameras go together", "in the command's options",
                           "pass both to render candidate cameras, or neither")
+    if config.off_centre_ok and config.cameras is None:  # the scene's own views (train, eval) render as they are
+        raise SplatuError("--off-centre-ok only applies with --views cameras --cameras FILE",
+                          "in the command's options", "drop --off-centre-ok, or pass --views cameras --cameras FILE")
     if config.cameras is not None:
         require_file(transforms_file(config.cameras), "camera file",
                      "pass the path of a transforms.json-style file of cameras, or of the folder holding it")

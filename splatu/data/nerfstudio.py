@@ -311,10 +311,11 @@ def transforms_file(path: Path) -> Path:
     return path / "transforms.json" if path.is_dir() else path
 
 
-def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
+def read_cameras(path: Path, downscale: int = 1, off_centre_ok: bool = False) -> list[Camera]:
     """The cameras a transforms.json-style file (or its folder) lists, poses and intrinsics as nerfstudio writes
     them, built as the loader builds a run's cameras at its --downscale: candidate views in the data's frame. No
-    image need exist; file_path only names the view."""
+    image need exist; file_path only names the view. A principal point that a mistake explains is refused, unless
+    `off_centre_ok` (render-uncertainty's --off-centre-ok) says the file holds tiles or crops of larger photos."""
     path = transforms_file(path)
     top = read_json(path)
     refuse_misspelt_keys(top, TOP_KEYS, f"in {path}")
@@ -326,11 +327,11 @@ def read_cameras(path: Path, downscale: int = 1) -> list[Camera]:
     for index, frame in enumerate(frames_json):
         name, where, c2w = frame_entry(frame, index, path, FRAME_KEYS)
         camera, K, _ = _frame_camera(frame, top, where, name, c2w, undistorted)
-        fault = misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), camera.width, camera.height)
+        fault = None if off_centre_ok else misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), camera.width,
+                                                                      camera.height)
         if fault is not None:  # no image shows which of K and w, h is wrong, and either renders a shifted view
-            raise SplatuError(fault[1], where, _principal_point_fix(fault[0]) + (
-                "" if fault[0] == "swapped" else "; for a tile or crop of a larger photo, give the whole photo's "
-                "camera and cut the tile out of its render (a scene's own tiles render with --views train or eval)"))
+            raise SplatuError(fault[1], where, f"{_principal_point_fix(fault[0])}; for tiles or crops of a larger "
+                              "photo (a tile scene's own cameras too), pass --off-centre-ok")
         cameras.append(camera.scaled(1.0 / downscale))
     return cameras
 

@@ -739,7 +739,7 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     (lambda w2c, K: (w2c, K - np.array([[0.0, 0.0, 24.0], [0.0, 0.0, 40.0], [0.0, 0.0, 0.0]])),
      "K's principal point (0, 0) lies on the edge of the 48x80 image, in RunQuery.render, pass the K of this size"),
     (lambda w2c, K: (w2c, K + np.array([[0.0, 0.0, 24.0], [0.0, 0.0, -40.0], [0.0, 0.0, 0.0]])),
-     "; for a tile or crop of a larger photo, pass the whole photo's camera and cut the tile out of its render"),
+     "; for a tile or crop of a larger photo (a tile scene's own cameras too), pass off_centre_ok=True"),
     # K of an 80×48 image (width and height passed the wrong way round), and of a half-size one: inside the image
     (lambda w2c, K: (w2c, K[[1, 0, 2]][:, [1, 0, 2]]), "K's principal point (40, 24) is 33% of the width off the "
      "centre of the 48x80 image, but at the centre of a 80x48 one"),
@@ -818,6 +818,82 @@ def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
     write_nerfstudio_scene(tmp_path / "other")
     with pytest.raises(SplatuError, match="normalisation differs"):
         run.scene_cameras(tmp_path / "other")
+
+
+def _tile_scene(run, root: Path) -> dict[str, tuple[str, int, int]]:
+    """A nerfstudio scene (files only, no image) of the run's own views each cut into 2x2 tiles, as aerial grids
+    are: every tile with its photo's pose and K shifted to the tile, so each has its principal point on a corner.
+    Tiles share their photos' centres, so the scene normalises as the run's: its cameras are the run's to query.
+    Returns each tile's (photo, column, row)."""
+    from tests.synthetic_scenes import write_transforms
+
+    tiles, names, where = [], [], {}
+    for photo, (w2c, K, width, height) in sorted(run.scene_cameras().items()):
+        for row in range(2):
+            for col in range(2):
+                tile_K = K.copy()
+                tile_K[0, 2] -= col * width // 2
+                tile_K[1, 2] -= row * height // 2
+                tiles.append(Camera(torch.from_numpy(tile_K), torch.from_numpy(w2c), width // 2, height // 2))
+                names.append(f"tiles/{Path(photo).stem}_{row}{col}.png")
+                where[names[-1]] = (photo, col * width // 2, row * height // 2)
+    root.mkdir()
+    write_transforms(root / "transforms.json", tiles, names)
+    return where
+
+
+def test_a_tile_scenes_own_cameras_render_with_off_centre_ok_as_their_part_of_the_whole_photo(tiny_run, tmp_path):
+    """A scene of tiles trains (with a warning), and `SceneCamera` promises `run.render(*camera)`: its cameras,
+    whose principal points sit on their corners, were refused as "outside" with no way to render them. They are
+    still refused without a word from the caller (a candidate's K of another size looks the same), with the fix
+    naming off_centre_ok=True; with it each tile renders as its part of the whole photo's render."""
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    where = _tile_scene(run, tmp_path / "tiles")
+    tiles = run.scene_cameras(tmp_path / "tiles")
+    assert set(tiles) == set(where)
+    whole = run.scene_cameras()
+    for name in sorted(tiles)[:4]:  # one photo's four tiles
+        with pytest.raises(SplatuError, match="lies on the edge of the 24x40 image") as caught:
+            run.render(*tiles[name])
+        assert caught.value.fix.endswith("for a tile or crop of a larger photo (a tile scene's own cameras too), "
+                                         "pass off_centre_ok=True")
+        photo, left, top = where[name]
+        tile = run.render(*tiles[name], off_centre_ok=True)
+        full = run.render(*whole[photo])
+        assert tile.rgb.shape == (40, 24, 3)
+        # its own part of the photo, not another, up to the Gaussians its narrower clamp range bends (README: Data)
+        error = {(x, y): float(np.abs(tile.rgb - full.rgb[y:y + 40, x:x + 24]).mean())
+                 for x in (0, 24) for y in (0, 40)}
+        assert min(error, key=error.__getitem__) == (left, top) and error[left, top] < 5e-3, error
+
+
+def test_a_tile_scenes_own_cameras_render_from_a_camera_file_with_off_centre_ok(tiny_run, tmp_path, capsys):
+    """`--views cameras` refused a tile scene's own cameras, its fix saying only to cut each tile out of the whole
+    photo's render; the refusal now names --off-centre-ok, which renders them as the query does."""
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    assert run.config.data.downscale in (None, 1)  # so the tiles' K is the scene's at full resolution, as the file's
+    _tile_scene(run, tmp_path / "tiles")
+    content = json.loads((tmp_path / "tiles" / "transforms.json").read_text())
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(json.dumps({**content, "frames": content["frames"][:4]}))
+    options = ["render-uncertainty", "--load", str(tiny_run), "--views", "cameras", "--cameras", str(candidates),
+               "--output", str(tmp_path / "out")]
+    line = _one_line(capsys, options)
+    assert "lies on the edge of the 24x40 image" in line and line.endswith(
+        "for tiles or crops of a larger photo (a tile scene's own cameras too), pass --off-centre-ok")
+    entrypoint([*options, "--off-centre-ok"])
+    tiles = run.scene_cameras(tmp_path / "tiles")
+    per_view = json.loads((tmp_path / "out" / "render.json").read_text())["per_view"]
+    assert len(per_view) == 4
+    for view in per_view:
+        expected = run.render(*tiles[view["source_name"]], off_centre_ok=True)
+        for key in ("rgb", "uncertainty"):
+            got = np.load(tmp_path / "out" / "npy" / f"{view['name']}_{key}.npy")
+            assert np.allclose(got, getattr(expected, key), atol=1e-5), (view["name"], key)
 
 
 def test_open_run_errors_give_a_python_caller_a_way_on(tiny_run, tmp_path):
@@ -962,6 +1038,7 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     (("--views", "cameras"), "--cameras FILE and --views cameras go together"),
     (("--cameras", "c.json"), "--cameras FILE and --views cameras go together"),
     (("--views", "cameras", "--cameras", "missing.json"), "camera file not found"),
+    (("--off-centre-ok",), "--off-centre-ok only applies with --views cameras --cameras FILE"),
 ])
 def test_candidate_camera_options_are_refused_in_one_line(tiny_run, tmp_path, capsys, args, message):
     assert message in _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), *args,

@@ -1253,13 +1253,16 @@ def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, 
 
 
 def test_a_candidate_tile_camera_is_told_how_to_render_it(tmp_path):
-    """A tile's camera cannot be told from a K of another size without its image: the refusal says what works."""
+    """A tile's camera cannot be told from a K of another size without its image: the refusal names the flag that
+    renders it (the fix said only to cut it out of the whole photo's render, and a tile scene's own cameras, which
+    trained, had no way through --cameras), and with it the tile reads as given."""
     (tmp_path / "transforms.json").write_text(json.dumps({
         "w": 24, "h": 40, "fl_x": 40.0, "cx": 0.0, "cy": 40.0,
         "frames": [{"file_path": "a", "transform_matrix": np.eye(4).tolist()}]}))
     with pytest.raises(SplatuError) as caught:
         read_cameras(tmp_path)
     assert caught.value.fix == ("give fl_x, fl_y, cx and cy in pixels of this w x h image (scaled by w / the width "
-                                "they were made for); for a tile or crop of a larger photo, give the whole photo's "
-                                "camera and cut the tile out of its render (a scene's own tiles render with --views "
-                                "train or eval)")
+                                "they were made for); for tiles or crops of a larger photo (a tile scene's own "
+                                "cameras too), pass --off-centre-ok")
+    (camera,) = read_cameras(tmp_path, off_centre_ok=True)
+    assert (camera.width, camera.height) == (24, 40) and camera.K[:2, 2].tolist() == [0.0, 40.0]
