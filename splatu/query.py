@@ -206,14 +206,15 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
 def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path | None = None,
                   training_only: bool = False) -> dict[str, SceneCamera]:
     """The cameras of the scene `recorded` names (at `data` if given) in the data's frame, as the loaders make them
-    for training (only its training split's with `training_only`); a scene that is missing, or normalised unlike
-    `frame` (another scene), is one SplatuError line."""
+    for training (only its training split's with `training_only`), without the loaders' off-centre warning; a
+    scene that is missing, or normalised unlike `frame` (another scene), is one SplatuError line."""
     config = recorded if data is None else dataclasses.replace(recorded, data=str(data))
     path = scene_path(config)
     where = "in RunQuery.scene_cameras"
     if config.data != POSTER and not path.exists():
         raise SplatuError(f"the run's scene is not at {path}", where, "pass data= with the scene's location")
-    raw = read_scene_files(path, config.downscale or 1, config.background)
+    # quietly: the run warned of principal points far off-centre as it trained, and a query may run in a loop
+    raw = read_scene_files(path, config.downscale or 1, config.background, warn_off_centre=False)
     center, scale = scene_normalization(raw)
     require_same_frame(frame, WorldTransform.from_normalization(center, scale), f"in {path}",
                        "pass data= with the scene this run was trained on")

@@ -372,8 +372,9 @@ def refuse_unusable_point(points: np.ndarray, ids: list[int], points_file: Path)
                           "delete that point from the model or re-run the reconstruction")
 
 
-def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
-    """Registered images (sorted by name) with undistorted cameras, and points3D with colours."""
+def load_colmap(root: Path, sparse_dir: Path, downscale: int, warn_off_centre: bool = True) -> RawScene:
+    """Registered images (sorted by name) with undistorted cameras, and points3D with colours, with one warning line
+    for principal points far off-centre unless not `warn_off_centre`."""
     reconstruction = read_reconstruction(sparse_dir)
     images_dir = root / "images"
     files = model_files(sparse_dir)
@@ -411,5 +412,6 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int) -> RawScene:
     points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
     refuse_unusable_point(points, sorted(reconstruction.points3D), files["points3D"])
     colors = np.array([p.color for p in points3d], dtype=np.float32).reshape(-1, 3) / 255.0
-    warn_misplaced(misplaced, len(intrinsics), "cameras", files["cameras"], _principal_point_fix)
+    if warn_off_centre:
+        warn_misplaced(misplaced, len(intrinsics), "cameras", files["cameras"], _principal_point_fix)
     return RawScene(name=root.name, source=str(sparse_dir), frames=frames, points=points, point_colors=colors)

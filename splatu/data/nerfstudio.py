@@ -336,8 +336,10 @@ def read_cameras(path: Path, downscale: int = 1, off_centre_ok: bool = False) ->
     return cameras
 
 
-def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
-    """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution."""
+def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float],
+                    warn_off_centre: bool = True) -> RawScene:
+    """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution, with one warning
+    line for principal points far off-centre unless not `warn_off_centre`."""
     json_path = transforms_file(path)
     root = json_path.parent
     top = read_json(json_path)
@@ -382,7 +384,8 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
     if top.get("ply_file_path"):
         points, colors = read_ply_points(root / str(top["ply_file_path"]))
     splits = _file_splits(top, [f.name for f in frames], json_path)
-    warn_misplaced(misplaced, len(frames), "frames", json_path, _principal_point_fix)  # once the file has loaded
+    if warn_off_centre:  # once the file has loaded
+        warn_misplaced(misplaced, len(frames), "frames", json_path, _principal_point_fix)
     return RawScene(name=root.name, source=str(json_path), frames=frames, points=points, point_colors=colors,
                     file_splits=splits, stand_in=STANDIN_KEY in top)
 

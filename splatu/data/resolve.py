@@ -36,8 +36,10 @@ def real_poster_candidates() -> list[Path]:
     return places
 
 
-def read_scene_files(path: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
-    """Parse a scene folder or file by its format, without decoding any image."""
+def read_scene_files(path: Path, downscale: int, background: tuple[float, float, float],
+                     warn_off_centre: bool = True) -> RawScene:
+    """Parse a scene folder or file by its format, without decoding any image; `warn_off_centre` False leaves out
+    the loaders' warning about principal points far off-centre, for a query of a scene its run already warned of."""
     if not path.exists():
         raise SplatuError("scene not found", f"in {path}",
                           "pass --data poster or the path of a nerfstudio, COLMAP or NeRF-synthetic scene")
@@ -45,15 +47,15 @@ def read_scene_files(path: Path, downscale: int, background: tuple[float, float,
         if path.name.startswith("transforms_") and is_blender(path.parent):
             return load_blender(path.parent, downscale, background)
         if path.suffix == ".json":
-            return load_nerfstudio(path, downscale, background)
+            return load_nerfstudio(path, downscale, background, warn_off_centre)
     elif (path / "transforms.json").is_file():
-        return load_nerfstudio(path, downscale, background)
+        return load_nerfstudio(path, downscale, background, warn_off_centre)
     elif is_blender(path):
         return load_blender(path, downscale, background)
     elif (sparse := find_sparse_dir(path)) is not None:
-        return load_colmap(path, sparse, downscale)
+        return load_colmap(path, sparse, downscale, warn_off_centre)
     elif (root := scene_root_of(path)) is not None:
-        return load_colmap(root, path, downscale)
+        return load_colmap(root, path, downscale, warn_off_centre)
     elif (empty := empty_sparse_dir(path)) is not None:
         raise SplatuError("the COLMAP model folder is empty (no cameras, images or points3D file)", f"in {empty}",
                           "run the reconstruction again (splatu process-images) or export the model into it")

@@ -1196,6 +1196,33 @@ def test_a_colmap_camera_whose_k_does_not_fit_its_size_is_one_warning_line(tmp_p
                                  f"wrong, {fix}\n")
 
 
+def _off_centre_nerfstudio(root: Path) -> None:
+    write_nerfstudio_scene(root, n=4, width=64, height=36)
+    edit_transforms(root, lambda c: [f.update(cx=f["cx"] * 3) for f in c["frames"]])
+
+
+@pytest.mark.parametrize("write", [_off_centre_nerfstudio,
+                                   lambda root: write_colmap(root, camera="1 PINHOLE 64 36 50 50 70 18")])
+def test_querying_a_scene_s_cameras_in_a_loop_prints_nothing(tmp_path, capfd, write):
+    """`RunQuery.scene_cameras` and `training_cameras` read the scene's files through the loaders, which printed
+    their principal-point warning on every call: a planner asking in a loop filled stderr with it. The run warned
+    as it trained; the query reads quietly (and loading the scene to train still warns, once)."""
+    from splatu.data.assemble import scene_normalization
+    from splatu.query import scene_cameras
+    from splatu.world_frame import WorldTransform
+
+    write(tmp_path / "scene")
+    raw = read_scene_files(tmp_path / "scene", 1, (1.0, 1.0, 1.0))
+    out, err = capfd.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith("warning: ")
+    frame = WorldTransform.from_normalization(*scene_normalization(raw))
+    config = DataConfig(data=str(tmp_path / "scene"), eval_split="every-n", eval_every=2)
+    for _ in range(3):
+        assert len(scene_cameras(config, frame)) == len(raw.frames)
+        assert 0 < len(scene_cameras(config, frame, training_only=True)) < len(raw.frames)
+    assert capfd.readouterr() == ("", "")
+
+
 def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and_height(tmp_path):
     """A 4:3 swap moves the principal point too little to refuse from the file alone; the image's size shows it."""
     root = tmp_path / "scene"
