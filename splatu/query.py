@@ -255,7 +255,7 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     # K for another image size (the file's full-resolution K at the run's --downscale size), or width and height
     # passed the wrong way round, rendered a zoomed, shifted view without a word
     fault = None if off_centre_ok else misplaced_principal_point(float(intrinsics[0, 2]), float(intrinsics[1, 2]),
-                                                                  width, height)
+                                                                  width, height, candidate=True)
     if fault is not None:
         fix = ("pass the width before the height, or swap K's cx and cy" if fault[0] == "swapped" else
                "pass the K of this size (run.scene_cameras() gives each view's at the run's --downscale), or scale "

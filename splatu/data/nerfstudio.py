@@ -328,7 +328,7 @@ def read_cameras(path: Path, downscale: int = 1, off_centre_ok: bool = False) ->
         name, where, c2w = frame_entry(frame, index, path, FRAME_KEYS)
         camera, K, _ = _frame_camera(frame, top, where, name, c2w, undistorted)
         fault = None if off_centre_ok else misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), camera.width,
-                                                                      camera.height)
+                                                                      camera.height, candidate=True)
         if fault is not None:  # no image shows which of K and w, h is wrong, and either renders a shifted view
             raise SplatuError(fault[1], where, f"{_principal_point_fix(fault[0])}; for tiles or crops of a larger "
                               "photo (a tile scene's own cameras too), pass --off-centre-ok")

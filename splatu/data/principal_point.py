@@ -22,6 +22,13 @@ off-centre crop can move it further, so a point this far off is only flagged whe
 PRINCIPAL_POINT_NEAR = 0.05
 """How close to the centre, as a fraction of each side, the mistake's correction must bring the principal point."""
 
+CANDIDATE_SWAP_OFF = 0.05
+"""How far from the centre, as a fraction of a side, a candidate camera's principal point may lie before a swapped
+width and height is looked for: beyond any real capture's (fox 1.4%)."""
+CANDIDATE_SWAP_NEAR = 0.02
+"""How close to the centre of the swapped size, as a fraction of each side, such a point must lie to be read as a
+swap: a real capture's K, within 1.4% of its own centre, swapped lands within this of the swapped one."""
+
 PrincipalPointFault = Literal["outside", "swapped", "resized"]
 Misplaced = tuple[str, PrincipalPointFault, str]
 """A camera whose principal point looks misplaced: its name (frame 'a.png', camera 3), the fault's kind and text."""
@@ -36,7 +43,8 @@ def _made_for(fraction: tuple[float, float]) -> float | None:
     return made_for
 
 
-def misplaced_principal_point(cx: float, cy: float, width: int, height: int) -> tuple[PrincipalPointFault, str] | None:
+def misplaced_principal_point(cx: float, cy: float, width: int, height: int,
+                              candidate: bool = False) -> tuple[PrincipalPointFault, str] | None:
     """What is wrong with principal point (cx, cy) for a width x height image if it is not a tile or crop of a larger
     photo, as (kind, what), or None:
     - outside: on the image's edge or off it, where no whole photo has it (a K made for a larger image, or a tile:
@@ -44,8 +52,11 @@ def misplaced_principal_point(cx: float, cy: float, width: int, height: int) -> 
     - swapped: far from the centre, but near it with width and height swapped (a portrait K on a landscape size);
     - resized: inside but far from the centre, at the same fraction of both sides, so that one scale of K would
       centre it (a K made for a smaller or larger image, such as a --downscale's).
-    Images near square (4:3) swapped move it too little to tell from a crop, and pass: a loader still compares each
-    image's real size with w and h."""
+    A near-square (4:3) image swapped moves it less than a training scene's tiles and crops may lie off-centre
+    (a loader compares each image's real size with w and h instead), so there only a point 20% off is read as
+    swapped. A `candidate` camera has no image to check and no reason to be off-centre unless its caller says so,
+    so any point clearly off-centre (CANDIDATE_SWAP_OFF) and at the swapped size's centre (CANDIDATE_SWAP_NEAR) is
+    a swap; a square image has one centre either way round."""
     point = f"principal point ({cx:.6g}, {cy:.6g})"
     fraction = (cx / width, cy / height)
     made_for = _made_for(fraction)
@@ -54,11 +65,13 @@ def misplaced_principal_point(cx: float, cy: float, width: int, height: int) -> 
         place = "outside" if not (0.0 <= cx <= width and 0.0 <= cy <= height) else "on the edge of"
         return "outside", f"{point} lies {place} the {width}x{height} image{as_for}"
     off, side = max((abs(fraction[0] - 0.5), "width"), (abs(fraction[1] - 0.5), "height"))
-    if off <= PRINCIPAL_POINT_FAR:
-        return None
-    if max(abs(cx / height - 0.5), abs(cy / width - 0.5)) <= PRINCIPAL_POINT_NEAR:
+    off_swapped = max(abs(cx / height - 0.5), abs(cy / width - 0.5))
+    if ((off > PRINCIPAL_POINT_FAR and off_swapped <= PRINCIPAL_POINT_NEAR)
+            or (candidate and off > CANDIDATE_SWAP_OFF and off_swapped <= CANDIDATE_SWAP_NEAR)):
         return "swapped", (f"{point} is {off:.0%} of the {side} off the centre of the {width}x{height} image, "
                            f"but at the centre of a {height}x{width} one")
+    if off <= PRINCIPAL_POINT_FAR:
+        return None
     if made_for is not None:
         return "resized", f"{point} is at {fraction[0]:.0%} x {fraction[1]:.0%} of the {width}x{height} image{as_for}"
     return None

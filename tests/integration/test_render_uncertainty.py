@@ -757,6 +757,21 @@ def test_a_bad_candidate_camera_is_one_clear_error(tiny_run, change, message):
         open_run(tiny_run).render(*change(np.eye(4), K), 48, 80)
 
 
+def test_a_near_square_candidate_with_width_and_height_swapped_is_refused(tiny_run):
+    """A K made for 60x80 passed with 80x60 (a 4:3 swap, the point 17% off-centre) rendered a shifted view without a
+    word; it is refused as the wider swaps are, and renders on the caller's word (off_centre_ok=True)."""
+    from splatu.query import open_run
+
+    run = open_run(tiny_run)
+    K = np.array([[60.0, 0.0, 30.0], [0.0, 60.0, 40.0], [0.0, 0.0, 1.0]])
+    assert run.render(np.eye(4), K, 60, 80).rgb.shape == (80, 60, 3)
+    with pytest.raises(SplatuError, match=re.escape("K's principal point (30, 40) is 17% of the height off the centre "
+                                                    "of the 80x60 image, but at the centre of a 60x80 one")) as caught:
+        run.render(np.eye(4), K, 80, 60)
+    assert caught.value.fix.startswith("pass the width before the height, or swap K's cx and cy")
+    assert run.render(np.eye(4), K, 80, 60, off_centre_ok=True).rgb.shape == (60, 80, 3)
+
+
 def test_a_pose_as_a_file_rounds_it_renders_and_a_scaled_one_is_refused(tiny_run):
     """A pose written with 5 decimals (R·Rᵀ off by ~1e-5, as a transforms.json or a float32 export gives it) is what
     the loaders train with (they allow 1e-3), so the query renders it; a pose with a 1% scale is refused."""

@@ -1224,7 +1224,8 @@ def test_querying_a_scene_s_cameras_in_a_loop_prints_nothing(tmp_path, capfd, wr
 
 
 def test_an_image_of_the_camera_s_size_turned_on_its_side_says_to_swap_width_and_height(tmp_path):
-    """A 4:3 swap moves the principal point too little to refuse from the file alone; the image's size shows it."""
+    """A 4:3 swap moves the principal point too little to refuse from a training scene's file alone; the image's
+    size shows it."""
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
     write_rgb(root / cameras[3].name, noise_image(3, 30, 40))
@@ -1262,6 +1263,9 @@ def test_a_mask_or_depth_map_turned_on_its_side_says_to_turn_it_not_to_swap_the_
     (lambda c: c.update(w=24, h=40), "principal point (24, 40) lies on the edge of the 24x40 image, as for a K made "
      "for an image 2 times this size"),  # a 2x2 grid's top-left tile: refused as its three neighbours are
     (lambda c: c.update(cx=0.0, cy=0.0, w=24, h=40), "principal point (0, 0) lies on the edge of the 24x40 image"),
+    # a 60x80 camera's K with w and h swapped: 4:3 moves the point too little for a training scene to flag it
+    (lambda c: c.update(cx=30.0, cy=40.0, w=80, h=60), "principal point (30, 40) is 17% of the height off the centre "
+     "of the 80x60 image, but at the centre of a 60x80 one"),
     (lambda c: c.update(k5=0.01), "the file's k5 = 0.01 belongs to OpenCV's rational lens model (COLMAP FULL_OPENCV), "
      "which splatu does not model"),
 ])

@@ -25,7 +25,7 @@ def test_scaled_camera_scales_each_axis_by_its_own_size_ratio():
     (0.7 * 1920, 540.0, 1920, 1080, None),  # 20% off, as far as a crop may take it without another explanation
     (0.85 * 1920, 540.0, 1920, 1080, None),  # an off-centre crop along one side: nothing else explains it
     (0.25 * 1920, 0.33 * 1080, 1920, 1080, None),  # off in both, but by fractions no one scale of K centres
-    (240.0, 320.0, 640, 480, None),  # a 4:3 swap moves it too little to tell from a crop (the loader's image check)
+    (240.0, 320.0, 640, 480, None),  # a 4:3 swap: a training tile may lie there (the loader checks its image)
     (965.268, 554.558, 1080, 1920, "swapped"),  # fox's cx and cy the wrong way round
     (554.558, 965.268, 1920, 1080, "swapped"),  # or its w and h
     (3000.0, 2000.0, 4000, 6000, "swapped"),  # 3:2
@@ -39,6 +39,29 @@ def test_a_principal_point_is_refused_only_where_a_simple_mistake_explains_it(cx
     assert (found and found[0]) == fault
     if found:
         assert found[1].startswith(f"principal point ({cx:.6g}, {cy:.6g})") and f"{width}x{height} image" in found[1]
+
+
+@pytest.mark.parametrize(("cx", "cy", "width", "height", "fault"), [
+    (240.0, 320.0, 640, 480, "swapped"),  # a K made for 480x640 on a 640x480 candidate: 17% off, passed before
+    (320.0, 240.0, 480, 640, "swapped"),  # the other way round
+    (0.5135 * 480, 0.5027 * 640, 640, 480, "swapped"),  # a real capture's K (fox's 1.4% off its centre), swapped
+    (0.375 * 720, 0.5 * 540, 720, 540, None),  # 12.5% off along one side only: a crop, not at the swapped centre
+    (320.0, 240.0, 640, 480, None),  # centred
+    (320.0, 330.0, 660, 640, None),  # near square: swapped, the point lies within a real capture's offset
+    (320.0, 200.0, 640, 640, None),  # square: a swap changes nothing
+    (240.0, 320.0, 640, 640, None),
+    (554.558 / 2, 965.268 / 2, 1080, 1920, "resized"),  # the training scene's faults too
+    (-1.0, 10.0, 40, 30, "outside"),
+])
+def test_a_candidate_camera_s_near_square_swap_is_caught(cx, cy, width, height, fault):
+    """A candidate camera has no image to check and is refused on a fault, so a swapped 4:3 size, which moves the
+    principal point too little for a training scene (where tiles sit anywhere), is caught once the point is clearly
+    off-centre and at the swapped size's centre."""
+    found = misplaced_principal_point(cx, cy, width, height, candidate=True)
+    assert (found and found[0]) == fault
+    if fault == "swapped":
+        assert found[1].endswith(f"off the centre of the {width}x{height} image, but at the centre of a "
+                                 f"{height}x{width} one")
 
 
 @pytest.mark.parametrize("grid", [2, 3, 4])
