@@ -8,7 +8,7 @@ import torch
 
 from splatu.data.scene import Scene, Views
 from splatu.errors import SplatuError
-from splatu.losses import psnr, ssim
+from splatu.losses import psnr, ssim_map
 from splatu.model import GaussianModel
 from splatu.train_config import TrainConfig, eval_background
 from splatu.train_progress import view_progress
@@ -21,7 +21,9 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     shows the set `name`'s views on a terminal (`view_progress`).
 
     Images with alpha are scored on `background` too, so render and target share one background. Pixels
-    the scene's mask files exclude are left out of PSNR and are 0 in both images for SSIM, as in training.
+    the scene's mask files exclude are left out of PSNR and SSIM: they are 0 in both images, as in training, and
+    the SSIM map is averaged over the kept pixels only (two zero regions score 1, which inflated a masked view's
+    SSIM by the share it masks).
     """
     psnrs, ssims, observed = [], [], []
     with view_progress(progress) as bar:
@@ -34,7 +36,8 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
                 rgb, gt = rgb * views.mask_files[i][..., None], gt * views.mask_files[i][..., None]
             kept = None if views.mask_files is None else views.mask_files[i] > 0
             psnrs.append(psnr(rgb, gt, mask=kept))
-            ssims.append(float(ssim(rgb, gt)))
+            similarity = ssim_map(rgb, gt)
+            ssims.append(float(similarity.mean() if kept is None else similarity[kept].mean()))
             if views.observed is not None:
                 seen = views.observed[i] if kept is None else views.observed[i] & kept
                 if bool(seen.any()):

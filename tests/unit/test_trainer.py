@@ -960,6 +960,23 @@ def test_evaluation_scores_only_the_pixels_a_mask_file_keeps(tmp_path):
         evaluation.evaluate_views(model, nothing_kept, 1, background)
 
 
+def test_a_masked_view_s_ssim_is_its_kept_pixels_alone(tmp_path):
+    """SSIM over a mask file's kept pixels equals SSIM of the view cut to those pixels: the excluded pixels are 0 in
+    both images, as the window's zero padding is beyond a cut image's edge. Averaged over every pixel, two zero
+    regions scored 1 and lifted a half-masked view's SSIM towards 1."""
+    scene = tiny_scene()
+    model = trainer.fresh_state(tiny_config(tmp_path), scene).model
+    background = torch.zeros(3)
+    masked = _with_masked_right_side(scene, 1, masked=True).train
+    kept = W // 2 + 1
+    cut = dataclasses.replace(masked, images=masked.images[:, :, :kept].contiguous(), mask_files=None,
+                              cameras=[dataclasses.replace(camera, width=kept) for camera in masked.cameras])
+    whole, left = (evaluation.evaluate_views(model, views, 1, background) for views in (masked, cut))
+    assert whole["ssim"] == pytest.approx(left["ssim"], abs=1e-5)  # float32 renders and convolutions
+    assert whole["psnr"] == pytest.approx(left["psnr"], abs=1e-4)
+    assert whole["ssim"] < 0.25  # a fresh model's render is far from the images: 0.47 when the masked half scored 1
+
+
 def test_it_per_second_forgets_the_compile_of_the_first_step():
     rate = train_progress.StepRate(now=0.0)
     now = 30.0  # the first step compiles the kernels
