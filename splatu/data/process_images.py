@@ -43,7 +43,8 @@ class ProcessImagesConfig:
     overwrite: bool = False
     """Replace an existing database.db and sparse/0 in the output folder."""
     colmap_log: bool = False
-    """Also show COLMAP's own (verbose) log lines."""
+    """Also show COLMAP's own (verbose) log lines: its progress, warnings and errors, such as why a photo was
+    unreadable (without it splatu says in its own lines which photos it skipped and what failed)."""
 
     def validate(self) -> None:
         """Refuse an option COLMAP would not take as given, before any work: it reads a max_image_size of 0 or
@@ -119,16 +120,23 @@ def _remove_partial(created: list[Path]) -> None:
             path.unlink(missing_ok=True)
 
 
-def _photos_read(database: Path, names: list[str], images: Path) -> None:
-    """Stop early, naming the cause, when COLMAP could not read enough of the photos to match any pair."""
+def _photos_read(database: Path, names: list[str], images: Path, console: Console) -> None:
+    """Name the photos COLMAP could not read (its own warning is a raw log line, hidden unless --colmap-log), and
+    stop early when too few are left to match any pair."""
     db = pycolmap.Database.open(database)
     try:
-        read = db.num_images()
+        read = {image.name for image in db.read_all_images()}
     finally:
         db.close()
-    if read < 2:
-        raise SplatuError(f"COLMAP could read only {read} of {len(names)} photos", f"in {images}",
-                          "replace unreadable files with JPEG/PNG photos (COLMAP's warnings above name them)")
+    unread = [name for name in names if name not in read]
+    shown = ", ".join(repr(name) for name in unread[:3]) + (f" and {len(unread) - 3} more" if len(unread) > 3 else "")
+    if len(read) < 2:
+        raise SplatuError(f"COLMAP could read only {len(read)} of {len(names)} photos", f"in {images}",
+                          f"replace unreadable files ({shown}) with JPEG/PNG photos (--colmap-log shows COLMAP's "
+                          "reason)")
+    if unread:
+        console.print(f"  skipped {len(unread)} of {len(names)} photos COLMAP could not read: {shown} "
+                      "(--colmap-log shows why)", highlight=False, soft_wrap=True)
 
 
 def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, console: Console) -> None:
@@ -143,7 +151,7 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
     _stage(console, "extracting SIFT features", lambda: pycolmap.extract_features(
         database, cfg.images, image_names=names, camera_mode=mode, reader_options=reader,
         extraction_options=extraction, device=pycolmap.Device.cpu))
-    _photos_read(database, names, cfg.images)
+    _photos_read(database, names, cfg.images, console)
     match = pycolmap.match_exhaustive if cfg.matcher == "exhaustive" else pycolmap.match_sequential
     _stage(console, f"matching features ({cfg.matcher})", lambda: match(database, device=pycolmap.Device.cpu))
 
@@ -190,7 +198,9 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     database.unlink(missing_ok=True)
     if sparse.exists():
         shutil.rmtree(sparse)
-    pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.WARNING
+    # COLMAP's warnings and errors are raw log lines beside splatu's own for the same thing (an unreadable photo,
+    # no model); a failure COLMAP cannot go on from is its FATAL line and an exception
+    pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.FATAL
     console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
     try:
         _reconstruct(cfg, names, output, console)

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 import cv2
@@ -624,7 +625,22 @@ def test_failed_process_images_leaves_nothing_so_a_retry_needs_no_overwrite(tmp_
         with pytest.raises(SplatuError) as caught:
             process_images(config)
         assert caught.value.what == "COLMAP could read only 0 of 2 photos"
+        assert caught.value.fix.startswith("replace unreadable files ('a.jpg', 'b.jpg') with JPEG/PNG photos")
         assert not (tmp_path / "out").exists()
+
+
+def test_process_images_names_a_photo_colmap_could_not_read_in_one_line_of_its_own(tmp_path, capfd):
+    """COLMAP's own warning, a raw log line (W20261126 14:42:53 ... feature_extraction.cc ... BITMAP_ERROR), came
+    through without --colmap-log; splatu now says which photo it skipped and COLMAP's warnings stay hidden."""
+    photos = tmp_path / "photos"
+    for i in range(3):
+        write_rgb(photos / f"{i}.png", noise_image(i, 64, 64))
+    (photos / "3.jpg").write_bytes(b"\xff\xd8\xff\xe0 a truncated JPEG")
+    with pytest.raises(SplatuError, match="no model"):  # unrelated noise: nothing matches
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    err = capfd.readouterr().err.splitlines()
+    assert "  skipped 1 of 4 photos COLMAP could not read: '3.jpg' (--colmap-log shows why)" in err
+    assert not [line for line in err if re.match(r"[IWE]\d{8} ", line)]  # no glog line
 
 
 def test_process_images_without_a_model_does_not_suggest_the_default_matcher(tmp_path):
