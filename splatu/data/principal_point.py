@@ -88,5 +88,5 @@ def warn_misplaced(misplaced: list[Misplaced], total: int, noun: str, source: Pa
     verb = "has" if len(misplaced) == 1 else "have"
     Console(stderr=True).print(
         f"warning: {len(misplaced)} of {total} {noun} in {source} {verb} a principal point far from the image's "
-        f"centre ({name}: {what}); training goes on with the cameras as given, which is right for tiles or crops cut "
+        f"centre ({name}: {what}); the cameras are used as given, which is right for tiles or crops cut "
         f"from a larger photo, but if the camera is wrong, {fix(kind)}", soft_wrap=True, markup=False, highlight=False)

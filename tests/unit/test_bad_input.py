@@ -1182,7 +1182,7 @@ def test_a_transforms_json_k_that_does_not_fit_its_size_is_one_warning_line_and_
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith(
         f"warning: 4 of 4 frames in {root / 'transforms.json'} have a principal point far from the image's centre "
-        f"(frame {first!r}: {what}); training goes on with the cameras as given")
+        f"(frame {first!r}: {what}); the cameras are used as given")
     assert err.rstrip().endswith(f"if the camera is wrong, {fix}")
     with pytest.raises(SplatuError) as caught:
         read_cameras(root)
@@ -1207,7 +1207,7 @@ def test_a_colmap_camera_whose_k_does_not_fit_its_size_is_one_warning_line(tmp_p
     out, err = capsys.readouterr()
     cameras_file = tmp_path / "scene" / "sparse" / "0" / "cameras.txt"
     assert out == "" and err == (f"warning: 1 of 1 cameras in {cameras_file} has a principal point far from the "
-                                 f"image's centre (camera 1: {what}); training goes on with the cameras as given, "
+                                 f"image's centre (camera 1: {what}); the cameras are used as given, "
                                  "which is right for tiles or crops cut from a larger photo, but if the camera is "
                                  f"wrong, {fix}\n")
 
