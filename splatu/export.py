@@ -41,5 +41,5 @@ def run(config: ExportConfig) -> None:
     if trained.frame is None:
         raise SplatuError("this checkpoint predates the record of the scene's normalisation, so its Gaussians cannot "
                           "be put back in the data's coordinates", f"in {checkpoint}", "retrain the run to export it")
-    save_ply(trained.model, output, trained.frame)
+    save_ply(trained.model, output, trained.frame, uncertainty=not trained.config.uncertainty.off)
     Console().print(f"wrote {output} ({len(trained.model):,} Gaussians, from {checkpoint.name})", soft_wrap=True)

@@ -106,7 +106,7 @@ class GaussianModel(torch.nn.Module):
         super().__init__()
         cfg.validate()
         n = means.shape[0]
-        heads = max(u_sh.shape[-1], 1)  # any number of uncertainty heads, at least one
+        heads = u_sh.shape[-1]  # any number of uncertainty heads; none for a model without a trained uncertainty
         expected = {
             "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh_dc": (n, 1, 3),
             "sh_rest": (n, num_sh_bases(cfg.sh_degree) - 1, 3),
@@ -164,6 +164,18 @@ class GaussianModel(torch.nn.Module):
     def __len__(self) -> int:
         return self.means.shape[0]
 
+    @property
+    def has_uncertainty(self) -> bool:
+        """Whether `u_sh` holds an uncertainty head; a model loaded from a PLY without `u_*` properties has none."""
+        return self.u_sh.shape[-1] > 0
+
+    def without_uncertainty(self) -> GaussianModel:
+        """The same Gaussians with no uncertainty head: what a run trained without the uncertainty loss is, since its
+        `u_sh` never left the initial value and would read as a measured, uniform uncertainty."""
+        return GaussianModel(self.means.detach(), self.quats.detach(), self.log_scales.detach(),
+                             self.opacity_logits.detach(), self.sh_dc.detach(), self.sh_rest.detach(),
+                             self.u_sh.detach()[..., :0], self.cfg)
+
     def view_dirs(self, camera: Camera) -> Tensor:
         """(N, 3) mean − camera centre, unnormalised (eval_sh normalises; zero stays safe)."""
         return self.means - camera.center().to(self.means)
@@ -171,6 +183,11 @@ class GaussianModel(torch.nn.Module):
     def uncertainty(self, dirs: Tensor, channel: int = 0, degree: int | None = None) -> Tensor:
         """(N,) u_i(d_i) in (0, 1) for per-Gaussian directions `dirs` (N, 3) of any length, from uncertainty head
         `channel` at its own `degree` (the run's u-SH degree when None; channel 0 is the run's own head)."""
+        if channel >= self.u_sh.shape[-1]:
+            raise SplatuError(f"the model has no uncertainty head {channel}" if self.has_uncertainty else
+                              "the model has no uncertainty (trained without the uncertainty loss, or read from a "
+                              "PLY without u_* properties)", "when rendering its uncertainty",
+                              "render it without uncertainty, or use a model trained with the uncertainty loss")
         degree = self.cfg.u_sh_degree if degree is None else degree
         return torch.sigmoid(eval_sh(head_coefficients(self.u_sh, channel, degree), dirs, degree)).squeeze(-1)
 

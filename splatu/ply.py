@@ -1,8 +1,10 @@
-"""Standard 3DGS PLY export/import, plus `u_0..u_{Ku-1}` for the uncertainty SH.
+"""Standard 3DGS PLY export/import, plus `u_0..u_{Ku-1}` for the uncertainty SH of a model that trained one.
 
 The layout is the one 3DGS viewers read: x y z, nx ny nz (zeros), f_dc_0..2, f_rest_* channel-major
 (all red coefficients, then green, then blue), opacity (logit), scale_0..2 (log), rot_0..3 (wxyz);
-every property a little-endian float32. Viewers ignore the extra `u_*` properties.
+every property a little-endian float32. Viewers ignore the extra `u_*` properties. A run trained without the
+uncertainty loss writes none: its u_sh never left the initial value, which a reader would take for a measured,
+uniform uncertainty; such a PLY, or any plain 3DGS one, loads as a model with no uncertainty head.
 
 Exports are in the data's own frame (`splatu.world_frame`), so the splats line up with the source
 cameras and points; `load_ply` reads a file back as it is stored, in that frame.
@@ -18,9 +20,9 @@ import torch
 
 from splatu.atomic import atomic_write
 from splatu.errors import SplatuError
-from splatu.model import GaussianModel, ModelConfig, initial_u_sh
+from splatu.model import GaussianModel, ModelConfig
 from splatu.ply_header import read_vertex_layout
-from splatu.sh import MAX_SH_DEGREE, sh_degree_of
+from splatu.sh import MAX_SH_DEGREE, num_sh_bases, sh_degree_of
 from splatu.world_frame import WorldTransform, model_to_world
 
 FORMAT_LINE = "format binary_little_endian 1.0"
@@ -35,10 +37,16 @@ def property_names(sh_rest_count: int, u_count: int) -> list[str]:
     return names
 
 
-def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None:
+def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform, *, uncertainty: bool) -> None:
     """Write the model, moved by `to_world` out of training coordinates, as a binary little-endian 3DGS PLY,
-    atomically (temporary file, then rename)."""
+    atomically (temporary file, then rename); with `uncertainty`, its own uncertainty head as `u_*` too. Pass False
+    for a run trained without the uncertainty loss (its u_sh is the untrained initial value), so no reader takes
+    that value for a measured one."""
     path = Path(path)
+    if uncertainty and not model.has_uncertainty:
+        raise ValueError("uncertainty=True, but the model has no uncertainty head to write")
+    if not uncertainty:
+        model = model.without_uncertainty()
     model = model_to_world(model, to_world)
     with torch.no_grad():
         n = len(model)
@@ -51,13 +59,14 @@ def save_ply(model: GaussianModel, path: Path, to_world: WorldTransform) -> None
             model.opacity_logits.detach().float().reshape(n, 1),
             model.log_scales.detach().float(),
             model.quats.detach().float(),
-            model.u_sh.detach().float()[..., 0],  # the run's own head; extra (ablation) heads stay in checkpoints
+            # the run's own head, or none (n, 0); extra (ablation) heads stay in checkpoints
+            model.u_sh.detach().float()[..., :1].flatten(1),
         ]
         data = torch.cat(columns, dim=1).cpu().numpy().astype("<f4")
     if not np.isfinite(data).all():
         raise SplatuError("the model has NaN or Inf parameters", f"while writing {path}",
                           "export from an earlier, finite checkpoint")
-    names = property_names(rest.shape[1], model.u_sh.shape[1])
+    names = property_names(rest.shape[1], model.u_sh.shape[1] if model.has_uncertainty else 0)
     header = ["ply", FORMAT_LINE, f"element vertex {n}", *(f"property float {name}" for name in names), "end_header"]
     head = ("\n".join(header) + "\n").encode("ascii")
     atomic_write(path, lambda f: f.write(head + np.ascontiguousarray(data).tobytes()))
@@ -86,7 +95,9 @@ def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
     """Read a 3DGS PLY written by `save_ply` (or any 3DGS trainer) back into a model.
 
     The colour and uncertainty SH degrees come from the file (they override `cfg`); a PLY without `u_*`
-    properties (a plain 3DGS export) gets the initial uncertainty of `cfg` everywhere.
+    properties (a plain 3DGS export, or a run trained without the uncertainty loss) loads as a model with no
+    uncertainty head (`GaussianModel.has_uncertainty` is False), whose uncertainty cannot be rendered: none is
+    invented for it.
     """
     path = Path(path)
     if not path.is_file():
@@ -118,7 +129,7 @@ def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
         "sh_dc": columns("f_dc_0", "f_dc_1", "f_dc_2").reshape(count, 1, 3),
         "sh_rest": rest.reshape(count, 3, rest_count // 3).transpose(1, 2).contiguous(),
         "u_sh": columns(*(f"u_{i}" for i in range(u_count))).reshape(count, u_count, 1) if u_count
-        else initial_u_sh(count, cfg),
+        else torch.zeros(count, num_sh_bases(cfg.u_sh_degree), 0),
     }
     for name, tensor in tensors.items():
         if not torch.isfinite(tensor).all():

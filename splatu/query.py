@@ -27,7 +27,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from splatu.baselines import METHODS_FROM_TRAINING_VIEWS, METHODS_WITH_OURS, UncertaintySource, method_list
+from splatu.baselines import (
+    METHODS_FOR_PLAIN_RUNS,
+    METHODS_FROM_TRAINING_VIEWS,
+    METHODS_WITH_OURS,
+    UncertaintySource,
+    method_list,
+)
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, method_scene, run_data
 from splatu.camera import Camera
@@ -185,8 +191,8 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
         run = load_any_run(pinned, head)
         if method in METHODS_WITH_OURS and run.config.uncertainty.off:
             raise SplatuError("this run was trained without the uncertainty loss, so it has no uncertainty to render",
-                              f"in {path}", "open a run trained with `splatu train --method splatu`, or pass a "
-                              "baseline's method= (angle, visibility, ...)")
+                              f"in {path}", "open a run trained with `splatu train --method splatu`, or pass "
+                              f"method= one of {method_list(METHODS_FOR_PLAIN_RUNS)}")
         if any(frame is None for frame in run.frames):
             raise SplatuError("this run's checkpoint predates the record of its data frame, so a camera in the data's "
                               "frame cannot be placed", f"in {path}", "train the run again with this version")

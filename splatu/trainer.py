@@ -337,10 +337,12 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
     """Final evaluation, PLY export and summary.json (the final checkpoint is `run_loop`'s)."""
     log = MetricsLog(run_dir / "metrics.jsonl")
     results = _log_eval(state, config, scene, log)
-    save_ply(state.model, run_dir / "splat.ply", state.to_world)
+    save_ply(state.model, run_dir / "splat.ply", state.to_world, uncertainty=not config.uncertainty.off)
     summary = {"scene": scene.name, "stand_in": scene.stand_in, "method": config.method, "preset": config.preset,
                "steps": state.step, "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
-               "u_sh_degree": config.model.u_sh_degree, "train_seconds": state.train_seconds,
+               # no uncertainty SH was trained with the loss off: a degree would describe an untrained initial value
+               "u_sh_degree": None if config.uncertainty.off else config.model.u_sh_degree,
+               "train_seconds": state.train_seconds,
                "wall_seconds": time.perf_counter() - state.wall_start, "eval": results}
     if (run_dir / DEGREE_CHOICE_FILE).is_file():
         summary["degree_choice"] = read_json(run_dir / DEGREE_CHOICE_FILE)

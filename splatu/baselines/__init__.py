@@ -34,6 +34,9 @@ UNCERTAINTY_METHODS: tuple[str, ...] = get_args(UncertaintyMethod)
 METHODS_WITH_OURS: tuple[UncertaintyMethod, ...] = ("ours", "ours-spread", "ours-residual", "ours-residual-angle",
                                                     "ours-view-residual-angle")
 """The methods that read the run's uncertainty SH, so they need a run trained with the loss and accept --head."""
+METHODS_FOR_PLAIN_RUNS: tuple[UncertaintyMethod, ...] = tuple(
+    method for method in get_args(UncertaintyMethod) if method not in (*METHODS_WITH_OURS, "ensemble"))
+"""The methods that render a single run trained without the uncertainty loss (splatfacto): none reads its u_sh."""
 METHODS_FROM_TRAINING_VIEWS: tuple[UncertaintyMethod, ...] = ("visibility", "fisher", "angle", "residual",
                                                               "ours-residual", "ours-residual-angle",
                                                               "ours-view-residual-angle")

@@ -11,6 +11,7 @@ import torch
 from rich.progress import Progress
 
 from splatu.baselines import (
+    METHODS_FOR_PLAIN_RUNS,
     METHODS_FROM_TRAINING_IMAGES,
     METHODS_FROM_TRAINING_VIEWS,
     METHODS_WITH_OURS,
@@ -155,7 +156,8 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
                           "train one with `splatu train --method ensemble --ensemble 10`")
     if method in METHODS_WITH_OURS and run.config.uncertainty.off:
         raise SplatuError(f"--method {method} needs a run trained with the uncertainty loss; this one had it off",
-                          f"in {run.run_dir}", "train with `splatu train --method splatu` or pick another --method")
+                          f"in {run.run_dir}", f"use --method {method_list(METHODS_FOR_PLAIN_RUNS)} for it, or "
+                          "train with `splatu train --method splatu`")
 
 
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None,

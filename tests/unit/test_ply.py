@@ -39,7 +39,7 @@ def _header(path) -> list[str]:
 def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
     model = _random_model(sh_degree, u_degree)
     path = tmp_path / "point_cloud.ply"
-    save_ply(model, path, IDENTITY)
+    save_ply(model, path, IDENTITY, uncertainty=True)
     loaded = load_ply(path, ModelConfig())  # degrees come from the file
     assert (loaded.cfg.sh_degree, loaded.cfg.u_sh_degree) == (sh_degree, u_degree)
     for name in GaussianModel.PARAM_NAMES:
@@ -50,7 +50,7 @@ def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
 def test_header_has_the_standard_3dgs_properties_in_order(tmp_path):
     model = _random_model(3, 1, n=5)
     path = tmp_path / "m.ply"
-    save_ply(model, path, IDENTITY)
+    save_ply(model, path, IDENTITY, uncertainty=True)
     header = _header(path)
     assert header[:3] == ["ply", "format binary_little_endian 1.0", "element vertex 5"]
     names = [line.split()[-1] for line in header[3:]]
@@ -69,32 +69,57 @@ def test_f_rest_is_channel_major_as_3dgs_viewers_expect(tmp_path):
             for c in range(3):
                 model.sh_rest[:, k, c] = 10 * c + k  # coefficient k of channel c
     path = tmp_path / "m.ply"
-    save_ply(model, path, IDENTITY)
+    save_ply(model, path, IDENTITY, uncertainty=True)
     names = property_names(3, 4)
     data = np.frombuffer(path.read_bytes().split(b"end_header\n", 1)[1], dtype="<f4").reshape(2, len(names))
     row = dict(zip(names, data[0], strict=True))
     assert [row[f"f_rest_{i}"] for i in range(9)] == [0, 1, 2, 10, 11, 12, 20, 21, 22]
 
 
-def test_plain_3dgs_ply_without_u_gets_the_initial_uncertainty(tmp_path):
+def _header_names(path) -> list[str]:
+    return [line.split()[-1] for line in _header(path) if line.startswith("property")]
+
+
+def test_plain_3dgs_ply_without_u_loads_with_no_uncertainty_rather_than_an_invented_one(tmp_path):
+    """A PLY without u_* loaded as the config's initial u everywhere (sigmoid(2) = 0.88), which a caller rendered as
+    if measured; it is a model with no uncertainty head now, and rendering its uncertainty is refused."""
     model = _random_model(1, 1, n=4)
     path = tmp_path / "m.ply"
-    save_ply(model, path, IDENTITY)
+    save_ply(model, path, IDENTITY, uncertainty=True)
     header, body = path.read_bytes().split(b"end_header\n", 1)
     names = property_names(3, 4)
     data = np.frombuffer(body, dtype="<f4").reshape(4, len(names))[:, :-4]
     lines = [line for line in header.decode().split("\n") if not line.startswith("property float u_")]
     (tmp_path / "plain.ply").write_bytes(("\n".join(lines) + "end_header\n").encode() + data.tobytes())
     loaded = load_ply(tmp_path / "plain.ply", ModelConfig(u_sh_degree=2, u_init_logit=1.5))
-    assert loaded.u_sh.shape == (4, 9, 1)
-    with torch.no_grad():
-        assert torch.allclose(loaded.uncertainty(torch.randn(4, 3)), torch.sigmoid(torch.tensor(1.5)).expand(4))
-    assert torch.equal(loaded.means, model.means)
+    assert not loaded.has_uncertainty and loaded.u_sh.shape[-1] == 0
+    assert model.has_uncertainty
+    with pytest.raises(SplatuError, match="has no uncertainty"), torch.no_grad():
+        loaded.uncertainty(torch.randn(4, 3))
+    assert torch.equal(loaded.means, model.means) and torch.equal(loaded.sh_rest, model.sh_rest)
+
+
+def test_a_model_whose_uncertainty_was_not_trained_exports_no_u_and_round_trips(tmp_path):
+    """A run trained without the uncertainty loss wrote u_0..u_15 at their initial value (u_0 = 7.09, the rest 0),
+    which reads as a measured, uniform uncertainty; with uncertainty=False no u_* property is written."""
+    model = _random_model(2, 3, n=6)
+    save_ply(model, tmp_path / "plain.ply", IDENTITY, uncertainty=False)
+    names = _header_names(tmp_path / "plain.ply")
+    assert names == property_names(8, 0) and not any(name.startswith("u_") for name in names)
+    loaded = load_ply(tmp_path / "plain.ply", ModelConfig())
+    assert not loaded.has_uncertainty and loaded.cfg.sh_degree == 2
+    for name in GaussianModel.PARAM_NAMES[:-1]:
+        assert torch.equal(getattr(loaded, name), getattr(model, name)), name
+    save_ply(loaded, tmp_path / "again.ply", IDENTITY, uncertainty=False)  # the loaded model exports the same file
+    assert (tmp_path / "again.ply").read_bytes() == (tmp_path / "plain.ply").read_bytes()
+    with pytest.raises(ValueError, match="no uncertainty head"):
+        save_ply(loaded, tmp_path / "never.ply", IDENTITY, uncertainty=True)
+    assert not (tmp_path / "never.ply").exists()
 
 
 def test_bad_files_are_user_errors(tmp_path):
     good = tmp_path / "good.ply"
-    save_ply(_random_model(1, 1, n=6), good, IDENTITY)
+    save_ply(_random_model(1, 1, n=6), good, IDENTITY, uncertainty=True)
     raw = good.read_bytes()
     cases = {
         "missing.ply": None,
@@ -114,12 +139,12 @@ def test_bad_files_are_user_errors(tmp_path):
 def test_saving_a_non_finite_model_refuses_and_leaves_the_old_file(tmp_path):
     path = tmp_path / "m.ply"
     model = _random_model(0, 1, n=3)
-    save_ply(model, path, IDENTITY)
+    save_ply(model, path, IDENTITY, uncertainty=True)
     before = path.read_bytes()
     with torch.no_grad():
         model.means[1, 0] = float("inf")
     with pytest.raises(SplatuError):
-        save_ply(model, path, IDENTITY)
+        save_ply(model, path, IDENTITY, uncertainty=True)
     assert path.read_bytes() == before
 
 
@@ -129,7 +154,7 @@ def test_a_model_with_extra_uncertainty_heads_exports_only_its_own(tmp_path):
     with torch.no_grad():
         for name in GaussianModel.PARAM_NAMES:
             getattr(model, name).copy_(torch.randn(getattr(model, name).shape, generator=torch.Generator()))
-    save_ply(model, tmp_path / "heads.ply", IDENTITY)
+    save_ply(model, tmp_path / "heads.ply", IDENTITY, uncertainty=True)
     loaded = load_ply(tmp_path / "heads.ply", cfg)
     assert loaded.u_sh.shape == (12, 9, 1)
     assert torch.equal(loaded.u_sh, model.u_sh[..., :1])
@@ -145,7 +170,7 @@ def _with_element_before_vertices(raw: bytes) -> bytes:
 def test_elements_before_or_after_the_vertices_do_not_shift_them(tmp_path):
     """The reader assumed the vertices came first: an element before them was read as vertex data, silently."""
     model = _random_model(1, 1, n=5)
-    save_ply(model, tmp_path / "plain.ply", IDENTITY)
+    save_ply(model, tmp_path / "plain.ply", IDENTITY, uncertainty=True)
     raw = (tmp_path / "plain.ply").read_bytes()
     before = tmp_path / "before.ply"
     before.write_bytes(_with_element_before_vertices(raw))
@@ -159,7 +184,7 @@ def test_elements_before_or_after_the_vertices_do_not_shift_them(tmp_path):
 
 
 def test_malformed_headers_are_user_errors(tmp_path):
-    save_ply(_random_model(1, 1, n=2), tmp_path / "good.ply", IDENTITY)
+    save_ply(_random_model(1, 1, n=2), tmp_path / "good.ply", IDENTITY, uncertainty=True)
     raw = (tmp_path / "good.ply").read_bytes()
     cases = {
         "count.ply": raw.replace(b"element vertex 2", b"element vertex 2x"),

@@ -13,7 +13,16 @@ import pytest
 import torch
 import tyro
 
-from splatu import evaluation, interrupts, run_records, train_command, train_progress, trainer, training_step
+from splatu import (
+    evaluation,
+    interrupts,
+    render_uncertainty,
+    run_records,
+    train_command,
+    train_progress,
+    trainer,
+    training_step,
+)
 from splatu import run_dir as run_dir_module
 from splatu.atomic import atomic_write
 from splatu.baselines.load import load_any_run
@@ -33,6 +42,7 @@ from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
 from splatu.rasterizer import kernels
+from splatu.render_uncertainty import RenderUncertaintyConfig
 from splatu.run_dir import new_timestamped_dir
 from splatu.train_config import (
     MAX_SEED,
@@ -481,7 +491,27 @@ def test_uncertainty_off_files_the_run_under_splatfacto(tmp_path, scene):
     run_dir = train_command.train(config)
     assert run_dir.parent == tmp_path / "outputs" / "tiny" / "splatfacto"
     assert load_config(run_dir / "config.yml").method == "splatfacto"
-    assert json.loads((run_dir / "summary.json").read_text())["method"] == "splatfacto"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["method"] == "splatfacto"
+    assert summary["u_sh_degree"] is None  # it said 3, the degree of an uncertainty SH that was never trained
+    # splat.ply held u_0..u_15 at their initial value, which a viewer reads as a measured, uniform uncertainty
+    exported = load_ply(run_dir / "splat.ply", ModelConfig())
+    assert not exported.has_uncertainty and len(exported) == len(load_run(run_dir).model)
+    entrypoint(["export", "--load", str(run_dir)])
+    (export,) = (run_dir / "exports").glob("*.ply")
+    assert export.read_bytes() == (run_dir / "splat.ply").read_bytes()
+    with pytest.raises(SplatuError, match="had it off") as refused:
+        render_uncertainty.run(RenderUncertaintyConfig(load=run_dir))
+    assert "visibility, fisher, random, spread, residual or angle" in str(refused.value)
+
+
+def test_a_run_trained_with_uncertainty_exports_its_u(tmp_path, scene):
+    run_dir = train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0))
+    exported = load_ply(run_dir / "splat.ply", ModelConfig())
+    trained = load_run(run_dir)
+    assert exported.has_uncertainty
+    assert json.loads((run_dir / "summary.json").read_text())["u_sh_degree"] == trained.config.model.u_sh_degree
+    torch.testing.assert_close(exported.u_sh, model_to_world(trained.model, trained.frame).u_sh)
 
 
 def test_presets_blur_less_than_3dgs_and_runs_saved_before_keep_its_blur():

@@ -79,7 +79,7 @@ def _camera_in_world(camera: Camera, to_world: WorldTransform) -> Camera:
 def test_a_ply_exported_in_the_world_frame_renders_the_same_from_the_same_camera_in_that_frame(tmp_path):
     model = _model()
     to_world = WorldTransform(TURN, torch.tensor([10.0, -3.0, 2.0], dtype=torch.float64), 2.5)
-    save_ply(model, tmp_path / "splat.ply", to_world)
+    save_ply(model, tmp_path / "splat.ply", to_world, uncertainty=True)
     exported = load_ply(tmp_path / "splat.ply", ModelConfig())
 
     torch.testing.assert_close(exported.means.double(), to_world.points(model.means), atol=1e-5, rtol=1e-6)
