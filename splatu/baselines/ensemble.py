@@ -17,7 +17,7 @@ from splatu.baselines import UncertaintyRender
 from splatu.camera import Camera
 from splatu.errors import SplatuError
 from splatu.json_files import is_finite_number, read_json
-from splatu.model import GaussianModel
+from splatu.model import GaussianModel, ModelRender
 
 ENSEMBLE_FILE = "ensemble.json"
 
@@ -67,5 +67,14 @@ class EnsembleSource:
         uncertainty = rgbs.std(dim=0, correction=0).mean(dim=-1)
         if self.density_aware:
             uncertainty = uncertainty + (1.0 - alpha).square()
-        depth = torch.stack([o.depth for o in outs]).mean(dim=0)
-        return UncertaintyRender(rgbs.mean(dim=0), depth, alpha, uncertainty)
+        return UncertaintyRender(rgbs.mean(dim=0), pooled_depth(outs), alpha, uncertainty)
+
+
+def pooled_depth(outs: list[ModelRender]) -> Tensor:
+    """The members' blended depth pooled as one render's is, Σ_m α_m·d_m / Σ_m α_m, 0 where none drew anything: the
+    plain mean counted a member that drew nothing at a pixel as depth 0 there, halving the depth of a pixel only half
+    the members cover."""
+    alphas = torch.stack([o.alpha for o in outs])
+    covered = alphas.sum(dim=0)
+    weighted = (alphas * torch.stack([o.depth for o in outs])).sum(dim=0)
+    return torch.where(covered > 0, weighted / covered.clamp_min(1e-10), 0.0)

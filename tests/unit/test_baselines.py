@@ -26,6 +26,23 @@ def test_ensemble_uncertainty_is_the_population_std_of_the_members():
     assert float(out.uncertainty.max()) > 0.05  # the members really differ
 
 
+def test_ensemble_depth_counts_only_the_members_that_drew_the_pixel():
+    """A member that draws nothing at a pixel has depth 0 there; the plain mean over members halved the depth of a
+    pixel only one of two members covers."""
+    first, elsewhere = overlapping_gaussians(), overlapping_gaussians()
+    with torch.no_grad():
+        elsewhere.means.add_(torch.tensor([0.0, 0.0, -100.0]))  # behind the camera: it draws nothing
+    camera = two_cameras()[0]
+    with torch.no_grad():
+        alone = first.render(camera, 0, torch.zeros(3))
+        out = EnsembleSource([first, elsewhere], 0, torch.zeros(3)).render(camera)
+        assert float(elsewhere.render(camera, 0, torch.zeros(3)).alpha.max()) == 0.0
+    drawn = alone.alpha > 0
+    assert bool(drawn.any()) and not bool(drawn.all())
+    torch.testing.assert_close(out.depth[drawn], alone.depth[drawn])
+    assert float(out.depth[~drawn].abs().max()) == 0.0
+
+
 def test_visibility_feature_is_one_over_one_plus_the_count():
     """1 for a Gaussian no training view saw, 1/2 for one view, 1/4 for three."""
     torch.testing.assert_close(visibility_feature(torch.tensor([0.0, 1.0, 3.0])), torch.tensor([1.0, 0.5, 0.25]))
