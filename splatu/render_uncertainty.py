@@ -5,9 +5,11 @@ writes, under <run>/uncertainty/<label>-<views>/ (the label: the method and any 
 maps) unless --output says otherwise (what an earlier render wrote there is replaced once the new render is
 written in full, see `swap_in`):
 
-    npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps (depth in the data's units, as splatu.query's)
-    png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views
-    colorbar_{uncertainty,depth,error}.png       the legends of those shared scales
+    npy/NAME_{rgb,depth,alpha,uncertainty}.npy   raw float maps (depth in the data's units, as splatu.query's: the
+                                                 blended depth Σ w·z / alpha, 0 where alpha is 0)
+    png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views (render.json's
+                                                 uncertainty_scale and depth_scale); depth black where alpha is 0
+    colorbar_{uncertainty,depth,error}.png       the legends of those shared scales (error's only when GT exists)
     panels/NAME.png                              render | uncertainty | error (error when GT exists)
     maps/                                        the layout `eval-ause --maps` scores (when GT exists)
     orbit.gif                                    for --views orbit
@@ -222,20 +224,29 @@ def map_entries(views: list[RenderedView]) -> list[MapEntry]:
             for v in views if v.gt is not None and (v.mask is None or v.mask.any())]
 
 
+NOTHING_DRAWN = np.zeros(3, dtype=np.uint8)
+"""The depth PNG's colour where alpha is 0: black, which viridis never reaches, since the raw depth there is 0 and
+would otherwise read as the nearest depth on the scale."""
+
+
 def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
-    """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]."""
+    """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]; depth over the pixels
+    at least half covered; error only when a view has ground truth, as there is no error map otherwise."""
     u_max = max(float(v.maps["uncertainty"].max()) for v in views)
     hit = [v.maps["depth"][v.maps["alpha"] > 0.5] for v in views]
     hit = [h for h in hit if h.size]
     depth_lo, depth_hi = (float(min(h.min() for h in hit)), float(max(h.max() for h in hit))) if hit else (0.0, 1.0)
     errors = [np.abs(v.maps["rgb"] - v.gt).sum(axis=-1) for v in views if v.gt is not None]
-    error_max = max((float(np.percentile(e, 99.5)) for e in errors), default=1.0)
-    return {
+    scales = {
         "uncertainty": ColourScale(0.0, max(1.0, u_max), UNCERTAINTY_CMAP, "uncertainty U"),
-        "depth": ColourScale(depth_lo, max(depth_hi, depth_lo + 1e-6), DEPTH_CMAP, "depth"),
+        "depth": ColourScale(depth_lo, max(depth_hi, depth_lo + 1e-6), DEPTH_CMAP,
+                             "depth, data units (black: nothing drawn)"),
         "alpha": ColourScale(0.0, 1.0, "gray", "accumulated alpha"),
-        "error": ColourScale(0.0, max(error_max, 1e-6), ERROR_CMAP, "error Σ_c |Î − I|"),
     }
+    if errors:
+        error_max = max(float(np.percentile(e, 99.5)) for e in errors)
+        scales["error"] = ColourScale(0.0, max(error_max, 1e-6), ERROR_CMAP, "error Σ_c |Î − I|")
+    return scales
 
 
 OWNED = ("npy", "png", "panels", "maps", "orbit.gif")
@@ -292,7 +303,8 @@ def write_outputs(out: Path, views: list[RenderedView], orbit: bool, fps: int) -
         (out / folder).mkdir(parents=True, exist_ok=True)
     scales = shared_scales(views)
     for key in ("uncertainty", "depth", "error"):
-        save_colour_bar(out / f"colorbar_{key}.png", scales[key])
+        if key in scales:  # no error map, so no error legend, without ground truth (an orbit, candidate cameras)
+            save_colour_bar(out / f"colorbar_{key}.png", scales[key])
     with view_progress() as bar:  # PNGs and matplotlib panels: several seconds for a few dozen views
         for view in bar.track(views, description="write"):
             write_view(out, view, scales)
@@ -312,10 +324,13 @@ def write_view(out: Path, view: RenderedView, scales: dict[str, ColourScale]) ->
     write_png(out / "png" / f"{view.name}_rgb.png",
               (np.clip(view.maps["rgb"], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), FREE_AND_RERUN)
     for key in ("uncertainty", "depth", "alpha"):
-        write_png(out / "png" / f"{view.name}_{key}.png", colour_map(view.maps[key], scales[key]), FREE_AND_RERUN)
+        image = colour_map(view.maps[key], scales[key])
+        if key == "depth":
+            image[view.maps["alpha"] <= 0.0] = NOTHING_DRAWN
+        write_png(out / "png" / f"{view.name}_{key}.png", image, FREE_AND_RERUN)
     error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
     save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
-               scales["uncertainty"], error, scales["error"])
+               scales["uncertainty"], error, scales.get("error"))
 
 
 def pinned_load(load: Path, written: str) -> Path:
@@ -471,6 +486,9 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         **training, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],
+        # the depths, in data units, that the depth PNGs' viridis runs between (beyond them it saturates), so a
+        # depth can be read back from a PNG; black there is alpha 0, where the raw depth is 0
+        "depth_scale": [scales["depth"].vmin, scales["depth"].vmax],
         # name: the stem of the view's files; source_name: the name the scene or --cameras gave it (close0.2, whose
         # files are close0_*), to match a ranking to the candidates, to scene_cameras and to nearest_training_view
         "per_view": [{"name": v.name, "source_name": v.source_name,

@@ -146,6 +146,8 @@ def test_render_eval_writes_every_file_with_finite_maps_in_unit_range(tiny_run, 
     for key in ("uncertainty", "depth", "error"):
         assert (out / f"colorbar_{key}.png").is_file()
     assert record["uncertainty_scale"] == [0.0, 1.0]
+    lo, hi = record["depth_scale"]
+    assert 0.0 < lo < hi  # the depths of the covered pixels, never the 0 of an empty one
 
 
 def test_orbit_from_below_is_more_uncertain_than_the_training_path(tiny_run, tmp_path):
@@ -160,6 +162,7 @@ def test_orbit_from_below_is_more_uncertain_than_the_training_path(tiny_run, tmp
     assert min(below) > max(seen), (below, seen)
     assert (tmp_path / "orbit" / "orbit.gif").stat().st_size > 0
     assert not (tmp_path / "orbit" / "maps").exists()  # no ground truth on the orbit
+    assert not (tmp_path / "orbit" / "colorbar_error.png").exists()  # and so no error map to give a legend
 
 
 def test_eval_ause_load_scores_the_run_with_auroc(tiny_run, capsys):

@@ -1,0 +1,50 @@
+"""What render-uncertainty's files say: colour bars of the maps that exist, a depth PNG that reads back."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib
+import numpy as np
+
+from splatu.data.images import read_image
+from splatu.render_uncertainty import RenderedView, RenderUncertaintyConfig, write_render
+
+
+def _view(name: str, with_gt: bool) -> RenderedView:
+    """A 2x3 view: depths 2, 3 and 4 (data units) fully covered, 2.5 half covered, and two pixels of nothing."""
+    depth = np.array([[2.0, 3.0, 4.0], [2.5, 0.0, 0.0]])
+    alpha = np.array([[1.0, 1.0, 1.0], [0.5, 0.0, 0.0]])
+    maps = {"rgb": np.full((2, 3, 3), 0.5), "depth": depth, "alpha": alpha, "uncertainty": np.full((2, 3), 0.3)}
+    return RenderedView(name, maps, gt=np.zeros((2, 3, 3)) if with_gt else None, elevation_degrees=0.0)
+
+
+def _write(tmp_path, views: str, with_gt: bool) -> dict:
+    write_render(tmp_path, [_view("a", with_gt), _view("b", with_gt)], RenderUncertaintyConfig(views=views),
+                 {"train_step_seconds": None, "train_wall_seconds": None}, 0.0, [0.1, 0.1])
+    return json.loads((tmp_path / "render.json").read_text())
+
+
+def test_an_orbit_writes_no_error_colour_bar_as_it_has_no_error_map(tmp_path):
+    """colorbar_error.png was written for an orbit, which has no ground truth and so no error map."""
+    _write(tmp_path / "orbit", "orbit", with_gt=False)
+    assert sorted(path.name for path in (tmp_path / "orbit").glob("colorbar_*.png")) == [
+        "colorbar_depth.png", "colorbar_uncertainty.png"]
+    _write(tmp_path / "eval", "eval", with_gt=True)
+    assert (tmp_path / "eval" / "colorbar_error.png").is_file()
+
+
+def test_render_json_gives_the_depth_pngs_scale_and_nothing_drawn_is_black(tmp_path):
+    """render.json recorded the uncertainty PNGs' scale only; and alpha-0 pixels, raw depth 0, took the colour of the
+    nearest depth."""
+    record = _write(tmp_path, "orbit", with_gt=False)
+    lo, hi = record["depth_scale"]
+    assert (lo, hi) == (2.0, 4.0)  # the pixels at least half covered
+    png = read_image(tmp_path / "png" / "a_depth.png")[..., :3]
+    viridis = matplotlib.colormaps["viridis"]
+    for row, col, depth in ((0, 0, 2.0), (0, 1, 3.0), (0, 2, 4.0)):  # read back on the recorded scale
+        expected = np.round(np.array(viridis((depth - lo) / (hi - lo))[:3]) * 255.0)
+        np.testing.assert_allclose(png[row, col], expected, atol=1)
+    assert (png[1, 1:] == 0).all()  # nothing drawn: black, a colour viridis never takes
+    assert not (png[0, 0] == 0).all()  # the nearest depth is not
+    assert np.load(tmp_path / "npy" / "a_depth.npy")[1, 1] == 0.0  # the raw map keeps 0 where alpha is 0
