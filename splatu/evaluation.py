@@ -51,10 +51,12 @@ def evaluate_views(model: GaussianModel, views: Views, sh_degree: int, backgroun
     return metrics
 
 
-def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig) -> dict[str, dict[str, float]]:
-    """Every held-out set: the eval split plus the scene's extra sets (e.g. interp)."""
+def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig, sh_degree: int
+                   ) -> dict[str, dict[str, float]]:
+    """Every held-out set: the eval split plus the scene's extra sets (e.g. interp), rendered at `sh_degree`, the
+    colour SH degree the model was trained at (`training_step.trained_sh_degree`), not the schedule's cap."""
     sets = {"eval": scene.eval, **scene.extra_eval}
-    return {name: evaluate_views(model, views, config.model.sh_degree, eval_background(config), name, config.progress)
+    return {name: evaluate_views(model, views, sh_degree, eval_background(config), name, config.progress)
             for name, views in sets.items()}
 
 

@@ -85,7 +85,15 @@ from splatu.train_progress import (
     progress_bar,
     progress_line,
 )
-from splatu.training_step import StepHook, StepOutcome, TrainImages, TrainState, scene_extent, train_step
+from splatu.training_step import (
+    StepHook,
+    StepOutcome,
+    TrainImages,
+    TrainState,
+    scene_extent,
+    train_step,
+    trained_sh_degree,
+)
 from splatu.world_frame import require_same_frame, scene_frame
 
 UNCERTAINTY_SEED_OFFSET = 7_919
@@ -285,7 +293,7 @@ def _eval_due(step: int, config: TrainConfig) -> bool:
 
 
 def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog) -> dict[str, dict[str, float]]:
-    results = evaluate_scene(state.model, scene, config)
+    results = evaluate_scene(state.model, scene, config, trained_sh_degree(state.step, config.model))
     for name, metrics in results.items():
         log.write({"step": state.step, "event": "eval", "set": name, **metrics})
         console.print(eval_line(state.step, name, metrics), highlight=False, soft_wrap=True)
@@ -339,7 +347,9 @@ def finish_run(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Pa
     results = _log_eval(state, config, scene, log)
     save_ply(state.model, run_dir / "splat.ply", state.to_world, uncertainty=not config.uncertainty.off)
     summary = {"scene": scene.name, "stand_in": scene.stand_in, "method": config.method, "preset": config.preset,
-               "steps": state.step, "num_gaussians": len(state.model), "sh_degree": config.model.sh_degree,
+               "steps": state.step, "num_gaussians": len(state.model),
+               # the degree the model is, and the cap its schedule (one more every --model.sh-degree-interval) had
+               "sh_degree": trained_sh_degree(state.step, config.model), "sh_degree_max": config.model.sh_degree,
                # no uncertainty SH was trained with the loss off: a degree would describe an untrained initial value
                "u_sh_degree": None if config.uncertainty.off else config.model.u_sh_degree,
                "train_seconds": state.train_seconds,

@@ -21,7 +21,7 @@ from splatu.camera import Camera
 from splatu.data.scene import Views, on_background
 from splatu.densify import DensityController
 from splatu.losses import photometric_loss, psnr, uncertainty_loss
-from splatu.model import GaussianModel
+from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import Optimizers
 from splatu.rasterizer import RasterOutput
 from splatu.train_config import TrainConfig
@@ -80,6 +80,12 @@ def resolution_level(step: int, levels: int, interval: int) -> int:
 
 def active_sh_degree(step: int, max_degree: int, interval: int) -> int:
     return min(step // interval, max_degree)
+
+
+def trained_sh_degree(steps: int, model: ModelConfig) -> int:
+    """The colour SH degree a model is after `steps` completed steps: that of its last step (0 before any). The
+    bands above it never had a gradient and are still 0, so the configured degree is only the schedule's cap."""
+    return active_sh_degree(max(steps - 1, 0), model.sh_degree, model.sh_degree_interval)
 
 
 def scene_extent(cameras: Sequence[Camera]) -> float:

@@ -514,6 +514,28 @@ def test_a_run_trained_with_uncertainty_exports_its_u(tmp_path, scene):
     torch.testing.assert_close(exported.u_sh, model_to_world(trained.model, trained.frame).u_sh)
 
 
+def test_summary_and_final_evaluation_give_the_colour_sh_degree_the_model_was_trained_at(tmp_path, scene,
+                                                                                           monkeypatch):
+    """summary.json gave "sh_degree": 3 for a run whose schedule (one degree more every --model.sh-degree-interval
+    steps) never left degree 0, and evaluation rendered at 3; the model is degree 0: its higher bands are still 0."""
+    degrees: list[int] = []
+    evaluate_views = evaluation.evaluate_views
+    monkeypatch.setattr(evaluation, "evaluate_views",
+                        lambda model, views, sh_degree, *args: degrees.append(sh_degree)
+                        or evaluate_views(model, views, sh_degree, *args))
+    config = tiny_config(tmp_path, steps=9, checkpoint_every=0, eval_every_steps=5,
+                         model=ModelConfig(sh_degree=3, sh_degree_interval=5))
+    run_dir = train_command.train(config)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert (summary["sh_degree"], summary["sh_degree_max"]) == (1, 3)  # steps 5-8 trained degree 1
+    assert degrees == [0, 1]  # after step 5 (steps 0-4 at degree 0), and the final one
+    model = load_run(run_dir).model
+    rest = model.sh_rest.detach()
+    assert float(rest[:, 3:].abs().max()) == 0.0 < float(rest[:, :3].abs().max())
+    assert [training_step.trained_sh_degree(s, config.model) for s in (0, 1, 5, 6, 15, 16, 100)] == [0, 0, 0, 1, 2,
+                                                                                                    3, 3]
+
+
 def test_presets_blur_less_than_3dgs_and_runs_saved_before_keep_its_blur():
     for preset in ("fast", "quality"):
         assert preset_config(preset).model.screen_blur == 0.1 and not preset_config(preset).model.antialiased
