@@ -22,7 +22,7 @@ from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
 from splatu.interrupts import exit_code
 from splatu.option_help import hand_option_help_to_tyro
-from splatu.usage_errors import usage_error
+from splatu.usage_errors import unknown_subcommand, usage_error
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,8 @@ def _commands() -> dict[str, Command]:
 
 def main(argv: Sequence[str], debug: bool = False) -> None:
     commands = _commands()
+    if argv and argv[0] not in commands and not argv[0].startswith("-"):
+        raise unknown_subcommand(argv[0], list(commands))
     chosen = argv[0] if argv and argv[0] in commands else None
     # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
     defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}
@@ -48,12 +50,12 @@ def main(argv: Sequence[str], debug: bool = False) -> None:
     for config in defaults.values():
         hand_option_help_to_tyro(type(config))
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
-    config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", debug)
+    config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", list(commands), debug)
     name = next(n for n, d in defaults.items() if type(d) is type(config))
     commands[name].run(config)
 
 
-def _parse(config_type: Any, argv: Sequence[str], help_command: str, debug: bool) -> Any:
+def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands: Sequence[str], debug: bool) -> Any:
     """tyro.cli with what it prints to stderr held back: a parse-error box is retold as one `SplatuError` line
     (unless --debug); anything else (tyro's warnings, a box we cannot read) is passed on as it was."""
     captured = io.StringIO()
@@ -69,7 +71,7 @@ def _parse(config_type: Any, argv: Sequence[str], help_command: str, debug: bool
             )
     except SystemExit as stop:
         if stop.code not in (0, None) and not debug:
-            error = usage_error(captured.getvalue(), help_command)
+            error = usage_error(captured.getvalue(), help_command, subcommands)
         if error is None:
             raise
         raise error from None

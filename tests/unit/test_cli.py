@@ -146,7 +146,8 @@ def test_version(capsys):
     (["train", "--steps", "abc"], "--steps: invalid literal for int()", "pass --steps INT (see `splatu train --help`)"),
     (["train", "--stepz", "3"], "unrecognized options: --stepz, 3",
      "did you mean --steps? (see `splatu train --help`)"),
-    (["trian"], "unrecognized options: trian", "available subcommands: train, render-uncertainty"),
+    (["--bogus"], "unrecognized options: --bogus",
+     "available subcommands: train, render-uncertainty, eval-ause, export, process-images (see `splatu --help`)"),
     (["render-uncertainty", "--views", "bogus"], "invalid choice 'bogus' for argument '--views'",
      "see `splatu render-uncertainty --help`"),
     (["train", "--steps"], "missing value for argument '--steps'", "see `splatu train --help`"),
@@ -160,6 +161,27 @@ def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
     captured = capsys.readouterr()
     assert captured.err.count("\n") == 1 and captured.err.startswith("error: "), captured.err
     assert said in captured.err and hint in captured.err and "│" not in captured.err, captured.err
+
+
+SUBCOMMANDS = "train, render-uncertainty, eval-ause, export, process-images"
+
+
+@pytest.mark.parametrize(("argv", "line"), [
+    (["bogus"], f"unknown subcommand 'bogus', on the command line, use one of {SUBCOMMANDS} (see `splatu --help`)"),
+    (["render"], "unknown subcommand 'render', on the command line, did you mean `splatu render-uncertainty`? "
+                 f"(the subcommands are {SUBCOMMANDS}; see `splatu --help`)"),
+    (["trian", "--steps", "3"], "unknown subcommand 'trian', on the command line, did you mean `splatu train`? "
+                                f"(the subcommands are {SUBCOMMANDS}; see `splatu --help`)"),
+    (["--steps", "3", "train"], "unrecognized or misplaced options: --steps, 3, on the command line, put each option "
+                                "after its subcommand (see `splatu --help`)"),
+])
+def test_a_mistyped_subcommand_names_them_all_and_the_closest(capsys, argv, line):
+    """tyro's list of subcommands is wrapped over two lines of its box, and only the first was kept
+    ("export, (see"); a word after the mistyped one came with tyro's "(applied to splatu)" notes."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(argv)
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == f"error: {line}\n"
 
 
 def test_only_the_chosen_subcommands_flags_are_suggested(capsys):
@@ -192,7 +214,7 @@ def test_help_still_prints_in_full(capsys):
 def test_a_box_usage_error_does_not_know_is_left_to_tyro():
     from splatu.usage_errors import usage_error
 
-    assert usage_error("usage: splatu [-h]\nsplatu: error: something new\n", "splatu") is None
+    assert usage_error("usage: splatu [-h]\nsplatu: error: something new\n", "splatu", ["train"]) is None
 
 
 @pytest.mark.parametrize("command", ["train", "render-uncertainty", "eval-ause", "process-images"])
