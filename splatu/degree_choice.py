@@ -69,11 +69,11 @@ class DegreeChoiceConfig:
         """Raise a one-line SplatuError for settings that hold out nothing, or everything, or never decide."""
         if not 0.0 < self.held_out < 1.0 or not 0.0 < self.at < 1.0:
             raise SplatuError(f"held_out = {self.held_out} and at = {self.at} must both be in (0, 1)",
-                              "--degree-choice.held-out / --degree-choice.at", "use e.g. 0.125 and 0.4")
+                              "in --degree-choice.held-out / --degree-choice.at", "use e.g. 0.125 and 0.4")
         if not (math.isfinite(self.psnr_tolerance) and self.psnr_tolerance >= 0
                 and math.isfinite(self.ause_tolerance) and self.ause_tolerance >= 0):
             raise SplatuError("degree-choice tolerances must be finite and non-negative",
-                              "--degree-choice.psnr-tolerance / --degree-choice.ause-tolerance",
+                              "in --degree-choice.psnr-tolerance / --degree-choice.ause-tolerance",
                               "use e.g. 0 and 0.02")
 
 
@@ -82,7 +82,7 @@ def held_out_block(num_views: int, fraction: float) -> list[int]:
     count = max(MIN_HELD_OUT, round(fraction * num_views))
     if count >= num_views:
         raise SplatuError(f"choosing degrees holds out {count} of only {num_views} training views",
-                          "--degree-choice.on", "train with fixed degrees (drop --degree-choice.on) on so few views")
+                          "in --degree-choice.on", "train with fixed degrees (drop --degree-choice.on) on so few views")
     start = (num_views - count) // 2
     return list(range(start, start + count))
 
@@ -98,13 +98,13 @@ def with_choice_heads(config: TrainConfig) -> TrainConfig:
     (unchanged when it already does); refuses settings the choice cannot work with."""
     if config.ensemble > 1:
         raise SplatuError("an ensemble's members must differ only in seed, but each would choose its own degrees",
-                          "--degree-choice.on with --ensemble", "choose the degrees with one run, then train the "
+                          "in --degree-choice.on with --ensemble", "choose the degrees with one run, then train the "
                           "ensemble with --model.sh-degree and --model.u-sh-degree set to what it chose")
     full_colour_at = config.model.sh_degree * config.model.sh_degree_interval
     if decision_step(config.degree_choice, config.steps) <= full_colour_at:
         raise SplatuError(f"the degrees would be chosen at step {decision_step(config.degree_choice, config.steps)}, "
                           f"before colour SH reaches degree {config.model.sh_degree} (step {full_colour_at})",
-                          "--degree-choice.at", "raise --degree-choice.at or --steps, or lower "
+                          "in --degree-choice.at", "raise --degree-choice.at or --steps, or lower "
                           "--model.sh-degree-interval")
     if config.uncertainty.off:
         return config
@@ -113,7 +113,7 @@ def with_choice_heads(config: TrainConfig) -> TrainConfig:
         return config
     if config.uncertainty.extra_heads:
         raise SplatuError("--degree-choice.on trains its own uncertainty heads, one per u-SH degree",
-                          "--uncertainty.extra-heads", "drop --uncertainty.extra-heads, or --degree-choice.on")
+                          "in --uncertainty.extra-heads", "drop --uncertainty.extra-heads, or --degree-choice.on")
     return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, extra_heads=heads))
 
 

@@ -139,26 +139,26 @@ class UncertaintyLossConfig:
     def validate(self) -> None:
         """Raise a one-line SplatuError for settings the loss cannot use."""
         if not 0.0 <= self.lam < 0.5:
-            raise SplatuError(f"uncertainty λ = {self.lam} is not in [0, 0.5)", "--uncertainty.lam",
+            raise SplatuError(f"uncertainty λ = {self.lam} is not in [0, 0.5)", "in --uncertainty.lam",
                               "use λ < 0.5 (the paper's condition), e.g. 0.3")
         if not 0.0 < self.threshold <= 1.0:  # 0 would supervise Gaussians this view never drew as seen
             raise SplatuError(f"uncertainty threshold = {self.threshold} is not a blend weight in (0, 1]",
-                              "--uncertainty.threshold", "use e.g. 0.05")
+                              "in --uncertainty.threshold", "use e.g. 0.05")
         if self.num_dirs < 1:
-            raise SplatuError(f"uncertainty num_dirs = {self.num_dirs} is below 1", "--uncertainty.num-dirs",
+            raise SplatuError(f"uncertainty num_dirs = {self.num_dirs} is below 1", "in --uncertainty.num-dirs",
                               "use e.g. 16")
         if not (math.isfinite(self.weight) and self.weight >= 0.0):
             raise SplatuError(f"uncertainty weight = {self.weight} is not a finite non-negative number",
-                              "--uncertainty.weight", "use e.g. 1.0")
+                              "in --uncertainty.weight", "use e.g. 1.0")
         if self.extra_heads and self.off:
             raise SplatuError("extra uncertainty heads with the uncertainty loss off would never train",
-                              "--uncertainty.extra-heads", "drop them, or train with the loss on")
+                              "in --uncertainty.extra-heads", "drop them, or train with the loss on")
         parsed = [parse_head(spec, self, MAX_SH_DEGREE) for spec in self.extra_heads]
         settings = [(h.loss, h.degree) for h in parsed]
         for head, setting in zip(parsed, settings, strict=True):
             if settings.count(setting) > 1:
                 raise SplatuError(f"uncertainty head {head.name!r} repeats another head's settings",
-                                  "--uncertainty.extra-heads", "give each extra head different settings")
+                                  "in --uncertainty.extra-heads", "give each extra head different settings")
 
 
 @dataclass(frozen=True)
@@ -171,7 +171,7 @@ class UncertaintyHead:
 
 
 HEAD_KEYS = ("kind", "lam", "threshold", "num_dirs", "degree")
-HEAD_FLAG = "--uncertainty.extra-heads"
+IN_HEADS = "in --uncertainty.extra-heads"
 
 
 def _head_values(spec: str) -> dict[str, str | int | float]:
@@ -182,7 +182,7 @@ def _head_values(spec: str) -> dict[str, str | int | float]:
         problem = ("not key=value" if not sep else f"unknown key {key!r}" if key not in HEAD_KEYS
                    else f"{key!r} given twice" if key in values else None)
         if problem is not None:
-            raise SplatuError(f"bad uncertainty head {spec!r}: {problem}", HEAD_FLAG,
+            raise SplatuError(f"bad uncertainty head {spec!r}: {problem}", IN_HEADS,
                               f"write key=value pairs joined by commas, keys from {', '.join(HEAD_KEYS)}")
         values[key] = value
     typed: dict[str, str | int | float] = {}
@@ -190,7 +190,7 @@ def _head_values(spec: str) -> dict[str, str | int | float]:
         try:
             typed[key] = value if key == "kind" else int(value) if key in ("num_dirs", "degree") else float(value)
         except ValueError:
-            raise SplatuError(f"{key}={value!r} is not a number in uncertainty head {spec!r}", HEAD_FLAG,
+            raise SplatuError(f"{key}={value!r} is not a number in uncertainty head {spec!r}", IN_HEADS,
                               "e.g. lam=0.1,degree=2") from None
     return typed
 
@@ -207,17 +207,17 @@ def parse_head(spec: str, base: UncertaintyLossConfig, max_degree: int) -> Uncer
     typed = _head_values(spec)
     degree = int(typed.pop("degree", max_degree))
     if typed.get("kind", base.kind) not in ("antipodal", "mean", "weighted"):
-        raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", HEAD_FLAG,
+        raise SplatuError(f"unknown loss kind in uncertainty head {spec!r}", IN_HEADS,
                           "use antipodal, mean or weighted")
     if not 0 <= degree <= max_degree:
         more = "" if max_degree == MAX_SH_DEGREE else " (raise --model.u-sh-degree for more)"
         raise SplatuError(f"uncertainty head {spec!r} asks for degree {degree}, above the u-SH degree {max_degree}"
-                          if degree > 0 else f"uncertainty head {spec!r} asks for a negative degree", HEAD_FLAG,
+                          if degree > 0 else f"uncertainty head {spec!r} asks for a negative degree", IN_HEADS,
                           f"use a degree from 0 to {max_degree}{more}")
     try:
         loss = dataclasses.replace(base, extra_heads=(), **typed)
     except SplatuError as err:  # name the head, not the run's own flag
-        raise SplatuError(f"{err.what} in uncertainty head {spec!r}", HEAD_FLAG, err.fix) from None
+        raise SplatuError(f"{err.what} in uncertainty head {spec!r}", IN_HEADS, err.fix) from None
     return UncertaintyHead(spec, loss, degree)
 
 

@@ -65,11 +65,11 @@ class ModelConfig:
         for name in ("sh_degree", "u_sh_degree"):
             value = getattr(self, name)
             if not 0 <= value <= MAX_SH_DEGREE:
-                raise SplatuError(f"{name} = {value} is out of range", f"--model.{name.replace('_', '-')}",
+                raise SplatuError(f"{name} = {value} is out of range", f"in --model.{name.replace('_', '-')}",
                                   f"use a degree from 0 to {MAX_SH_DEGREE}")
         require_at_least(self.sh_degree_interval, 1, "--model.sh-degree-interval")
         if not 0.0 < self.init_opacity < 1.0:
-            raise SplatuError(f"init_opacity = {self.init_opacity} is not in (0, 1)", "--model.init-opacity",
+            raise SplatuError(f"init_opacity = {self.init_opacity} is not in (0, 1)", "in --model.init-opacity",
                               "use e.g. 0.1")
         if not (math.isfinite(self.screen_blur) and self.screen_blur >= MIN_BLUR):
             raise SplatuError(f"--model.screen-blur {self.screen_blur} is below {MIN_BLUR} px² or not a number",
@@ -79,7 +79,7 @@ class ModelConfig:
                               "in the model options", "use e.g. 2.0 (u starts at sigmoid(2) ≈ 0.88)")
         if self.random_init_points < 1 or not 0 < self.random_init_extent < math.inf:
             raise SplatuError("random initialisation needs at least one point in a cube of positive side",
-                              "--model.random-init-points / --model.random-init-extent", "use e.g. 50000 and 10")
+                              "in --model.random-init-points / --model.random-init-extent", "use e.g. 50000 and 10")
 
 
 @dataclass

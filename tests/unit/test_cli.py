@@ -135,6 +135,27 @@ def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tm
     assert err.startswith("error: --") and err.count("\n") == 1, err
 
 
+@pytest.mark.parametrize(("argv", "line"), [
+    (["--model.u-sh-degree", "9"],
+     "u_sh_degree = 9 is out of range, in --model.u-sh-degree, use a degree from 0 to 3"),
+    (["--uncertainty.lam", "0.7"],
+     "uncertainty λ = 0.7 is not in [0, 0.5), in --uncertainty.lam, use λ < 0.5 (the paper's condition), e.g. 0.3"),
+    (["--uncertainty.extra-heads", "x"],
+     "bad uncertainty head 'x': not key=value, in --uncertainty.extra-heads, write key=value pairs joined by commas, "
+     "keys from kind, lam, threshold, num_dirs, degree"),
+    (["--degree-choice.on", "--ensemble", "2"],
+     "an ensemble's members must differ only in seed, but each would choose its own degrees, in --degree-choice.on "
+     "with --ensemble, choose the degrees with one run, then train the ensemble with --model.sh-degree and "
+     "--model.u-sh-degree set to what it chose"),
+])
+def test_an_error_in_an_option_says_in_before_it(capsys, tmp_path, argv, line):
+    """Every error reads "what, in WHERE, fix"; these named the option bare ("out of range, --model.u-sh-degree")."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", *argv, "--data", str(tmp_path / "absent")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == f"error: {line}\n"
+
+
 def test_version(capsys):
     from splatu import __version__
 
