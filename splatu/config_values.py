@@ -11,7 +11,7 @@ import dataclasses
 import math
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -54,6 +54,24 @@ def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: st
         else:
             changes[key] = _coerce_option(hints[key], value, prefix + key, source)
     return dataclasses.replace(config, **changes)
+
+
+def without_options(values: Mapping[str, Any], dropped: Collection[str], prefix: str = "") -> dict[str, Any]:
+    """`values` (nested mappings for nested configs) without the options whose dotted names are in `dropped`."""
+    kept: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            kept[key] = without_options(value, dropped, f"{prefix}{key}.")
+        elif f"{prefix}{key}" not in dropped:
+            kept[key] = value
+    return kept
+
+
+def flat_options(values: Any, prefix: str = "") -> dict[str, Any]:
+    """`values` (nested mappings for nested configs) as one mapping of dotted option names to values."""
+    if not isinstance(values, Mapping):
+        return {prefix.rstrip("."): values}
+    return {k: v for key, value in values.items() for k, v in flat_options(value, f"{prefix}{key}.").items()}
 
 
 YAML11_BOOL_WORDS = {True: ("on", "yes", "true"), False: ("off", "no", "false")}
@@ -172,10 +190,5 @@ def to_dict(config: Any) -> dict[str, Any]:
 
 def changed_options(config: Any, base: Any) -> list[str]:
     """Dotted names of the options where dataclass `config` differs from `base`, in field order."""
-    def flat(values: Any, prefix: str = "") -> dict[str, Any]:
-        if not isinstance(values, dict):
-            return {prefix.rstrip("."): values}
-        return {k: v for key, value in values.items() for k, v in flat(value, f"{prefix}{key}.").items()}
-
-    mine, theirs = flat(to_dict(config)), flat(to_dict(base))
+    mine, theirs = flat_options(to_dict(config)), flat_options(to_dict(base))
     return [name for name, value in mine.items() if theirs.get(name) != value]

@@ -25,6 +25,19 @@ class SplatuError(Exception):
         super().__init__(f"{what}, {self.where}, {fix}")
 
 
+class OptionError(SplatuError):
+    """An option's value out of its range, told as the flag's: it keeps the flag, the value and what the option
+    accepts, so that a value a preset file set can be blamed on the file's key instead of a flag never typed."""
+
+    def __init__(self, what: str, where: str, fix: str, *, flag: str, value: object, problem: str,
+                 allowed: str) -> None:
+        super().__init__(what, where, fix)
+        self.flag = flag
+        self.value = value
+        self.problem = problem
+        self.allowed = allowed
+
+
 def require_file(path: Path, what: str, fix: str) -> Path:
     """Return `path` if it is an existing file; otherwise raise a one-line SplatuError."""
     if not path.is_file():
@@ -35,8 +48,9 @@ def require_file(path: Path, what: str, fix: str) -> Path:
 def require_at_least(value: float, minimum: float, flag: str) -> None:
     """Raise a one-line SplatuError unless option `flag` (a count, rate or size) is finite and at least `minimum`."""
     if not (value == value and abs(value) != float("inf") and value >= minimum):
-        raise SplatuError(f"{flag} must be at least {minimum:g} (got {value})", "in the options",
-                          f"pass {flag} of at least {minimum:g}")
+        raise OptionError(f"{flag} must be at least {minimum:g} (got {value})", "in the options",
+                          f"pass {flag} of at least {minimum:g}", flag=flag, value=value,
+                          problem=f"must be at least {minimum:g}", allowed=f"at least {minimum:g}")
 
 
 def load_number_array(path: Path, what: str, fix: str) -> np.ndarray:

@@ -35,7 +35,7 @@ from splatu.losses import uncertainty_heads
 from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
-from splatu.train_config import DEFAULT_PRESET, TrainConfig, from_dict, load_config, preset_config
+from splatu.train_config import DEFAULT_PRESET, TrainConfig, check_parts, from_dict, load_config, preset_config
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_locked_run
 from splatu.training_step import StepHook, resolution_level
@@ -45,8 +45,7 @@ from splatu.world_frame import require_same_frame, scene_frame
 def check_options(config: TrainConfig) -> None:
     """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
     may build the stand-in) and before a run folder is made and `latest` pointed at it."""
-    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
-        part.validate()
+    check_parts(config)
     config.data.refuse_unused_flags()
     refuse_unused_poster_options(config.data)
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)

@@ -11,7 +11,7 @@ together instead of as scattered constants.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -21,11 +21,11 @@ import tyro
 import yaml
 
 from splatu.atomic import atomic_write_text
-from splatu.config_values import apply_values, read_yaml, to_dict
+from splatu.config_values import apply_values, flat_options, read_yaml, to_dict, without_options
 from splatu.data.config import DataConfig
 from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
-from splatu.errors import SplatuError, require_at_least
+from splatu.errors import OptionError, SplatuError, require_at_least
 from splatu.losses import UncertaintyLossConfig
 from splatu.methods import get_method, method_help
 from splatu.model import ModelConfig
@@ -186,11 +186,48 @@ def load_config(path: Path) -> TrainConfig:
     return from_dict(read_yaml(path), str(path))
 
 
-def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu") -> TrainConfig:
-    """The config a bare `splatu train --preset P --method M` starts from (the Python entry point)."""
+def check_parts(config: TrainConfig) -> None:
+    """The range checks of `config`'s parts that do not run as they are made (a saved config that carried a value
+    they refuse still loads for render and eval)."""
+    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
+        part.validate()
+
+
+def option_flag(name: str) -> str:
+    """The flag of dotted option `name`: `model.sh_degree` is --model.sh-degree, the scene's are flat (--downscale)."""
+    return "--" + name.removeprefix("data.").replace("_", "-")
+
+
+def _with_preset(config: TrainConfig, path: Path, overridden: Collection[str]) -> TrainConfig:
+    """`config` with the preset file's values, less those of the flags `overridden` (which replace them anyway)."""
+    values = read_yaml(path)
+    values = without_options(values, {name for name in flat_options(values) if option_flag(name) in overridden})
+    try:
+        config = apply_values(config, values, str(path))
+        check_parts(config)
+    except SplatuError as err:
+        raise _blamed_on_file(err, path, values) from None
+    return config
+
+
+def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> SplatuError:
+    """`err`, refusing the values of preset file `path`, told as the file's: an option out of range is named by the
+    key and value the file holds, since the check names its flag, which the user never typed."""
+    flag = err.flag if isinstance(err, OptionError) else None
+    key = next((name for name in flat_options(values) if option_flag(name) == flag), None)
+    if not isinstance(err, OptionError) or key is None:
+        return SplatuError(err.what, f"in {path}", err.fix)
+    return SplatuError(f"{key}: {err.value} {err.problem}", f"in {path}",
+                       f"set {key} to {err.allowed} in that file, or override it with {err.flag}")
+
+
+def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu",
+                  overridden: Collection[str] = ()) -> TrainConfig:
+    """The config a bare `splatu train --preset P --method M` starts from (the Python entry point); the preset's
+    values for the flags in `overridden` are left out, so that a flag can replace a value the preset has wrong."""
     config = TrainConfig()
     if preset != FULL_RECIPE:
-        config = apply_values(config, read_yaml(preset_path(preset)), str(preset_path(preset)))
+        config = _with_preset(config, preset_path(preset), overridden)
     config = dataclasses.replace(config, preset=preset, method=method)
     return get_method(method).configure(config)
 
@@ -206,6 +243,18 @@ def _scan_flag(argv: Sequence[str], flag: str) -> str | None:
     return found
 
 
+def _flags_given(argv: Sequence[str]) -> set[str]:
+    """The flags in raw arguments, spelt as `option_flag` spells them (`--no-progress` and `--model.sh_degree` as
+    --progress and --model.sh-degree)."""
+    given = set()
+    for arg in argv:
+        if arg.startswith("--"):
+            parent, dot, last = arg[2:].split("=", 1)[0].replace("_", "-").rpartition(".")
+            given.add(f"--{parent}{dot}{last.removeprefix('no-')}")
+    return given
+
+
 def default_config(argv: Sequence[str]) -> TrainConfig:
     """Defaults for `splatu train`: the chosen preset and method, so `--help` shows the real values."""
-    return preset_config(_scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu")
+    return preset_config(_scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu",
+                         _flags_given(argv))

@@ -156,6 +156,43 @@ def test_an_error_in_an_option_says_in_before_it(capsys, tmp_path, argv, line):
     assert capsys.readouterr().err == f"error: {line}\n"
 
 
+def _train_error(capsys, tmp_path, preset: str, *flags: str) -> str:
+    """What `splatu train` says (on stderr, exiting 2) with a preset file holding `preset`."""
+    (tmp_path / "p.yaml").write_text(preset)
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--preset", str(tmp_path / "p.yaml"), *flags, "--data", str(tmp_path / "absent")])
+    assert exc.value.code == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("preset", "line"), [
+    ("steps: -5\n", "steps: -5 must be at least 1, in {}, set steps to at least 1 in that file, or override it with "
+                    "--steps"),
+    ("model:\n  sh_degree_interval: 0\n", "model.sh_degree_interval: 0 must be at least 1, in {}, set "
+     "model.sh_degree_interval to at least 1 in that file, or override it with --model.sh-degree-interval"),
+    ("data:\n  downscale: 0\n", "data.downscale: 0 must be at least 1, in {}, set data.downscale to at least 1 in "
+                                 "that file, or override it with --downscale"),
+    ("model:\n  u_sh_degree: 9\n", "u_sh_degree = 9 is out of range, in {}, use a degree from 0 to 3"),
+])
+def test_a_bad_value_in_a_preset_file_is_blamed_on_the_file(capsys, tmp_path, preset, line):
+    """It was told as the flag's ("--steps must be at least 1 (got -5), in the options"), which was never typed."""
+    assert _train_error(capsys, tmp_path, preset) == f"error: {line.format(tmp_path / 'p.yaml')}\n"
+
+
+@pytest.mark.parametrize("flag", ["--steps", "--steps=", "--model.sh_degree_interval", "--model.sh-degree-interval"])
+def test_a_flag_replaces_a_bad_value_of_the_preset_file(capsys, tmp_path, flag):
+    """The preset's value was refused before the flag could replace it."""
+    preset = "steps: -5\n" if flag.startswith("--steps") else "model:\n  sh_degree_interval: 0\n"
+    flags = [flag + "10"] if flag.endswith("=") else [flag, "10"]
+    assert _train_error(capsys, tmp_path, preset, *flags).startswith("error: scene not found, in ")
+
+
+@pytest.mark.parametrize("preset", ["steps: -5\n", "steps: 20\n", "seed: 3\n"])
+def test_a_bad_flag_beside_a_preset_file_is_the_flags(capsys, tmp_path, preset):
+    assert _train_error(capsys, tmp_path, preset, "--steps", "-3") == (
+        "error: --steps must be at least 1 (got -3), in the options, pass --steps of at least 1\n")
+
+
 def test_version(capsys):
     from splatu import __version__
 
