@@ -266,9 +266,24 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
     expected_h = recipe.height / recipe.source_downscale
     if abs(width - expected_w) >= 1 or abs(height - expected_h) >= 1:
         noun = {"color": "image", "mask": "mask", "depth": "depth map"}[recipe.kind]
-        raise SplatuError(f"{noun} is {width}x{height} but its camera says {round(expected_w)}x"
-                          f"{round(expected_h)}", f"in {recipe.path}",
-                          _size_fix(recipe.kind, noun, abs(width - expected_h) < 1 and abs(height - expected_w) < 1))
+        expected = f"{round(expected_w)}x{round(expected_h)}"
+        turned = abs(width - expected_h) < 1 and abs(height - expected_w) < 1
+        if recipe.source_downscale == 1:
+            raise SplatuError(f"{noun} is {width}x{height} but its camera says {expected}", f"in {recipe.path}",
+                              _size_fix(recipe.kind, noun, turned))
+        # a pre-downscaled copy (images_N): the size the user wrote is the camera's, which --downscale divides
+        raise SplatuError(f"{noun} is {width}x{height}, but the camera's {recipe.width}x{recipe.height} at "
+                          f"--downscale {recipe.source_downscale} is {expected}", f"in {recipe.path}",
+                          _size_fix(recipe.kind, noun, turned) if turned else _copy_fix(recipe, expected))
+
+
+def _copy_fix(recipe: PixelRecipe, expected: str) -> str:
+    """What to do about a pre-downscaled copy (in images_N) of the wrong size: make it again, or do without it (the
+    loader then shrinks the full-size image itself). The camera is not at fault when the full-size images fit it."""
+    n = recipe.source_downscale
+    folder = next((p.name for p in recipe.path.parents if p.name.endswith(f"_{n}")), recipe.path.parent.name)
+    return (f"regenerate {folder} at {expected} (1/{n} of the camera's size), or remove {folder} to have "
+            f"--downscale {n} shrink the full-size images as they load (or drop --downscale)")
 
 
 def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:

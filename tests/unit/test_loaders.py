@@ -237,6 +237,45 @@ def test_images_n_folder_is_used_for_downscale(tmp_path):
     assert without.train.images.shape[1:3] == (8, 10)  # round(30 / 4), round(40 / 4): resized from full size
 
 
+@pytest.mark.parametrize(("size", "fix"), [
+    ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 "
+               "shrink the full-size images as they load (or drop --downscale)"),
+    ((15, 20), "swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
+               "stored on its side (an EXIF orientation, which is not applied), save it upright"),
+])
+def test_a_downscaled_copy_of_the_wrong_size_is_told_against_the_cameras_size_in_the_file(tmp_path, size, fix):
+    """It said "image is 21x15 but its camera says 20x15, ... fix the camera size": a size the file never held, and
+    a camera that fits the full-size images."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
+    for i, camera in enumerate(cameras):
+        width, height = size if i == 2 else (20, 15)
+        write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, width, height))
+    with pytest.raises(SplatuError) as caught:
+        load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=2))
+    assert caught.value.what == f"image is {size[0]}x{size[1]}, but the camera's 40x30 at --downscale 2 is 20x15"
+    assert caught.value.where == f"in {root / 'images_2' / Path(cameras[2].name).name}"
+    assert caught.value.fix == fix
+
+
+def test_a_colmap_downscaled_copy_of_the_wrong_size_names_its_folder(tmp_path):
+    """The image's name may hold folders of its own (cam1/img_1.png): the copy's folder is the one named images_N."""
+    root = tmp_path / "scene"
+    _write_colmap_text(root, "PINHOLE", [36.0, 36.0, 20.0, 15.0], ring_cameras(5, 40, 30))
+    images_txt = root / "sparse" / "0" / "images.txt"
+    images_txt.write_text(images_txt.read_text().replace(" img_", " cam1/img_"))
+    shutil.move(root / "images", tmp_path / "flat")
+    shutil.move(tmp_path / "flat", root / "images" / "cam1")
+    for i in range(5):
+        write_rgb(root / "images_2" / "cam1" / f"img_{i}.png", noise_image(100 + i, 20, 16 if i == 1 else 15))
+    with pytest.raises(SplatuError) as caught:
+        load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=3))
+    assert str(caught.value) == (
+        f"image is 20x16, but the camera's 40x30 at --downscale 2 is 20x15, in {root / 'images_2/cam1/img_1.png'}, "
+        "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 shrink "
+        "the full-size images as they load (or drop --downscale)")
+
+
 def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):
     root = tmp_path / "lego"
     angle = 0.69
