@@ -743,7 +743,7 @@ def test_tiles_cut_from_larger_photos_load_with_one_warning_line(tmp_path, capsy
     assert out == "" and err.count("\n") == 1
     assert err.startswith(f"warning: 16 of 18 frames in {root / 'transforms.json'} have a principal point far from "
                           "the image's centre (frame 'tiles/0_00.png': principal point (48.3, 35.8) lies outside the "
-                          "32x24 image, as for a K made for an image 3 times this size); training goes on")
+                          "32x24 image, as for a K made for an image 3 times this size); the cameras are used as given")
 
 
 @pytest.mark.parametrize("scene", ["fox", "lund_door"])
