@@ -41,6 +41,8 @@ def _commands() -> dict[str, Command]:
 
 def main(argv: Sequence[str], debug: bool = False) -> None:
     commands = _commands()
+    if argv and argv[0].replace("_", "-") in commands:  # tyro takes render_uncertainty for render-uncertainty too
+        argv = [argv[0].replace("_", "-"), *argv[1:]]
     if argv and argv[0] not in commands and not argv[0].startswith("-"):
         raise unknown_subcommand(argv[0], list(commands))
     chosen = argv[0] if argv and argv[0] in commands else None

@@ -255,6 +255,8 @@ def _flags_given(argv: Sequence[str]) -> set[str]:
 
 
 def default_config(argv: Sequence[str]) -> TrainConfig:
-    """Defaults for `splatu train`: the chosen preset and method, so `--help` shows the real values."""
+    """Defaults for `splatu train`: the chosen preset and method, so `--help` shows the real values (all of the
+    preset's, also for the flags typed beside --help, which a run would leave out for the flags to replace)."""
+    shows_help = "-h" in argv or "--help" in argv
     return preset_config(_scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu",
-                         _flags_given(argv))
+                         () if shows_help else _flags_given(argv))

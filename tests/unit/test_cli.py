@@ -1,5 +1,6 @@
 import itertools
 import os
+import re
 import subprocess
 import sys
 
@@ -267,6 +268,25 @@ def test_help_still_prints_in_full(capsys):
     flat = " ".join(out.replace("│", " ").split())  # the help box wraps and frames each option's text
     for name, method in METHODS.items():  # the registry documents --method: a new entry needs no other edit
         assert f"{name}: {method.description}" in flat
+
+
+def test_help_shows_the_presets_values_also_for_the_flags_typed_beside_it(capsys):
+    """A run leaves the preset's values of typed flags out, for the flags to replace; --help must not, or it showed
+    the full recipe's 30000 steps and 200000 Gaussians as the fast preset's defaults."""
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--preset", "fast", "--steps", "7", "--densify.max-gaussians", "5", "--help"])
+    flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert re.search(r"--steps INT [^│]*?\(default: (\d+)\)", flat).group(1) == "2000"
+    assert re.search(r"--densify.max-gaussians INT [^│]*?\(default: (\d+)\)", flat).group(1) == "20000"
+
+
+@pytest.mark.parametrize("spelling", ["render_uncertainty", "eval_ause", "process_images"])
+def test_a_subcommand_spelt_with_underscores_is_still_that_subcommand(capsys, spelling):
+    """tyro reads render_uncertainty as render-uncertainty; the check for mistyped subcommands refused it."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint([spelling, "--help"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: splatu {spelling.replace('_', '-')} ")
 
 
 def test_a_box_usage_error_does_not_know_is_left_to_tyro():
