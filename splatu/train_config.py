@@ -11,6 +11,7 @@ together instead of as scattered constants.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -211,14 +212,21 @@ def _with_preset(config: TrainConfig, path: Path, overridden: Collection[str]) -
 
 
 def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> SplatuError:
-    """`err`, refusing the values of preset file `path`, told as the file's: an option out of range is named by the
-    key and value the file holds, since the check names its flag, which the user never typed."""
-    flag = err.flag if isinstance(err, OptionError) else None
-    key = next((name for name in flat_options(values) if option_flag(name) == flag), None)
-    if not isinstance(err, OptionError) or key is None:
+    """`err`, refusing the values of preset file `path`, told as the file's: the check names the option by its flag,
+    which the user never typed, so the option is named by the file's key (with its value, for a range check)."""
+    given = flat_options(values)
+    said = f"{err.what} {err.where} {err.fix}"  # a check may name its flag in any of the three
+    key = next((name for name in given if re.search(re.escape(option_flag(name)) + r"(?![\w-])", said)), None)
+    if key is None:
         return SplatuError(err.what, f"in {path}", err.fix)
-    return SplatuError(f"{key}: {err.value} {err.problem}", f"in {path}",
-                       f"set {key} to {err.allowed} in that file, or override it with {err.flag}")
+    flag = option_flag(key)
+    if isinstance(err, OptionError) and err.flag == flag:
+        return SplatuError(f"{key}: {err.value} {err.problem}", f"in {path}",
+                           f"set {key} to {err.allowed} in that file, or override it with {flag}")
+    what = re.sub(re.escape(flag) + r"(?![\w-])", key, err.what)
+    named = what != err.what or str(given[key]) in what  # the file's key or value, or else both, in what it says
+    return SplatuError(what if named else f"{what} (the file's {key}: {given[key]!r})", f"in {path}",
+                       f"fix {key} in that file, or override it with {flag}")
 
 
 def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu",

@@ -173,7 +173,12 @@ def _train_error(capsys, tmp_path, preset: str, *flags: str) -> str:
      "model.sh_degree_interval to at least 1 in that file, or override it with --model.sh-degree-interval"),
     ("data:\n  downscale: 0\n", "data.downscale: 0 must be at least 1, in {}, set data.downscale to at least 1 in "
                                  "that file, or override it with --downscale"),
-    ("model:\n  u_sh_degree: 9\n", "u_sh_degree = 9 is out of range, in {}, use a degree from 0 to 3"),
+    ("model:\n  u_sh_degree: 9\n", "u_sh_degree = 9 is out of range, in {}, fix model.u_sh_degree in that file, or "
+                                    "override it with --model.u-sh-degree"),
+    ("optim:\n  means_lr: -1\n", "optim.means_lr must be a positive learning rate (got -1.0), in {}, fix "
+                                  "optim.means_lr in that file, or override it with --optim.means-lr"),
+    ("uncertainty:\n  lam: 0.7\n", "uncertainty λ = 0.7 is not in [0, 0.5), in {}, fix uncertainty.lam in that "
+                                    "file, or override it with --uncertainty.lam"),
 ])
 def test_a_bad_value_in_a_preset_file_is_blamed_on_the_file(capsys, tmp_path, preset, line):
     """It was told as the flag's ("--steps must be at least 1 (got -5), in the options"), which was never typed."""
