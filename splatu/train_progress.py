@@ -87,7 +87,7 @@ def view_pass(bar: Progress, description: str, total: int) -> Callable[[], None]
     return lambda: bar.advance(task)
 
 
-COMPILE_LINE = ("compiling the rasterizer's kernels, once per process (torch.compile: about 10 s with a warm "
+COMPILE_LINE = ("compiling the rasterizer's kernels for the first step (torch.compile: about 10 s with a warm "
                 "cache, a minute or more cold; --no-compile-kernels skips it)")
 """Printed off a terminal before a session's first render compiles, which otherwise leaves a log silent for that
 long (on a terminal the bar's elapsed time ticks through it)."""

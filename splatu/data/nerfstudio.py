@@ -163,9 +163,9 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
                           "give w and h in pixels")
     fx = _focal(frame, top, "x", width, where)
     if fx is None:
-        raise SplatuError("missing intrinsics fl_x (or camera_angle_x)", where,
-                          "give fl_x in pixels, or instant-ngp's camera_angle_x in radians, at the top level or "
-                          "per frame")
+        raise SplatuError("missing intrinsics fl_x (or x_fov or camera_angle_x)", where,
+                          "give fl_x in pixels, or instant-ngp's x_fov in degrees or camera_angle_x in radians, at "
+                          "the top level or per frame")
     fy = _focal(frame, top, "y", height, where)
     fy = fx if fy is None else fy
     cx = values["cx"] if values["cx"] is not None else width / 2

@@ -954,7 +954,8 @@ def test_a_missing_focal_length_names_camera_angle_x_too(tmp_path):
     write_nerfstudio_scene(root, n=4)
     edit_transforms(root, lambda c: [frame.pop("fl_x") for frame in c["frames"]])
     error = load_error(root, tmp_path)
-    assert error.what == "missing intrinsics fl_x (or camera_angle_x)" and "camera_angle_x in radians" in error.fix
+    assert error.what == "missing intrinsics fl_x (or x_fov or camera_angle_x)"
+    assert "x_fov in degrees or camera_angle_x in radians" in error.fix
 
 
 @pytest.mark.parametrize(("intrinsics", "message"), [
