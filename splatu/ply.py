@@ -91,13 +91,13 @@ def _read_vertices(path: Path) -> np.ndarray:
     return np.frombuffer(data, dtype=dtype, count=layout.count, offset=start)
 
 
-def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
+def load_ply(path: Path, cfg: ModelConfig | None = None) -> GaussianModel:
     """Read a 3DGS PLY written by `save_ply` (or any 3DGS trainer) back into a model.
 
-    The colour and uncertainty SH degrees come from the file (they override `cfg`); a PLY without `u_*`
-    properties (a plain 3DGS export, or a run trained without the uncertainty loss) loads as a model with no
-    uncertainty head (`GaussianModel.has_uncertainty` is False), whose uncertainty cannot be rendered: none is
-    invented for it.
+    The colour and uncertainty SH degrees come from the file (they override `cfg`, the model's other settings,
+    ModelConfig()'s by default); a PLY without `u_*` properties (a plain 3DGS export, or a run trained without the
+    uncertainty loss) loads as a model with no uncertainty head (`GaussianModel.has_uncertainty` is False), whose
+    uncertainty cannot be rendered: none is invented for it.
     """
     path = Path(path)
     if not path.is_file():
@@ -110,6 +110,7 @@ def load_ply(path: Path, cfg: ModelConfig) -> GaussianModel:
     if rest_count % 3:
         raise SplatuError(f"PLY has {rest_count} f_rest properties, not a multiple of 3", f"in {path}",
                           "export all three colour channels")
+    cfg = ModelConfig() if cfg is None else cfg
     u_degree = _degree_for(u_count, "u_", path) if u_count else cfg.u_sh_degree
     cfg = replace(cfg, sh_degree=_degree_for(rest_count // 3 + 1, "f_rest", path), u_sh_degree=u_degree)
     required = property_names(rest_count // 3, u_count)

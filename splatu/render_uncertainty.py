@@ -229,13 +229,18 @@ NOTHING_DRAWN = np.zeros(3, dtype=np.uint8)
 would otherwise read as the nearest depth on the scale."""
 
 
+DEPTH_PERCENTILES = (1.0, 99.0)
+"""The depth PNGs' colour range, as percentiles of the covered pixels' depths: a few floaters near the camera or far
+behind set the extremes (fox: 0.4 to 24.7 with half its pixels nearer than 4.5): the scene was one dark colour."""
+
+
 def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
-    """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]; depth over the pixels
-    at least half covered; error only when a view has ground truth, as there is no error map otherwise."""
+    """One colour scale per quantity for all views: [0, 1] when U stays in it, else [0, max]; depth from the 1st to
+    the 99th percentile of the pixels at least half covered (DEPTH_PERCENTILES), clamped beyond; error only when a
+    view has ground truth, as there is no error map otherwise."""
     u_max = max(float(v.maps["uncertainty"].max()) for v in views)
-    hit = [v.maps["depth"][v.maps["alpha"] > 0.5] for v in views]
-    hit = [h for h in hit if h.size]
-    depth_lo, depth_hi = (float(min(h.min() for h in hit)), float(max(h.max() for h in hit))) if hit else (0.0, 1.0)
+    hit = np.concatenate([v.maps["depth"][v.maps["alpha"] > 0.5].ravel() for v in views])
+    depth_lo, depth_hi = (tuple(float(d) for d in np.percentile(hit, DEPTH_PERCENTILES)) if hit.size else (0.0, 1.0))
     errors = [np.abs(v.maps["rgb"] - v.gt).sum(axis=-1) for v in views if v.gt is not None]
     scales = {
         "uncertainty": ColourScale(0.0, max(1.0, u_max), UNCERTAINTY_CMAP, "uncertainty U"),

@@ -40,7 +40,7 @@ def test_round_trip_restores_every_parameter(tmp_path, sh_degree, u_degree):
     model = _random_model(sh_degree, u_degree)
     path = tmp_path / "point_cloud.ply"
     save_ply(model, path, IDENTITY, uncertainty=True)
-    loaded = load_ply(path, ModelConfig())  # degrees come from the file
+    loaded = load_ply(path)  # degrees come from the file; the other settings ModelConfig()'s
     assert (loaded.cfg.sh_degree, loaded.cfg.u_sh_degree) == (sh_degree, u_degree)
     for name in GaussianModel.PARAM_NAMES:
         assert torch.equal(getattr(loaded, name), getattr(model, name)), name

@@ -39,12 +39,27 @@ def test_render_json_gives_the_depth_pngs_scale_and_nothing_drawn_is_black(tmp_p
     nearest depth."""
     record = _write(tmp_path, "orbit", with_gt=False)
     lo, hi = record["depth_scale"]
-    assert (lo, hi) == (2.0, 4.0)  # the pixels at least half covered
+    # the 1st to 99th percentile of the pixels at least half covered, in both views
+    assert (lo, hi) == tuple(np.percentile([2.0, 3.0, 4.0, 2.0, 3.0, 4.0], (1.0, 99.0)))
     png = read_image(tmp_path / "png" / "a_depth.png")[..., :3]
     viridis = matplotlib.colormaps["viridis"]
-    for row, col, depth in ((0, 0, 2.0), (0, 1, 3.0), (0, 2, 4.0)):  # read back on the recorded scale
-        expected = np.round(np.array(viridis((depth - lo) / (hi - lo))[:3]) * 255.0)
+    for row, col, depth in ((0, 0, 2.0), (0, 1, 3.0), (0, 2, 4.0)):  # read back on the recorded scale, clamped
+        expected = np.round(np.array(viridis(np.clip((depth - lo) / (hi - lo), 0.0, 1.0))[:3]) * 255.0)
         np.testing.assert_allclose(png[row, col], expected, atol=1)
     assert (png[1, 1:] == 0).all()  # nothing drawn: black, a colour viridis never takes
     assert not (png[0, 0] == 0).all()  # the nearest depth is not
     assert np.load(tmp_path / "npy" / "a_depth.npy")[1, 1] == 0.0  # the raw map keeps 0 where alpha is 0
+
+
+def test_a_few_floaters_do_not_set_the_depth_scale(tmp_path):
+    """The scale ran from the nearest to the farthest covered pixel, so one floater far behind (fox: 24.7 with half the
+    pixels nearer than 4.5) left the scene one dark colour; the 1st to 99th percentiles leave it out."""
+    depth = np.linspace(2.0, 4.0, 400).reshape(20, 20)
+    depth[0, 0] = 1000.0
+    maps = {"rgb": np.full((20, 20, 3), 0.5), "depth": depth, "alpha": np.ones((20, 20)),
+            "uncertainty": np.full((20, 20), 0.3)}
+    write_render(tmp_path, [RenderedView("a", maps, gt=None, elevation_degrees=0.0)],
+                 RenderUncertaintyConfig(views="orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
+                 0.0, [0.1])
+    lo, hi = json.loads((tmp_path / "render.json").read_text())["depth_scale"]
+    assert 2.0 <= lo < 2.1 and 3.9 < hi <= 4.0
