@@ -61,8 +61,13 @@ def evaluate_scene(model: GaussianModel, scene: Scene, config: TrainConfig, sh_d
 
 
 def refuse_unscorable_sets(scene: Scene) -> None:
-    """A held-out set whose mask files exclude every pixel could never be scored: refused when the scene loads,
-    not by the final evaluation after the whole training (which every resume would then repeat)."""
+    """A held-out set whose mask files exclude every pixel could never be scored, and training images that are
+    transparent everywhere show nothing to learn (a run of them culled to a few Gaussians and scored its white
+    background against white at 72 dB): refused when the scene loads, not by the final evaluation after the whole
+    training (which every resume would then repeat)."""
+    if scene.train.alphas is not None and not bool((scene.train.alphas > 0).any()):
+        raise SplatuError("every training image is fully transparent (alpha 0 at every pixel)", f"in {scene.source}",
+                          "give images whose alpha is opaque where the scene is, or save them without alpha")
     for name, views in {"eval": scene.eval, **scene.extra_eval}.items():
         if views.mask_files is not None and not bool((views.mask_files > 0).any()):
             raise SplatuError(f"the mask files exclude every pixel of the {name} set's views", f"in {scene.source}",

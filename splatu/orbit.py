@@ -64,6 +64,11 @@ def _vertical(rotations: Tensor) -> Tensor:
     return up if float(up @ mean_up) >= 0.0 else -up
 
 
+ORBIT_RADIUS_FLOOR = 1e-9
+"""The smallest capture radius an orbit is made for, in the training cameras' normalised units (they span about 1;
+a capture turning on one spot keeps scale 1 and a radius of 0 or float rounding)."""
+
+
 def capture_frame(cameras: list[Camera]) -> CaptureFrame:
     """Centre, up and radius of a set of (training) cameras, in float64."""
     if len(cameras) < 2:
@@ -82,6 +87,10 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
         center = centres.mean(dim=0)
     offsets = centres - center
     radius = float(offsets.norm(dim=1).median())
+    if radius <= ORBIT_RADIUS_FLOOR:  # every orbit camera would sit on the point it looks at: an all-zero rotation
+        raise SplatuError("the training cameras share one position (a capture turning on the spot), so an orbit "
+                          "around what they look at has no radius", "in the scene",
+                          "use --views eval, train or cameras instead")
     mean_offset = offsets.mean(dim=0)
     horizontal = mean_offset - (mean_offset @ up) * up
     if horizontal.norm() < 1e-9 * max(radius, 1e-12):  # cameras all around: any horizontal axis will do

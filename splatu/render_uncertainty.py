@@ -394,8 +394,9 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     views, seconds = render_views(built.source, spec)
     entries = map_entries(views)
     if not entries:
-        raise SplatuError("no eval view has a pixel to score (each is excluded by its mask file)",
-                          "in the scene's mask files", "fix the masks, or hold out other views (--eval-split)")
+        raise SplatuError("no eval view has a pixel to score (its mask file or its image's alpha excludes each)",
+                          "in the scene's eval images", "fix the masks or the images' alpha, or hold out other views "
+                          "(--eval-split)")
     timing = {**train_timing(run), "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored

@@ -14,7 +14,7 @@ import torch
 from splatu.data.config import DataConfig
 from splatu.data.frames import Frame, RawScene
 from splatu.data.images import ImageCache, PixelRecipe, load_pixels
-from splatu.data.normalize import normalization, normalize_camera, normalize_points
+from splatu.data.normalize import coincident_within, normalization, normalize_camera, normalize_points
 from splatu.data.scene import CameraScene, CameraViews, Scene, Views
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
@@ -150,7 +150,8 @@ def refuse_outlying_camera(frames: list[Frame], centers: torch.Tensor, source: s
     """One line naming the frame whose camera sits absurdly far from all the others (e.g. a translation of 1e20)."""
     distance = (centers - centers.median(dim=0).values).norm(dim=-1)
     typical, worst = float(distance.median()), int(distance.argmax())
-    if typical > 0 and float(distance[worst]) > OUTLYING_CAMERA_RATIO * typical:
+    # cameras that coincide but for rounding (a capture turning on one spot) have no typical distance to compare with
+    if typical > coincident_within(centers) and float(distance[worst]) > OUTLYING_CAMERA_RATIO * typical:
         raise SplatuError(f"the camera of {frames[worst].name!r} is {float(distance[worst]) / typical:.3g} times "
                           "farther from the others' median position than they are", f"in {source}",
                           "fix or remove that frame's pose")

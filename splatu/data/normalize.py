@@ -13,12 +13,23 @@ from torch import Tensor
 
 from splatu.camera import Camera
 
+COINCIDENT = 1e-12
+"""Camera centres closer than this, relative to their coordinates' size (at least 1), coincide: float64's rounding of
+a pose's R^T t spreads the centres of cameras turning on one spot by about 1e-16 of their coordinates, so a capture
+at 3e6 (geo-referenced) had a "baseline" of 4e-10 and took a scale of 1e9 from rounding noise alone."""
+
+
+def coincident_within(centers: Tensor) -> float:
+    """The distance under which camera centres `centers` (N, 3) coincide: COINCIDENT of the size of their median
+    position's coordinates (not of the largest, which one broken pose at 1e20 would make)."""
+    return COINCIDENT * max(1.0, float(centers.median(dim=0).values.abs().max()))
+
 
 def normalization(centers: Tensor) -> tuple[Tensor, float]:
     """(center, scale) from camera centres (N, 3); scale is 1 when all cameras coincide (no baseline)."""
     center = centers.mean(dim=0)
     radius = float((centers - center).norm(dim=-1).max())
-    return center, (1.0 / radius if radius > 1e-12 else 1.0)
+    return center, (1.0 / radius if radius > coincident_within(centers) else 1.0)
 
 
 def normalize_camera(camera: Camera, center: Tensor, scale: float) -> Camera:

@@ -16,7 +16,7 @@ import pycolmap
 import pytest
 
 from splatu.cli import entrypoint
-from splatu.data.assemble import assemble, refuse_split_flags_the_scene_overrides
+from splatu.data.assemble import assemble, refuse_split_flags_the_scene_overrides, scene_normalization
 from splatu.data.config import DataConfig
 from splatu.data.frames import refuse_implausible_focal
 from splatu.data.images import ImageCache
@@ -357,6 +357,24 @@ def test_a_camera_absurdly_far_from_the_others_names_the_frame(tmp_path, far):
     edit_transforms(root, push_away)
     error = load_error(root, tmp_path)
     assert f"the camera of {cameras[2].name!r} is" in error.what and error.where.endswith("transforms.json")
+
+
+@pytest.mark.parametrize("place", [0.0, 3e6])
+def test_cameras_turning_on_one_spot_load_at_any_coordinates(tmp_path, place):
+    """At geo-referenced coordinates (3e6) float64's rounding of R^T t spread the centres of cameras on one spot by
+    about 4e-10, against a median of about 1e-26: refused as one camera "1.45e+16 times farther" than the others."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=6)
+
+    def on_one_spot(content):
+        for frame in content["frames"]:
+            for row, value in zip(frame["transform_matrix"][:3], (place, place / 3, 7.0), strict=True):
+                row[3] = value
+
+    edit_transforms(root, on_one_spot)
+    raw = read_scene_files(root, 1, (1.0, 1.0, 1.0))
+    center, scale = scene_normalization(raw)
+    assert scale == 1.0 and np.allclose(center.numpy(), [place, place / 3, 7.0], rtol=1e-12, atol=1e-9)
 
 
 def test_pose_beyond_float32_names_the_frame(tmp_path):
@@ -1224,7 +1242,6 @@ def test_querying_a_scene_s_cameras_in_a_loop_prints_nothing(tmp_path, capfd, wr
     """`RunQuery.scene_cameras` and `training_cameras` read the scene's files through the loaders, which printed
     their principal-point warning on every call: a planner asking in a loop filled stderr with it. The run warned
     as it trained; the query reads quietly (and loading the scene to train still warns, once)."""
-    from splatu.data.assemble import scene_normalization
     from splatu.query import scene_cameras
     from splatu.world_frame import WorldTransform
 

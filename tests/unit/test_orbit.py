@@ -2,11 +2,13 @@
 
 import dataclasses
 
+import numpy as np
 import pytest
 import torch
 
+from splatu.errors import SplatuError
 from splatu.orbit import capture_frame, orbit_cameras
-from tests.synthetic_scenes import ring_cameras
+from tests.synthetic_scenes import look_at_camera, ring_cameras
 
 
 @pytest.mark.parametrize(("row", "col"), [(0, 0), (1, 2), (2, 2)])
@@ -28,3 +30,15 @@ def test_an_orbit_of_tiles_looks_at_the_capture_s_centre_from_its_image_s_centre
         assert float(z) > 0 and torch.allclose(uv, torch.tensor([16.0, 12.0], dtype=torch.float64), atol=1e-3)
         assert (frame.camera.width, frame.camera.height) == (32, 24)
         assert frame.camera.K[0, 0] == tiles[0].K[0, 0] and frame.camera.K[1, 1] == tiles[0].K[1, 1]
+
+
+def test_an_orbit_of_cameras_turning_on_one_spot_is_refused_in_one_line():
+    """Their optical axes meet at their common centre, so the orbit's radius was 0 and every orbit camera sat on the
+    point it looked at: an all-zero rotation, views of nothing (coverage 0, U 1) and exit 0."""
+    K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+    spot = np.array([1.0, 2.0, 3.0])
+    cameras = [look_at_camera(spot, spot + np.array([np.cos(a), np.sin(a), 0.1]), K, 32, 24)
+               for a in np.linspace(0.0, 1.5, 5)]
+    with pytest.raises(SplatuError) as caught:
+        orbit_cameras(cameras, 4)
+    assert "share one position" in caught.value.what and "--views eval, train or cameras" in caught.value.fix

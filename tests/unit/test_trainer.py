@@ -1135,6 +1135,17 @@ def test_an_eval_set_its_masks_exclude_entirely_is_refused_before_training(tmp_p
     assert not (tmp_path / "outputs" / "tiny").exists()  # not after the training, at its final evaluation
 
 
+def test_training_images_transparent_everywhere_are_refused_before_training(tmp_path, monkeypatch):
+    """They were trained on: the model culled to 3 Gaussians and scored its white background against white at 72 dB."""
+    base = tiny_scene()
+    clear = dataclasses.replace(base, train=dataclasses.replace(base.train,
+                                                                alphas=torch.zeros(base.train.images.shape[:3])))
+    monkeypatch.setattr(train_command, "load_scene", lambda data_config: clear)
+    with pytest.raises(SplatuError, match=r"every training image is fully transparent"):
+        train_command.train(tiny_config(tmp_path))
+    assert not (tmp_path / "outputs" / "tiny").exists()
+
+
 def test_a_resume_refused_for_a_moved_normalisation_leaves_the_config_alone(tmp_path, scene):
     run_dir = train_command.train(tiny_config(tmp_path, steps=8, checkpoint_every=4))
     (run_dir / "summary.json").unlink()
