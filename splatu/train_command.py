@@ -25,6 +25,7 @@ from splatu.checkpoint import (
 from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
+from splatu.data.scene import Scene
 from splatu.degree_choice import held_out_block, with_choice_heads
 from splatu.ensemble_dirs import ensemble_config, ensemble_members
 from splatu.ensemble_training import counted_in_ensemble, enclosing_ensemble_lock, train_locked_ensemble
@@ -49,6 +50,18 @@ def check_options(config: TrainConfig) -> None:
     config.data.refuse_unused_flags()
     refuse_unused_poster_options(config.data)
     uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+
+
+def budget_note(config: TrainConfig, scene: Scene) -> str | None:
+    """What to say when the run starts above its Gaussian budget: --densify.max-gaussians caps what densification
+    adds, and one Gaussian per initial point is made before it, so a cloud larger than the budget is not cut to it."""
+    start = scene.points.shape[0] or config.model.random_init_points
+    budget = config.densify.max_gaussians
+    if start <= budget:
+        return None
+    return (f"note: the run starts with {start:,} Gaussians (one per initial point), above --densify.max-gaussians "
+            f"{budget:,}: densification adds none, and only pruning shrinks the model; raise the budget, or thin the "
+            "point cloud to keep the model within it")
 
 
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
@@ -155,9 +168,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    note = resolution_note(config)
-    if note is not None:  # after the scene line, which a run's output starts with
-        console.print(note, soft_wrap=True)
+    for note in (resolution_note(config), budget_note(config, scene)):
+        if note is not None:  # after the scene line, which a run's output starts with
+            console.print(note, soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
     run_dir = new_run_dir(config.output_dir, scene.name, config.method)

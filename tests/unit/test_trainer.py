@@ -827,6 +827,18 @@ def test_a_compile_is_pending_until_the_first_compiled_kernel_runs(monkeypatch):
     assert not kernels.compile_pending()
 
 
+def test_a_run_that_starts_above_its_gaussian_budget_says_so(tmp_path, scene, capsys):
+    """One Gaussian per initial point is made before the budget applies: 300 points under a budget of 10 ended with 283
+    Gaussians and no word. Within the budget nothing is said."""
+    points = scene.points.shape[0]
+    train_command.train(tiny_config(tmp_path / "over", steps=2, checkpoint_every=0,
+                                    densify=dataclasses.replace(tiny_config(tmp_path).densify, max_gaussians=10)))
+    assert (f"note: the run starts with {points:,} Gaussians (one per initial point), above --densify.max-gaussians "
+            "10: densification adds none") in capsys.readouterr().err
+    train_command.train(tiny_config(tmp_path / "within", steps=2, checkpoint_every=0))  # budget 2000
+    assert "above --densify.max-gaussians" not in capsys.readouterr().err
+
+
 def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
     train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=False))
     assert not [line for line in capsys.readouterr().err.splitlines() if PROGRESS_LINE.match(line)]
