@@ -23,6 +23,7 @@ from torch import Tensor
 from splatu.camera import Camera
 from splatu.errors import require_at_least
 from splatu.model import GaussianModel
+from splatu.rasterizer.kernels import kernels_compiled
 
 FISHER_PARAMS = ("means", "sh_dc", "opacity_logits")
 EPSILON = 1e-6
@@ -36,12 +37,17 @@ def fisher_diagonal(model: GaussianModel, cameras: list[Camera], sh_degree: int,
     params = [getattr(model, name) for name in FISHER_PARAMS]
     information = torch.zeros(len(model))
     background = torch.zeros(3)
+    # a torch.compile'd backward frees (donates) its saved buffers, so its graph cannot be run twice: with compiled
+    # kernels each probe renders the view again (the same image, as rendering is deterministic)
+    fresh_graph = kernels_compiled()
     with torch.enable_grad():
         for camera in cameras:
-            rgb = model.render(camera, sh_degree, background).rgb
             for probe in range(probes):
+                if probe == 0 or fresh_graph:
+                    rgb = model.render(camera, sh_degree, background).rgb
                 signs = torch.randint(0, 2, rgb.shape, generator=generator).float() * 2.0 - 1.0
-                grads = torch.autograd.grad((rgb * signs).sum(), params, retain_graph=probe < probes - 1)
+                grads = torch.autograd.grad((rgb * signs).sum(), params,
+                                            retain_graph=not fresh_graph and probe < probes - 1)
                 for grad in grads:
                     information += grad.detach().reshape(len(model), -1).square().sum(dim=1)
             on_view()

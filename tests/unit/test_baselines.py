@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
 import torch
 
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
+from splatu.baselines.fisher import fisher_diagonal
 from splatu.baselines.visibility import visibility_feature
 from splatu.errors import SplatuError
+from splatu.rasterizer.kernels import set_compile
 from splatu.sh import rgb_to_sh
 from tests.small_models import overlapping_gaussians, two_cameras
 
@@ -55,3 +59,22 @@ def test_an_ensemble_record_whose_wall_time_is_not_a_number_is_one_line(tmp_path
         read_ensemble(tmp_path)
     (tmp_path / "ensemble.json").write_text('{"members": ["members/0", "members/1"], "wall_seconds": 12.5}')
     assert read_ensemble(tmp_path).wall_seconds == 12.5
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not any(shutil.which(c) for c in ("c++", "g++", "clang++")),
+                    reason="torch.compile's CPU backend needs a C++ compiler (without one splatu runs eager)")
+def test_the_fisher_information_is_the_same_with_compiled_kernels():
+    """A compiled backward frees its saved buffers, so the probes' second backward through one render raised
+    ("compiled with non-empty donated buffers"): the uncertainty study and any process that had trained with compiled
+    kernels could not build the fisher baseline."""
+    model, cameras = overlapping_gaussians(), two_cameras()
+    estimates = []
+    for compiled in (False, True):
+        previous = set_compile(compiled)
+        try:
+            estimates.append(fisher_diagonal(model, cameras, 0, 3, torch.Generator().manual_seed(5)))
+        finally:
+            set_compile(previous)
+    assert estimates[0].max() > 0  # the visible Gaussians are constrained
+    torch.testing.assert_close(estimates[1], estimates[0], rtol=1e-5, atol=1e-8)
