@@ -74,8 +74,11 @@ def check_downscaled_size(frames: list[Frame], downscale: int) -> None:
         if downscale > 1 and min(width, height) < MIN_DOWNSCALED_SIDE:
             full_w, full_h = frame.image.width, frame.image.height
             largest = min(full_w, full_h) // MIN_DOWNSCALED_SIDE
-            raise SplatuError(f"--downscale {downscale} shrinks the {full_w}x{full_h} image to {width}x{height} px, "
-                              f"below {MIN_DOWNSCALED_SIDE} px a side", f"in {frame.image.path}",
+            what = (f"the {full_w}x{full_h} image is already below {MIN_DOWNSCALED_SIDE} px a side, too small for "
+                    f"--downscale {downscale}" if min(full_w, full_h) < MIN_DOWNSCALED_SIDE else
+                    f"--downscale {downscale} shrinks the {full_w}x{full_h} image to {width}x{height} px, below "
+                    f"{MIN_DOWNSCALED_SIDE} px a side")
+            raise SplatuError(what, f"in {frame.image.path}",
                               f"pass --downscale {largest} or less" if largest > 1 else "drop --downscale")
 
 

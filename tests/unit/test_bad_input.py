@@ -486,6 +486,14 @@ def test_downscale_that_leaves_no_pixels_names_the_image_size(tmp_path):
     assert load_scene(DataConfig(data=str(tmp_path / "scene"), downscale=3, cache_dir=tmp_path / "cache"))
 
 
+def test_downscale_of_an_image_already_below_the_smallest_side_says_so(tmp_path):
+    """A 6x4 image at --downscale 2 was told it "shrinks the 6x4 image to 3x2 px"; a 1x1 one "to 1x1 px"."""
+    write_nerfstudio_scene(tmp_path / "scene", n=4, width=6, height=4)
+    error = load_error(tmp_path / "scene", tmp_path, downscale=2)
+    assert error.what == "the 6x4 image is already below 8 px a side, too small for --downscale 2"
+    assert error.fix == "drop --downscale"
+
+
 def test_missing_mask_says_mask_and_names_mask_path(tmp_path):
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4)
