@@ -64,9 +64,10 @@ def _vertical(rotations: Tensor) -> Tensor:
     return up if float(up @ mean_up) >= 0.0 else -up
 
 
-ORBIT_RADIUS_FLOOR = 1e-9
-"""The smallest capture radius an orbit is made for, in the training cameras' normalised units (they span about 1;
-a capture turning on one spot keeps scale 1 and a radius of 0 or float rounding)."""
+ORBIT_RADIUS_FLOOR = 1e-6
+"""The smallest capture radius an orbit is made for, in the training cameras' normalised units: a capture with a
+baseline spans about 1 there, while one turning on one spot keeps scale 1 and a radius of float64's rounding of its
+coordinates (5e-9 at the 2e7 of web-Mercator metres), or a baseline `normalization` calls one spot."""
 
 
 def capture_frame(cameras: list[Camera]) -> CaptureFrame:

@@ -240,6 +240,7 @@ def shared_scales(views: list[RenderedView]) -> dict[str, ColourScale]:
     view has ground truth, as there is no error map otherwise."""
     u_max = max(float(v.maps["uncertainty"].max()) for v in views)
     hit = np.concatenate([v.maps["depth"][v.maps["alpha"] > 0.5].ravel() for v in views])
+    hit = hit[np.isfinite(hit)]  # a scale of NaN would colour nothing and read back as nothing
     depth_lo, depth_hi = (tuple(float(d) for d in np.percentile(hit, DEPTH_PERCENTILES)) if hit.size else (0.0, 1.0))
     errors = [np.abs(v.maps["rgb"] - v.gt).sum(axis=-1) for v in views if v.gt is not None]
     scales = {

@@ -59,9 +59,10 @@ def budget_note(config: TrainConfig, scene: Scene) -> str | None:
     budget = config.densify.max_gaussians
     if start <= budget:
         return None
+    fewer = "thin the point cloud" if scene.points.shape[0] else "lower --model.random-init-points"
     return (f"note: the run starts with {start:,} Gaussians (one per initial point), above --densify.max-gaussians "
-            f"{budget:,}: densification adds none, and only pruning shrinks the model; raise the budget, or thin the "
-            "point cloud to keep the model within it")
+            f"{budget:,}: densification adds none until pruning brings the model under it; raise the budget, or "
+            f"{fewer}")
 
 
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:

@@ -215,18 +215,32 @@ def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> 
     """`err`, refusing the values of preset file `path`, told as the file's: the check names the option by its flag,
     which the user never typed, so the option is named by the file's key (with its value, for a range check)."""
     given = flat_options(values)
-    said = f"{err.what} {err.where} {err.fix}"  # a check may name its flag in any of the three
-    key = next((name for name in given if re.search(re.escape(option_flag(name)) + r"(?![\w-])", said)), None)
-    if key is None:
+    keys = _keys_named(given, (err.what, err.where, err.fix))
+    if not keys:
         return SplatuError(err.what, f"in {path}", err.fix)
-    flag = option_flag(key)
-    if isinstance(err, OptionError) and err.flag == flag:
-        return SplatuError(f"{key}: {err.value} {err.problem}", f"in {path}",
-                           f"set {key} to {err.allowed} in that file, or override it with {flag}")
-    what = re.sub(re.escape(flag) + r"(?![\w-])", key, err.what)
-    named = what != err.what or str(given[key]) in what  # the file's key or value, or else both, in what it says
-    return SplatuError(what if named else f"{what} (the file's {key}: {given[key]!r})", f"in {path}",
-                       f"fix {key} in that file, or override it with {flag}")
+    flags = [option_flag(key) for key in keys]
+    if isinstance(err, OptionError) and [err.flag] == flags:
+        return SplatuError(f"{keys[0]}: {err.value} {err.problem}", f"in {path}",
+                           f"set {keys[0]} to {err.allowed} in that file, or override it with {flags[0]}")
+    what = err.what
+    for key, flag in zip(keys, flags, strict=True):
+        what = re.sub(re.escape(flag) + r"(?![\w-])", key, what)
+    named = what != err.what or all(str(given[key]) in what for key in keys)  # the keys or their values are said
+    held = ", ".join(f"{key}: {given[key]!r}" for key in keys)
+    return SplatuError(what if named else f"{what} (the file's {held})", f"in {path}",
+                       f"fix {' or '.join(keys)} in that file, or override it with {' or '.join(flags)}")
+
+
+def _keys_named(keys: Collection[str], texts: Sequence[str]) -> list[str]:
+    """The keys whose flags an error names, in the order it names them, from the first of `texts` (what, where, fix)
+    that names any: a fix may mention another option in passing (the means' decay "over the run's --steps"), and a
+    check of two options (degree_choice's held_out and at) names both, either of which may be the wrong one."""
+    for text in texts:
+        found = sorted((match.start(), key) for key in keys
+                       if (match := re.search(re.escape(option_flag(key)) + r"(?![\w-])", text)) is not None)
+        if found:
+            return [key for _, key in found]
+    return []
 
 
 def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu",

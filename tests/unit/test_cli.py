@@ -179,6 +179,12 @@ def _train_error(capsys, tmp_path, preset: str, *flags: str) -> str:
                                   "optim.means_lr in that file, or override it with --optim.means-lr"),
     ("uncertainty:\n  lam: 0.7\n", "uncertainty λ = 0.7 is not in [0, 0.5), in {}, fix uncertainty.lam in that "
                                     "file, or override it with --uncertainty.lam"),
+    # the fix of means_lr_steps mentions --steps in passing: the file's steps is not the one to blame
+    ("steps: 100\noptim:\n  means_lr_steps: -1\n", "optim.means_lr_steps must be 0 or more (got -1), in {}, fix "
+     "optim.means_lr_steps in that file, or override it with --optim.means-lr-steps"),
+    ("degree_choice:\n  held_out: 0.125\n  at: 1.5\n", "held_out = 0.125 and at = 1.5 must both be in (0, 1), in {}, "
+     "fix degree_choice.held_out or degree_choice.at in that file, or override it with --degree-choice.held-out or "
+     "--degree-choice.at"),
 ])
 def test_a_bad_value_in_a_preset_file_is_blamed_on_the_file(capsys, tmp_path, preset, line):
     """It was told as the flag's ("--steps must be at least 1 (got -5), in the options"), which was never typed."""

@@ -32,12 +32,15 @@ def test_an_orbit_of_tiles_looks_at_the_capture_s_centre_from_its_image_s_centre
         assert frame.camera.K[0, 0] == tiles[0].K[0, 0] and frame.camera.K[1, 1] == tiles[0].K[1, 1]
 
 
-def test_an_orbit_of_cameras_turning_on_one_spot_is_refused_in_one_line():
+@pytest.mark.parametrize("rounding", [0.0, 5e-9])
+def test_an_orbit_of_cameras_turning_on_one_spot_is_refused_in_one_line(rounding):
     """Their optical axes meet at their common centre, so the orbit's radius was 0 and every orbit camera sat on the
-    point it looked at: an all-zero rotation, views of nothing (coverage 0, U 1) and exit 0."""
+    point it looked at: an all-zero rotation, views of nothing (coverage 0, U 1) and exit 0. At web-Mercator
+    coordinates (2e7) float64 rounding leaves the normalised centres 5e-9 apart, which must count as one spot too."""
     K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
     spot = np.array([1.0, 2.0, 3.0])
-    cameras = [look_at_camera(spot, spot + np.array([np.cos(a), np.sin(a), 0.1]), K, 32, 24)
+    cameras = [look_at_camera(spot + rounding * np.array([np.sin(3 * a), np.cos(5 * a), a]),
+                              spot + np.array([np.cos(a), np.sin(a), 0.1]), K, 32, 24)
                for a in np.linspace(0.0, 1.5, 5)]
     with pytest.raises(SplatuError) as caught:
         orbit_cameras(cameras, 4)

@@ -63,3 +63,9 @@ def test_a_few_floaters_do_not_set_the_depth_scale(tmp_path):
                  0.0, [0.1])
     lo, hi = json.loads((tmp_path / "render.json").read_text())["depth_scale"]
     assert 2.0 <= lo < 2.1 and 3.9 < hi <= 4.0
+    maps["depth"][0, :] = np.inf  # non-finite depths (5% of the pixels) gave a scale of NaN, which colours nothing
+    write_render(tmp_path / "inf", [RenderedView("a", maps, gt=None, elevation_degrees=0.0)],
+                 RenderUncertaintyConfig(views="orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
+                 0.0, [0.1])
+    lo, hi = json.loads((tmp_path / "inf" / "render.json").read_text())["depth_scale"]
+    assert 2.1 <= lo < 2.2 and 3.9 < hi <= 4.0  # the finite depths' percentiles (the first row, 2.0-2.1, is gone)
