@@ -163,9 +163,10 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None,
                  density_aware: bool = False, fisher_probes: int = 2, seed: int = 0) -> BuiltMethod:
     """The renderer of `method` for this run; visibility, Fisher, residual and angle look at the scene's training
-    views first (their setup_seconds: 10-40 s for the poster stand-in's 102 views on two cores, so a bar counts them
-    on a terminal), the residuals at their images too (a `Scene`; the others take a `CameraScene`). `scene` may be
-    None for the other methods, which render the model alone; the caller then checks the frame its cameras are in."""
+    views first (their setup_seconds, which render.json records: a pass over every training view, so a bar counts
+    them on a terminal), the residuals at their images too (a `Scene`; the others take a `CameraScene`). `scene` may
+    be None for the other methods, which render the model alone; the caller then checks the frame its cameras are
+    in."""
     check_method(method, run)
     if scene is not None:
         check_frames(run, scene)
