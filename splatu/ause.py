@@ -99,9 +99,11 @@ def ausc(curve: np.ndarray) -> float:
 
 
 def start_normalised(curves: Curves) -> Curves:
-    """Both curves divided by O(0) = S(0), the mean error (unchanged when that is 0: all errors are 0)."""
-    start = curves.oracle[0] if curves.oracle[0] > 0.0 else 1.0
-    return Curves(curves.oracle / start, curves.sparsification / start)
+    """Both curves divided by O(0) = S(0), the mean error. When every error is 0, kept pixels err exactly as much
+    as all of them, so both curves are 1: zeros would pull a mean over views below 1 at r = 0, where it is 1."""
+    if curves.oracle[0] <= 0.0:
+        return Curves(np.ones_like(curves.oracle), np.ones_like(curves.sparsification))
+    return Curves(curves.oracle / curves.oracle[0], curves.sparsification / curves.oracle[0])
 
 
 def ause_start_normalised(curves: Curves) -> float:

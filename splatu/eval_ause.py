@@ -47,6 +47,10 @@ class EvalAuseConfig:
     <output stem>-maps/ beside it, so that a run folder that cannot be written to can still be scored."""
 
 
+RANDOM_CURVE = "random baseline"
+"""The plot's name for the baseline's curve: `--method random` labels the method's own curve "random"."""
+
+
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
     """Per-image scores and the mean over images, plus the mean curves for the plot."""
     metrics: tuple[A.Metric, ...] = tuple(dict.fromkeys(("mae", "rmse", metric)))
@@ -57,7 +61,7 @@ def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, 
     random = [A.start_normalised(c) for _, curves in scored.values() for c in curves[metric].random]
     mean_curves = {
         name: A.Curves(np.mean([c.oracle for c in curves], axis=0), np.mean([c.sparsification for c in curves], axis=0))
-        for name, curves in (("uncertainty", ours), ("random", random))
+        for name, curves in (("uncertainty", ours), (RANDOM_CURVE, random))
     }
     report = {"mean": A.mean_scores(per_image), "per_image": per_image, "caption": A.CAPTION,
               "metric": metric, "images": len(entries)}

@@ -147,13 +147,14 @@ def entry_names(root: Path) -> list[str]:
         raise SplatuError(f"{len(unscored)} renders have no uncertainty map (e.g. {sorted(unscored)[0]!r})",
                           f"in {root / 'uncertainty'}", "write uncertainty/NAME.npy for every rgb/NAME.png, or "
                           "remove the view's files from every folder")
-    unobserved = {p.stem for p in (root / "unobserved").glob("*.png")}
-    if unobserved:  # AUROC-unobserved averages over the views that have one: all of them, or none
-        lacking = stems["uncertainty"] - unobserved
-        if lacking:
-            raise SplatuError(f"{len(lacking)} views have no unobserved/ map (e.g. {sorted(lacking)[0]!r}), so "
-                              "AUROC-unobserved would average over the others only", f"in {root / 'unobserved'}",
-                              "write unobserved/NAME.png for every view, or remove the unobserved/ folder")
+    for folder, consequence in (("mask", "would be scored on every pixel"),
+                                ("unobserved", "would drop out of AUROC-unobserved's average")):
+        present = {p.stem for p in (root / folder).glob("*.png")}
+        lacking = stems["uncertainty"] - present if present else set()
+        if lacking:  # a view missing from a folder the others use is a lost file, not a choice
+            raise SplatuError(f"{len(lacking)} views have no {folder}/ map (e.g. {sorted(lacking)[0]!r}), so they "
+                              f"{consequence}", f"in {root / folder}",
+                              f"write {folder}/NAME.png for every view, or remove the {folder}/ folder")
     return sorted(stems["uncertainty"])
 
 

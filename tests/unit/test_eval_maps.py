@@ -16,7 +16,7 @@ from splatu import ause as A
 from splatu import maps
 from splatu.cli import entrypoint
 from splatu.errors import SplatuError
-from splatu.eval_ause import score_entries
+from splatu.eval_ause import RANDOM_CURVE, evaluate_maps, score_entries
 from splatu.maps import MapEntry, entry_names, file_stems, read_entry, safe_name, write_entry
 from splatu.uncertainty_options import UncertaintyOptions
 
@@ -126,6 +126,10 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     (root / "unobserved" / "view_1.png").unlink()  # AUROC-unobserved used to average over view_0 alone
     assert "1 views have no unobserved/ map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
     (root / "unobserved" / "view_0.png").unlink()  # none at all is fine (AUROC-unobserved is not reported)
+    (root / "mask").mkdir()  # a mask for some views only: the others were scored on every pixel, without a word
+    cv2.imwrite(str(root / "mask" / "view_0.png"), np.full((24, 32), 255, np.uint8))
+    assert "1 views have no mask/ map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
+    (root / "mask" / "view_0.png").unlink()
     (root / "uncertainty" / "view_1.npy").unlink()  # it used to score view_0 alone, without a word
     assert "1 renders have no uncertainty map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
@@ -415,11 +419,35 @@ def test_the_plotted_mean_curves_are_the_ones_the_table_reports():
         entries.append(MapEntry(f"v{i}", rgb, gt, uncertainty, mask=None if i == 2 else mask))
     for metric in ("mae", "rmse"):
         report, curves = score_entries(entries, metric)
-        for name, key in (("uncertainty", f"ause_{metric}_start_norm"), ("random", f"random_ause_{metric}_start_norm")):
+        for name, key in (("uncertainty", f"ause_{metric}_start_norm"),
+                          (RANDOM_CURVE, f"random_ause_{metric}_start_norm")):
             curve = curves[name]
             assert curve.oracle[0] == pytest.approx(1.0) and curve.sparsification[0] == pytest.approx(1.0)
             area = np.trapezoid(curve.sparsification - curve.oracle, A.FRACTIONS)
             assert area == pytest.approx(report["mean"][key], rel=1e-9, abs=1e-12), (metric, name)
+
+
+def test_a_view_without_error_keeps_the_plotted_curves_at_one_where_they_start():
+    """Kept pixels of an error-free view err exactly as much as all of them: its curves / O(0) are 1, not 0, so
+    the mean over views still starts at 1, as the plot's axis ("MAE of kept / MAE of all") says; its AUSE stays 0."""
+    rng = np.random.default_rng(2)
+    gt = rng.random((10, 12, 3))
+    noisy = MapEntry("noisy", np.clip(gt + rng.normal(0.0, 0.2, gt.shape), 0.0, 1.0), gt, rng.random((10, 12)))
+    exact = MapEntry("exact", gt[:1, :1], gt[:1, :1], np.zeros((1, 1)))
+    report, curves = score_entries([noisy, exact], "mae")
+    for curve in curves.values():
+        assert curve.oracle[0] == pytest.approx(1.0) and curve.sparsification[0] == pytest.approx(1.0)
+    assert report["per_image"]["exact"]["ause_mae_start_norm"] == 0.0
+
+
+def test_the_random_method_and_the_random_baseline_are_both_plotted(tmp_path, monkeypatch):
+    """`--method random` labels its curve "random": the baseline's curve must not take its place in the plot."""
+    plotted = {}
+    monkeypatch.setattr("splatu.eval_ause.plot_sparsification",
+                        lambda path, curves, title, metric: plotted.update(curves))
+    _tiny_maps(tmp_path / "maps", n=1)
+    evaluate_maps(tmp_path / "maps", label="random", output=tmp_path / "ause.json")
+    assert set(plotted) == {"random", RANDOM_CURVE}
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
