@@ -49,6 +49,20 @@ class StopRequest:
     signal_number: int = signal.SIGINT
     aborted: bool = False
     """A second stop came and raised at once: whatever was running (a step, an evaluation, a save) did not finish."""
+    at_once: bool = False
+    """Set by `stop_at_once`: a first stop raises at once too."""
+
+
+@contextmanager
+def stop_at_once(flag: StopRequest) -> Iterator[None]:
+    """Within the block a first stop raises at once instead of waiting for the step's end: for work that changes no
+    state a checkpoint holds and that a resume redoes, such as a periodic evaluation, which can take minutes on a
+    real scene (past a batch scheduler's grace period before its SIGKILL)."""
+    flag.at_once = True
+    try:
+        yield
+    finally:
+        flag.at_once = False
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -68,6 +82,8 @@ def deferred_interrupt() -> Iterator[StopRequest]:
             flag.aborted = True
             raise KeyboardInterrupt
         flag.requested, flag.signal_number = True, signum
+        if flag.at_once:
+            raise KeyboardInterrupt
 
     previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:

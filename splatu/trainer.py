@@ -54,6 +54,7 @@ from splatu.interrupts import (
     TrainingInterrupted,
     deferred_interrupt,
     signal_of,
+    stop_at_once,
 )
 from splatu.json_files import read_json
 from splatu.losses import uncertainty_heads
@@ -210,7 +211,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
                                                 len(state.model), rate), highlight=False, soft_wrap=True)
                 if _eval_due(state.step, config) and not interrupt.requested:  # a stop must not wait for it
-                    _log_eval(state, config, scene, log)
+                    with stop_at_once(interrupt):  # nor once it runs: the resume redoes it
+                        _log_eval(state, config, scene, log)
                 if config.checkpoint_every and state.step % config.checkpoint_every == 0:
                     _save(state, config, run_dir, log)
                     saved_step = state.step

@@ -590,6 +590,32 @@ def test_a_stop_requested_during_a_step_skips_that_steps_evaluation(tmp_path, sc
     assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
 
 
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_a_periodic_evaluation_ends_it_at_once_and_a_resume_redoes_it(tmp_path, scene, monkeypatch,
+                                                                                   signum):
+    """A periodic evaluation can take minutes on a real scene; a stop waited for all of it (past a batch scheduler's
+    grace period), then threw it away. Now it ends the evaluation, saves the step, and the resume evaluates again."""
+    full_dir = train_command.train(tiny_config(tmp_path / "a", steps=6, eval_every_steps=2, checkpoint_every=0))
+    evaluate_once, started, finished = trainer.evaluate_scene, [], []
+
+    def stopped_in_the_second(*args):
+        started.append(True)
+        if len(started) == 2:  # step 4's
+            os.kill(os.getpid(), signum)
+        results = evaluate_once(*args)
+        finished.append(True)
+        return results
+
+    monkeypatch.setattr(trainer, "evaluate_scene", stopped_in_the_second)
+    with pytest.raises(interrupts.TrainingInterrupted, match=r"interrupted at step 4, saved .*step-0000004\.pt"):
+        train_command.train(tiny_config(tmp_path / "b", steps=6, eval_every_steps=2, checkpoint_every=0))
+    assert (len(started), len(finished)) == (2, 1)  # step 2's evaluation finished, step 4's did not
+    run_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    monkeypatch.setattr(trainer, "evaluate_scene", evaluate_once)
+    train_command.train(dataclasses.replace(tiny_config(tmp_path / "b"), resume=run_dir))
+    assert logged_events(run_dir) == logged_events(full_dir)
+
+
 def test_sigterm_is_ctrl_c_for_the_whole_train_command(monkeypatch, tmp_path, capsys):
     """Outside the steps (here: while loading the scene) a kill unwinds like Ctrl-C instead of ending the process."""
     before = signal.getsignal(signal.SIGTERM)
