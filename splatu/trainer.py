@@ -87,6 +87,7 @@ from splatu.train_progress import (
     progress_line,
 )
 from splatu.training_step import (
+    NonFiniteUpdate,
     StepHook,
     StepOutcome,
     TrainImages,
@@ -196,7 +197,12 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     config = choose_degrees(state, config, scene, log, run_dir)
                     images = TrainImages(scene.train)
                 started = time.perf_counter()
-                outcome = train_step(state, config, images)
+                try:
+                    outcome = train_step(state, config, images)
+                except NonFiniteUpdate as bad:
+                    raise SplatuError(f"training stopped: the update of step {state.step + 1} made "
+                                      f"{bad.parameter} non-finite", f"in {run_dir}",
+                                      f"{_last_good(run_dir)}; retrain with lower learning rates") from None
                 state.step += 1
                 state.train_seconds += time.perf_counter() - started
                 in_step = False
@@ -272,13 +278,11 @@ def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: 
                    "num_gaussians": len(state.model), **({"refined": outcome.refined} if outcome.refined else {})})
         print(f"step {state.step}: non-finite {outcome.skipped}, step skipped", file=sys.stderr)
         if state.nonfinite_streak >= config.max_nonfinite_steps:
-            found = list_checkpoints(run_dir)
-            last = f"the last good checkpoint is {found[-1]}" if found else "no checkpoint was written yet"
             raise SplatuError(
                 f"training stopped: {state.nonfinite_streak} steps in a row had a non-finite value "
                 f"(last: {outcome.skipped} at step {state.step})",
                 f"in {run_dir}",
-                f"{last}; check the input data or retrain with lower learning rates",
+                f"{_last_good(run_dir)}; check the input data or retrain with lower learning rates",
             )
         return
     state.nonfinite_streak = 0
@@ -287,6 +291,12 @@ def _account(state: TrainState, config: TrainConfig, outcome: StepOutcome, log: 
                    "uncertainty_loss": outcome.uncertainty_loss, "psnr": outcome.psnr,
                    "num_gaussians": len(state.model), "train_seconds": state.train_seconds,
                    **({"refined": outcome.refined} if outcome.refined else {})})
+
+
+def _last_good(run_dir: Path) -> str:
+    """Where a stopped training can resume from: every checkpoint training writes is finite."""
+    found = list_checkpoints(run_dir)
+    return f"the last good checkpoint is {found[-1]}" if found else "no checkpoint was written yet"
 
 
 def _eval_due(step: int, config: TrainConfig) -> bool:

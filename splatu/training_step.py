@@ -173,6 +173,25 @@ def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: RasterOutput) -
     return next(what for (what, _), ok in zip(named, torch.isfinite(sums).tolist(), strict=True) if not ok)
 
 
+class NonFiniteUpdate(Exception):
+    """An update made a parameter non-finite (finite gradients, but a learning rate past float32's range): the step
+    cannot be skipped once applied, so training stops before anything saves the model."""
+
+    def __init__(self, parameter: str) -> None:
+        super().__init__(parameter)
+        self.parameter = parameter
+
+
+def _nonfinite_parameter(model: GaussianModel) -> str | None:
+    """The first parameter holding a NaN/Inf (or values whose sum overflows float32), by the same one reduction per
+    tensor as `_nonfinite`: about 0.07 ms for 18k Gaussians, against a step of about 85 ms."""
+    sums = torch.stack([getattr(model, name).detach().sum() for name in GaussianModel.PARAM_NAMES])
+    if bool(torch.isfinite(sums).all()):
+        return None
+    return next(name for name, ok in zip(GaussianModel.PARAM_NAMES, torch.isfinite(sums).tolist(), strict=True)
+                if not ok)
+
+
 def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> StepOutcome:
     """Render one camera, one backward for both losses, then optimise (unless non-finite) and refine."""
     step = state.step
@@ -201,6 +220,9 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     if bad is None:
         state.density.observe(render.raster, camera.width, camera.height)
         state.optimizers.step(step)
+        corrupted = _nonfinite_parameter(state.model)
+        if corrupted is not None:
+            raise NonFiniteUpdate(corrupted)
     state.optimizers.zero_grad()
     # a skipped step left the model as it was, so its refinement (or opacity reset) still falls on schedule
     changes = state.density.refine(step, state.model, state.optimizers, views_per_epoch=len(images))

@@ -246,6 +246,19 @@ def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(
     assert all(torch.isfinite(v).all() for v in state["model"].values())
 
 
+def test_an_update_that_overflows_a_parameter_stops_before_any_checkpoint_holds_it(tmp_path, scene):
+    """Finite gradients times a learning rate past float32's range: the update is applied before anything could skip
+    it, so training stops at once. It used to write that step's checkpoint with Inf, which no resume can read, and
+    failed the next step in the rasterizer's input check, naming no checkpoint to go back to."""
+    config = tiny_config(tmp_path, checkpoint_every=1)
+    overflowing = dataclasses.replace(config, optim=dataclasses.replace(config.optim, opacity_lr=1e39))
+    with pytest.raises(SplatuError, match="update of step 1 made opacity_logits non-finite") as err:
+        train_command.train(overflowing)
+    assert "no checkpoint was written yet" in str(err.value)
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert list_checkpoints(run_dir) == []
+
+
 def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, monkeypatch):
     """The other direction, through the trainer's own step: with L_u scaled to 0, u_sh gets an all-zero
     gradient, so a render that let u leak into the colour (and so into the photometric loss) fails here."""
