@@ -290,6 +290,8 @@ def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:
     """What to do about a file whose size is not its camera's. Turned on its side, a colour image may be the camera's
     w and h given the wrong way round, or a photo stored on its side (its EXIF orientation, which is not applied); a
     mask or depth map is its own fault, since each frame's colour image is decoded, and checked, first."""
+    if not turned and kind != "color":
+        return f"make the {noun} at its image's size, which is the camera's"
     if not turned:
         return "make all images match the intrinsics (w, h) or fix the camera size"
     if kind != "color":
@@ -337,9 +339,24 @@ def _quantise(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return np.clip(np.round(values * top), 0, top).astype(dtype)
 
 
+def _depth_at_camera_size(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:
+    """A depth map stored at another resolution of its image's shape, brought to the camera's size by nearest
+    neighbours, as nerfstudio reads one (depth sensors rarely match the colour camera's resolution); a map of
+    another shape is left for `_check_size` to refuse."""
+    height, width = values.shape[:2]
+    if recipe.kind != "depth" or (width, height) == (recipe.width, recipe.height):
+        return values
+    same_shape = (abs(height - recipe.height * width / recipe.width) <= 1.0
+                  or abs(width - recipe.width * height / recipe.height) <= 1.0)  # to the pixel, one scale for both
+    if not same_shape:
+        return values
+    return cv2.resize(values, (recipe.width, recipe.height), interpolation=cv2.INTER_NEAREST_EXACT)
+
+
 def compute_pixels(recipe: PixelRecipe) -> np.ndarray:
     """Decode, composite, undistort and resize one file; returned at its storage dtype."""
     values, dtype = _read_source(recipe)
+    values = _depth_at_camera_size(values, recipe)
     _check_size(recipe, *values.shape[:2])
     return _quantise(_resize(_undistort(values, recipe), recipe), dtype)
 

@@ -630,6 +630,23 @@ def test_downscaled_depth_and_masks_stay_centred_like_the_colour(tmp_path):
     assert np.abs(depth[0] - colour_centres).max() <= 0.5  # the source pixel nearest each centre (4 and 12)
 
 
+def test_a_depth_map_at_another_resolution_of_its_images_shape_is_brought_to_the_cameras_size(tmp_path):
+    """nerfstudio reads depth sensors' smaller maps by nearest neighbours; splatu refused them, blaming the camera.
+    A map of another shape is still refused, and a wrong-size mask is blamed on the mask, not the camera."""
+    coarse = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.save(tmp_path / "coarse.npy", coarse)
+    recipe = PixelRecipe(path=tmp_path / "coarse.npy", kind="depth", width=16, height=12, target_width=16,
+                         target_height=12)
+    depth = compute_pixels(recipe)
+    assert depth.shape == (12, 16) and np.array_equal(depth[::4, ::4], coarse)  # each value covers its 4x4 block
+    np.save(tmp_path / "other_shape.npy", np.zeros((4, 8), np.float32))  # 2:1, the camera 4:3
+    with pytest.raises(SplatuError, match="depth map is 8x4 but its camera says 16x12"):
+        compute_pixels(dataclasses.replace(recipe, path=tmp_path / "other_shape.npy"))
+    cv2.imwrite(str(tmp_path / "mask.png"), np.full((3, 4), 255, np.uint8))
+    with pytest.raises(SplatuError, match=r"mask is 4x3 .* make the mask at its image's size, which is the camera's"):
+        compute_pixels(dataclasses.replace(recipe, path=tmp_path / "mask.png", kind="mask"))
+
+
 def test_a_bad_depth_unit_scale_factor_is_a_user_error(tmp_path):
     root = tmp_path / "scene"
     root.mkdir()
