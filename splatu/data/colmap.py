@@ -2,7 +2,9 @@
 
 COLMAP already uses OpenCV axes and world-to-camera poses, and puts pixel centres at +0.5
 like splatu, so poses and K carry over unchanged; distorted models are undistorted with
-OpenCV using the exactly equivalent OpenCV coefficients.
+OpenCV using the exactly equivalent OpenCV coefficients. COLMAP's three equidistant fisheye models
+(SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE, OPENCV_FISHEYE) are OpenCV's fisheye model with k1..k4, the missing
+ones 0, as nerfstudio maps them (pycolmap's projection and cv2.fisheye.projectPoints agree to 1e-12 px).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from splatu.data.principal_point import Misplaced, PrincipalPointFault, misplace
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.errors import SplatuError
 
-PARAMETER_COUNTS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
+PARAMETER_COUNTS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8,
+                    "SIMPLE_RADIAL_FISHEYE": 4, "RADIAL_FISHEYE": 5, "OPENCV_FISHEYE": 8}
 """The camera models we read, and how many parameters each takes (f or fx fy, cx cy, then distortion): a
 cameras.txt line with another count fails pycolmap's VerifyParams check, whose message names no file or line."""
 SUPPORTED_MODELS = tuple(PARAMETER_COUNTS)
@@ -85,6 +88,7 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     """K and OpenCV distortion equivalent to a COLMAP camera; unsupported models are a one-line error."""
     model = camera.model.name
     p = [float(v) for v in camera.params]
+    fisheye = model.endswith("_FISHEYE")
     if model == "SIMPLE_PINHOLE":
         (f, cx, cy), coeffs = p, ()
         fx = fy = f
@@ -101,6 +105,17 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     elif model == "OPENCV":
         fx, fy, cx, cy, k1, k2, p1, p2 = p
         coeffs = (k1, k2, p1, p2)
+    elif model == "SIMPLE_RADIAL_FISHEYE":  # COLMAP: r = f·θ(1 + k·θ²), OpenCV fisheye's with k1 = k
+        f, cx, cy, k = p
+        fx = fy = f
+        coeffs = (k, 0.0, 0.0, 0.0)
+    elif model == "RADIAL_FISHEYE":  # r = f·θ(1 + k1·θ² + k2·θ⁴)
+        f, cx, cy, k1, k2 = p
+        fx = fy = f
+        coeffs = (k1, k2, 0.0, 0.0)
+    elif model == "OPENCV_FISHEYE":  # r = f·θ(1 + k1·θ² + k2·θ⁴ + k3·θ⁶ + k4·θ⁸)
+        fx, fy, cx, cy, k1, k2, k3, k4 = p
+        coeffs = (k1, k2, k3, k4)
     else:
         raise SplatuError(f"unsupported COLMAP camera model {model}", where,
                           f"use one of {', '.join(SUPPORTED_MODELS)} (or run colmap image_undistorter first)")
@@ -110,6 +125,8 @@ def opencv_camera(camera: pycolmap.Camera, where: str) -> tuple[np.ndarray, Dist
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     refuse_implausible_focal(K, camera.width, camera.height, where,
                              "give the camera's focal length in pixels (not mm), or re-run the reconstruction")
+    if fisheye:  # without coefficients still a fisheye (r = f·θ), not a pinhole
+        return K, Distortion("OPENCV_FISHEYE", coeffs)
     distortion = Distortion("OPENCV", coeffs) if any(coeffs) else None
     return K, distortion
 

@@ -101,11 +101,14 @@ def write_colmap(root: Path, camera: str = "1 PINHOLE 8 6 5 5 4 3",
     return sparse
 
 
-def test_unknown_colmap_camera_model(tmp_path):
-    write_colmap(tmp_path / "scene", camera="1 FULL_OPENCV 8 6 5 5 4 3 0.1 0 0 0 0 0 0 0")
+@pytest.mark.parametrize(("model", "params"), [("FULL_OPENCV", "0.1 0 0 0 0 0 0 0"),
+                                               ("THIN_PRISM_FISHEYE", "0.1 0 0 0 0 0 0 0")])
+def test_unknown_colmap_camera_model(tmp_path, model, params):
+    """nerfstudio refuses these too: FULL_OPENCV's k5, k6 and the thin-prism terms have no OpenCV model here."""
+    write_colmap(tmp_path / "scene", camera=f"1 {model} 8 6 5 5 4 3 {params}")
     error = load_error(tmp_path / "scene", tmp_path)
-    assert error.what == "unsupported COLMAP camera model FULL_OPENCV" and "cameras.txt" in error.where
-    assert error.fix.endswith("(or run colmap image_undistorter first)")
+    assert error.what == f"unsupported COLMAP camera model {model}" and "cameras.txt" in error.where
+    assert "OPENCV_FISHEYE" in error.fix and error.fix.endswith("(or run colmap image_undistorter first)")
 
 
 @pytest.mark.parametrize(("edits", "message", "file", "line"), [

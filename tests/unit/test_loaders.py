@@ -704,6 +704,57 @@ def test_undistorted_colmap_image_matches_the_pinhole_camera(tmp_path, model, di
     assert _pinhole_errors(camera, photo / 255.0)[0] > 3 * median  # the distortion was really there, and was removed
 
 
+FISHEYE_MODELS = [
+    ("SIMPLE_RADIAL_FISHEYE", [110.0], [0.05], (0.05, 0.0, 0.0, 0.0)),
+    ("RADIAL_FISHEYE", [110.0], [0.05, -0.02], (0.05, -0.02, 0.0, 0.0)),
+    ("OPENCV_FISHEYE", [110.0, 112.0], [0.05, -0.02, 0.01, -0.004], (0.05, -0.02, 0.01, -0.004)),
+]
+"""COLMAP's fisheye models: f or fx fy, the distortion parameters, and the OpenCV fisheye k1..k4 they stand for."""
+
+
+@pytest.mark.parametrize(("model", "focal", "distortion", "coeffs"), FISHEYE_MODELS)
+def test_colmap_fisheye_models_are_opencv_s_fisheye_as_pycolmap_projects_them(model, focal, distortion, coeffs):
+    """Each fisheye model is read as OpenCV's fisheye (equidistant) model with k1..k4, as nerfstudio maps them: the
+    K and coefficients splatu takes project a grid of directions up to 75° off the axis where pycolmap does."""
+    camera = pycolmap.Camera(model=model, width=160, height=120, params=[*focal, 81.3, 59.1, *distortion])
+    K, got = colmap.opencv_camera(camera, "in a test")
+    assert got == images.Distortion("OPENCV_FISHEYE", coeffs)
+    theta, phi = np.meshgrid(np.radians(np.linspace(1, 75, 20)), np.linspace(0, 2 * np.pi, 16))
+    directions = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1).reshape(-1, 3)
+    opencv, _ = cv2.fisheye.projectPoints(directions[:, None, :], np.zeros(3), np.zeros(3), K,
+                                          np.array(got.coeffs).reshape(4, 1))
+    assert np.abs(opencv.reshape(-1, 2) - np.asarray(camera.img_from_cam(directions))).max() < 0.01
+
+
+def test_a_colmap_fisheye_without_distortion_is_still_undistorted():
+    """A fisheye with k = 0 is r = f·θ, not a pinhole: it keeps OPENCV_FISHEYE distortion with zero coefficients."""
+    camera = pycolmap.Camera(model="SIMPLE_RADIAL_FISHEYE", width=160, height=120, params=[110.0, 80.0, 60.0, 0.0])
+    _, distortion = colmap.opencv_camera(camera, "in a test")
+    assert distortion is not None and distortion.model == "OPENCV_FISHEYE" and not distortion.is_identity()
+
+
+@pytest.mark.parametrize(("model", "focal", "distortion", "coeffs"), FISHEYE_MODELS)
+def test_undistorted_colmap_fisheye_image_matches_the_pinhole_camera(tmp_path, model, focal, distortion, coeffs):
+    """A photo of a smooth pattern through each COLMAP fisheye camera, made with pycolmap's own unprojection
+    (pixel centres at +0.5), loads undistorted to the pinhole K splatu gives its camera."""
+    width, height = 160, 120
+    params = [*focal, 81.3, 59.1, *distortion]
+    lens = pycolmap.Camera(model=model, width=width, height=height, params=params)
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.asarray(lens.cam_from_img(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))).reshape(height, width, 2)
+    photo = np.round(_smooth_pattern(rays[..., 0], rays[..., 1]) * 255).astype(np.uint8)
+    root = tmp_path / "scene"
+    _write_colmap_text(root, model, params, ring_cameras(3, width, height))
+    for i in range(3):
+        write_rgb(root / "images" / f"img_{i}.png", photo)
+
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=3))
+    camera, image = scene.train.cameras[0], scene.train.images[0].numpy()
+    median, worst = _pinhole_errors(camera, image)
+    assert median < 0.0018 and worst < 0.005, (median, worst)
+    assert _pinhole_errors(camera, photo / 255.0)[0] > 3 * median  # the distortion was really there, and was removed
+
+
 def test_undistorted_image_with_k3_matches_the_pinhole_camera(tmp_path):
     """nerfstudio's OPENCV model has a sixth-order radial term k3 (OpenCV's fifth coefficient)."""
     width, height = 160, 120
