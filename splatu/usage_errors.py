@@ -8,6 +8,7 @@ Anything that does not read as such a box is left to tyro's own output.
 
 from __future__ import annotations
 
+import ast
 import difflib
 import re
 from collections.abc import Sequence
@@ -17,6 +18,12 @@ from splatu.errors import SplatuError
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")  # tyro colours its boxes when stdout is a terminal
 _RULE = re.compile(r"^(─+|-+)$")
 _APPLIED_TO = re.compile(r"^(.+?) \(applied to [^)]*\)$")  # an item of tyro's "Unrecognized or misplaced options"
+_VALUE_ERROR = re.compile(r"^Error parsing (--[\w.-]+): (.*)$")
+_INVALID_CHOICE = re.compile(r"^invalid choice (.+) for argument '(--[\w.-]+)'\. Expected one of (\(.*\))\.?$")
+_MISSING_VALUE = re.compile(r"^Missing value for argument '(--[\w.-]+)'\. Expected (\d+) values?\.?$")
+_TYPE_WORDS = {"INT": ("a whole number", "whole numbers"), "FLOAT": ("a number", "numbers"),
+               "STR": ("a text", "texts"), "PATH": ("a path", "paths")}
+"""How each of tyro's metavars reads in a sentence, one and several; another (a custom one) keeps tyro's message."""
 
 
 def _box_lines(text: str) -> list[str]:
@@ -72,12 +79,107 @@ def _misplaced(section: list[str]) -> list[str]:
     return [found.group(1) for line in section[1:] if (found := _APPLIED_TO.match(line.strip()))]
 
 
+def _quoted(values: Sequence[str]) -> str:
+    """Values as typed, each quoted: 'abc', or '1' '2' 'x' for a flag that takes several."""
+    return " ".join(repr(value) for value in values)
+
+
+def _choices(choices: Sequence[str]) -> str:
+    """"one of a, b, c", with an Optional's None told last ("(or None)"): tyro lists an Optional Literal's choices
+    in a set's order, which changes from run to run, so those are sorted."""
+    named = [choice for choice in choices if choice != "None"]
+    named = sorted(named) if len(named) < len(choices) else named
+    listed = named[0] if len(named) == 1 else f"one of {', '.join(named)}"
+    return f"{listed} (or None)" if len(named) < len(choices) else listed
+
+
+def _takes(metavar: str) -> str | None:
+    """What a flag with tyro's `metavar` takes, in words ("a whole number (or None)" for {None}|INT, "3 numbers"
+    for FLOAT FLOAT FLOAT), or None for a metavar these words do not cover."""
+    alternatives = metavar.split("|")
+    optional = "{None}" in alternatives
+    told = []
+    for alternative in (a for a in alternatives if a != "{None}"):
+        if alternative.startswith("{") and alternative.endswith("}"):
+            inner = alternative[1:-1]
+            if "," in inner or inner.split()[0] not in _TYPE_WORDS:  # {a,b,c}: choices, not a grouped tuple
+                told.append(_choices(inner.split(",")))
+                continue
+            alternative = inner
+        words = alternative.replace("[", " ").replace("]", " ").split()
+        if "..." in words:  # a list: [INT [INT ...]] may be empty, INT [INT ...] may not
+            kind = _TYPE_WORDS.get(words[0])
+            if kind is None:
+                return None
+            told.append(f"{'any number of' if alternative.startswith('[') else 'one or more'} {kind[1]}")
+        elif all(word in _TYPE_WORDS for word in words):
+            if len(set(words)) == 1:
+                told.append(_TYPE_WORDS[words[0]][0] if len(words) == 1 else f"{len(words)} {_TYPE_WORDS[words[0]][1]}")
+            else:
+                told.append(" then ".join(_TYPE_WORDS[word][0] for word in words))
+        else:
+            return None
+    if not told:
+        return None
+    return " or ".join(told) + (" (or None)" if optional else "")
+
+
+def _typed_values(problem: str) -> list[str] | None:
+    """The values tyro quotes in its parse error `problem`: its first list of strings (['1', 'x']), else the quoted
+    string that ends it (invalid literal for int() with base 10: '1.5')."""
+    for start in (i for i, char in enumerate(problem) if char == "["):
+        for end in (i for i, char in enumerate(problem) if char == "]" and i > start):
+            try:
+                found = ast.literal_eval(problem[start:end + 1])
+            except (ValueError, SyntaxError):
+                continue
+            if isinstance(found, list) and all(isinstance(value, str) for value in found):
+                return found
+            break
+    last = re.search(r": ('.*'|\".*\")\.?$", problem)
+    if last is None:
+        return None
+    try:
+        value = ast.literal_eval(last.group(1))
+    except (ValueError, SyntaxError):
+        return None
+    return [value] if isinstance(value, str) else None
+
+
+def _plain_value_error(sections: list[list[str]]) -> str | None:
+    """What is wrong with a flag's value, in words (--downscale takes a whole number (or None), got 'abc'), for
+    tyro's "Error parsing", "invalid choice" and "Missing value" messages, which show Python's exceptions and class
+    reprs (<class 'int'>: invalid literal for int() with base 10); None for any other message."""
+    said = " ".join(line.strip() for line in sections[0])
+    if found := _INVALID_CHOICE.match(said):
+        try:
+            value, choices = ast.literal_eval(found.group(1)), ast.literal_eval(found.group(3))
+        except (ValueError, SyntaxError):
+            return None
+        return f"{found.group(2)} takes {_choices([str(choice) for choice in choices])}, got {value!r}"
+    if found := _MISSING_VALUE.match(said):
+        count = int(found.group(2))
+        return f"{found.group(1)} needs {'a value' if count == 1 else f'{count} values'} after it"
+    found = _VALUE_ERROR.match(said)
+    helptext = next((s for s in sections[1:] if s[0].strip().startswith("Argument helptext")), None)
+    if found is None or helptext is None or len(helptext) < 2:
+        return None
+    flag, metavar = found.group(1), helptext[1].strip().removeprefix(found.group(1)).strip()
+    takes, values = _takes(metavar), _typed_values(found.group(2))
+    if takes is None or not values:
+        return None
+    return f"{flag} takes {takes}, got {_quoted(values)}"
+
+
 def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str]) -> SplatuError | None:
     """The one-line error for tyro's parse-error box `tyro_output`, or None when it is not one. `subcommands` are
     named from the registry: tyro's own list is wrapped over lines of the box."""
     sections = _box_sections(tyro_output)
     if not sections:
         return None
+    see_help = f"see `{help_command} --help`"
+    if (plain := _plain_value_error(sections)) is not None:
+        return SplatuError(plain, "on the command line", see_help)
     hints = []
     misplaced = _misplaced(sections[0])
     if misplaced:
@@ -97,7 +199,6 @@ def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str])
             hints.append(f"pass {section[1].strip()}")
         elif heading.startswith("Available subcommands"):
             hints.append(f"available subcommands: {', '.join(subcommands)}")
-    see_help = f"see `{help_command} --help`"
     return SplatuError(message, "on the command line", f"{'; '.join(hints)} ({see_help})" if hints else see_help)
 
 
