@@ -253,7 +253,7 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     """Train every variant on one scene and score every method row on its eval block."""
     started = time.perf_counter()
     scene = load_scene(data)
-    width, height = scene.train.images.shape[2], scene.train.images.shape[1]
+    width, height = scene.train.cameras[0].width, scene.train.cameras[0].height
     print(f"{scene_name}: {len(scene.train)} train / {len(scene.eval)} eval views, {width}x{height}, "
           f"loaded in {time.perf_counter() - started:.1f} s")
     config = base_config(budget, data)
@@ -302,7 +302,7 @@ def study_scene(scene_name: str, data: DataConfig, args: Args, budget: Budget) -
     return {"rows": rows, "kernel_warm_up_seconds": warm_up, "measured": measured_on(), "trained_before": reused,
             "timings": timings,
             "views": {"train": len(scene.train), "eval": len(scene.eval)},
-            "size": [int(scene.train.images.shape[2]), int(scene.train.images.shape[1])]}
+            "size": [scene.train.cameras[0].width, scene.train.cameras[0].height]}
 
 
 def targets(scene_name: str, rows: dict[str, dict[str, Any]], ensemble: str) -> list[tuple[str, float, str, bool]]:

@@ -29,7 +29,7 @@ import torch
 
 from splatu.ause import ause, pixel_errors, random_baseline, sparsification_curves
 from splatu.camera import Camera
-from splatu.data.scene import Views
+from splatu.data.scene import PerView, Views
 from splatu.errors import SplatuError
 from splatu.losses import UncertaintyHead, psnr, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
@@ -221,7 +221,7 @@ def _nothing_to_score() -> SplatuError:
 
 
 def head_ause(renders: list[torch.Tensor], targets: list[torch.Tensor], maps: list[np.ndarray],
-              heads: list[UncertaintyHead], masks: torch.Tensor | None) -> tuple[dict[int, float], float]:
+              heads: list[UncertaintyHead], masks: PerView | None) -> tuple[dict[int, float], float]:
     """Mean AUSE-MAE per head's degree over the views, and the random baseline's, on the same errors."""
     per_head: dict[int, list[float]] = {h.degree: [] for h in heads}
     randoms = []

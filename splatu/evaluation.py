@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from splatu.data.scene import Scene, Views
+from splatu.data.scene import PerView, Scene, Views
 from splatu.errors import SplatuError
 from splatu.losses import psnr, ssim_map
 from splatu.model import GaussianModel
@@ -65,10 +65,15 @@ def refuse_unscorable_sets(scene: Scene) -> None:
     transparent everywhere show nothing to learn (a run of them culled to a few Gaussians and scored its white
     background against white at 72 dB): refused when the scene loads, not by the final evaluation after the whole
     training (which every resume would then repeat)."""
-    if scene.train.alphas is not None and not bool((scene.train.alphas > 0).any()):
+    if scene.train.alphas is not None and not _any_positive(scene.train.alphas):
         raise SplatuError("every training image is fully transparent (alpha 0 at every pixel)", f"in {scene.source}",
                           "give images whose alpha is opaque where the scene is, or save them without alpha")
     for name, views in {"eval": scene.eval, **scene.extra_eval}.items():
-        if views.mask_files is not None and not bool((views.mask_files > 0).any()):
+        if views.mask_files is not None and not _any_positive(views.mask_files):
             raise SplatuError(f"the mask files exclude every pixel of the {name} set's views", f"in {scene.source}",
                               "fix the masks, or hold out other views (--eval-split)")
+
+
+def _any_positive(per_view: PerView) -> bool:
+    """Whether any view has a value above 0, view by view: views of different sizes are not one tensor."""
+    return any(bool((t > 0).any()) for t in per_view)

@@ -135,11 +135,12 @@ def scene_line(scene: Scene) -> str:
     """What a run trains on, in one line at its start: a wrong split, size or missing point cloud shows at once,
     and so does the built-in stand-in where `--data poster` was meant as nerfstudio's capture (the one place this
     is printed: render-uncertainty and eval-ause load the scene the run was trained on)."""
-    camera = scene.train.cameras[0]
+    cameras = [c for views in (scene.train, scene.eval, *scene.extra_eval.values()) for c in views.cameras]
+    sizes = list(dict.fromkeys(f"{c.width}x{c.height}" for c in cameras))  # each once, in the order they come
     extras = "".join(f" + {len(views)} {name}" for name, views in scene.extra_eval.items())
     points = (f"{scene.points.shape[0]:,} initial points" if scene.points.shape[0]
               else "no point cloud, so random initial points")
     stand_in = (" (the built-in stand-in, not nerfstudio's capture: put that in data/nerfstudio/poster or "
                 "$SPLATU_DATA/poster to train on it)" if scene.stand_in else "")
     return (f"scene {scene.name}{stand_in}: {len(scene.train)} training and {len(scene.eval)} eval{extras} views "
-            f"at {camera.width}x{camera.height}, {points}")
+            f"at {' and '.join([', '.join(sizes[:-1]), sizes[-1]] if len(sizes) > 1 else sizes)}, {points}")

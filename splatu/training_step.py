@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from splatu.camera import Camera
-from splatu.data.scene import Views, on_background
+from splatu.data.scene import PerView, ViewList, Views, on_background
 from splatu.densify import DensityController
 from splatu.losses import photometric_loss, psnr, uncertainty_loss
 from splatu.model import GaussianModel, ModelConfig
@@ -108,36 +108,25 @@ class TrainImages:
     Images with alpha (`Views.alphas`) are recomposited on the background the step renders on,
     so empty space is asked to be exactly the render's background (as nerfstudio does); alpha is
     downsampled with the colour, which keeps that exact. The scene's mask files (`Views.mask_files`)
-    are downsampled alike and weight the loss (`weight`).
+    are downsampled alike and weight the loss (`weight`). Views of one size are downsampled as one stack; views
+    that differ in size (a `ViewList`) one by one, each to its own camera's size at the level.
     """
 
     def __init__(self, views: Views) -> None:
         self.views = views
-        self._levels: dict[int, torch.Tensor] = {}
+        self._levels: dict[int, PerView] = {}
 
     def __len__(self) -> int:
         return len(self.views)
 
-    def _level(self, level: int) -> torch.Tensor:
-        """(N, h, w, 3 + a + v): colour, then alpha when the views have one, then the valid-pixel mask.
-
-        Colour is averaged over valid pixels only (downsampled premultiplied by the mask, then divided by
-        the downsampled mask), so what a mask excludes never reaches the loss, at any level.
-        """
+    def _level(self, level: int) -> PerView:
+        """(h, w, 3 + a + v) per view: colour, then alpha when the views have one, then the valid-pixel mask."""
         if level not in self._levels:
-            colour, valid = self.views.images, self.views.mask_files
-            if valid is not None:
-                colour = colour * valid.unsqueeze(-1)
-            extras = [t.unsqueeze(-1) for t in (self.views.alphas, valid) if t is not None]
-            images = torch.cat([colour, *extras], dim=-1) if extras else colour  # no copy of a plain image set
-            if level > 0:
-                probe = self.views.cameras[0].scaled(0.5**level)
-                size = (probe.height, probe.width)
-                images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
-            if valid is not None:
-                coverage = images[..., -1:]
-                images[..., :3] = torch.where(coverage > 0, images[..., :3] / coverage.clamp_min(1e-12), 0.0)
-            self._levels[level] = images.contiguous()
+            views = self.views
+            if isinstance(views.images, ViewList):
+                self._levels[level] = ViewList([_downsampled(views.subset([i]), level)[0] for i in range(len(views))])
+            else:
+                self._levels[level] = _downsampled(views, level)
         return self._levels[level]
 
     def get(self, index: int, level: int, background: torch.Tensor | None = None) -> tuple[Camera, torch.Tensor]:
@@ -151,7 +140,29 @@ class TrainImages:
 
     def weight(self, index: int, level: int) -> torch.Tensor | None:
         """(h, w) weight in [0, 1] of each pixel in the loss, from the scene's mask files; None without them."""
-        return None if self.views.mask_files is None else self._level(level)[index, ..., -1]
+        return None if self.views.mask_files is None else self._level(level)[index][..., -1]
+
+
+def _downsampled(views: Views, level: int) -> torch.Tensor:
+    """(N, h, w, 3 + a + v) of views that share one size (stacked tensors) at 1/2^level resolution: colour, then
+    alpha when the views have one, then the valid-pixel mask.
+
+    Colour is averaged over valid pixels only (downsampled premultiplied by the mask, then divided by
+    the downsampled mask), so what a mask excludes never reaches the loss, at any level.
+    """
+    colour, valid = views.images, views.mask_files
+    if valid is not None:
+        colour = colour * valid.unsqueeze(-1)
+    extras = [t.unsqueeze(-1) for t in (views.alphas, valid) if t is not None]
+    images = torch.cat([colour, *extras], dim=-1) if extras else colour  # no copy of a plain image set
+    if level > 0:
+        probe = views.cameras[0].scaled(0.5**level)
+        size = (probe.height, probe.width)
+        images = F.interpolate(images.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
+    if valid is not None:
+        coverage = images[..., -1:]
+        images[..., :3] = torch.where(coverage > 0, images[..., :3] / coverage.clamp_min(1e-12), 0.0)
+    return images.contiguous()
 
 
 # --- one step --------------------------------------------------------------------------------

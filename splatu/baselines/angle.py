@@ -22,6 +22,7 @@ from torch import Tensor
 from splatu.baselines import UncertaintyRender
 from splatu.baselines.visibility import seen_in_views
 from splatu.camera import Camera
+from splatu.data.scene import PerView
 from splatu.model import GaussianModel
 from splatu.sh import safe_normalize
 
@@ -37,7 +38,7 @@ class ViewCoverage:
     centres: Tensor  # (V, 3) training camera centres
 
 
-def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+def view_coverage(model: GaussianModel, cameras: list[Camera], threshold: float, masks: PerView | None = None,
                   on_view: Callable[[], object] = lambda: None) -> ViewCoverage:
     """The coverage of `model` by the training `cameras` (with their mask files, if any) under the uncertainty
     loss's supervision rule (a threshold of 0 counts every Gaussian as seen by every camera, even one outside its

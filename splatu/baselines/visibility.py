@@ -13,14 +13,15 @@ import torch
 from torch import Tensor
 
 from splatu.camera import Camera
+from splatu.data.scene import PerView
 from splatu.model import GaussianModel
 
 
 @torch.no_grad()
-def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, masks: PerView | None = None,
                   on_view: Callable[[], object] = lambda: None) -> Tensor:
     """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`, over the
-    pixels of its mask (V, H, W; > 0 counts) when the views have mask files, as the training loss counts them.
+    pixels of its mask (H, W per view; > 0 counts) when the views have mask files, as the training loss counts them.
     Weights do not depend on colour, so the views render at colour-SH degree 0. `on_view` is called after each
     view (a progress bar's tick: a full scene's views take a while)."""
     background = torch.zeros(3)
@@ -32,7 +33,7 @@ def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float,
     return torch.stack(columns, dim=1) if columns else torch.zeros(len(model), 0, dtype=torch.bool)
 
 
-def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, masks: Tensor | None = None,
+def visibility_counts(model: GaussianModel, cameras: list[Camera], threshold: float, masks: PerView | None = None,
                       on_view: Callable[[], object] = lambda: None) -> Tensor:
     """(N,) number of `cameras` in which each Gaussian's max weight w = T·α is ≥ `threshold` (see seen_in_views)."""
     return seen_in_views(model, cameras, threshold, masks, on_view).sum(dim=1).float()

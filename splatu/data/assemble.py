@@ -15,7 +15,7 @@ from splatu.data.config import DataConfig
 from splatu.data.frames import Frame, RawScene
 from splatu.data.images import ImageCache, PixelRecipe, load_pixels
 from splatu.data.normalize import coincident_within, normalization, normalize_camera, normalize_points
-from splatu.data.scene import CameraScene, CameraViews, Scene, Views
+from splatu.data.scene import CameraScene, CameraViews, PerView, Scene, Views, per_view
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
 
@@ -82,62 +82,58 @@ def check_downscaled_size(frames: list[Frame], downscale: int) -> None:
                               f"pass --downscale {largest} or less" if largest > 1 else "drop --downscale")
 
 
-def _stack(recipes: list[PixelRecipe | None], cache: ImageCache) -> list[np.ndarray | None]:
+def _decode(recipes: list[PixelRecipe | None], cache: ImageCache) -> list[np.ndarray | None]:
     return [None if r is None else load_pixels(r, cache) for r in recipes]
 
 
-def _filled(arrays: list[np.ndarray | None], shape: tuple[int, ...]) -> np.ndarray:
-    """Per-frame (H, W) float32 arrays stacked, ones for the frames that have none."""
-    ones = np.ones(shape, np.float32)
-    return np.stack([ones if a is None else a for a in arrays])
+def _ones_where_missing(arrays: list[np.ndarray | None], frames: list[Frame]) -> list[np.ndarray] | None:
+    """Per-frame (H, W) float32 arrays, ones of its camera's size for a frame that has none; None when none has one."""
+    if all(a is None for a in arrays):
+        return None
+    return [np.ones((f.camera.height, f.camera.width), np.float32) if a is None else np.ascontiguousarray(a)
+            for a, f in zip(arrays, frames, strict=True)]
 
 
-def _split_size(frames: list[Frame]) -> tuple[int, int]:
-    """The (H, W) all of a split's frames share, else a one-line error naming the odd file."""
-    first = frames[0].camera
-    for frame in frames:
-        if (frame.camera.width, frame.camera.height) != (first.width, first.height):
-            raise SplatuError(
-                f"image size {frame.camera.width}x{frame.camera.height} differs from {first.width}x{first.height} "
-                f"of {frames[0].name!r} in the same split", f"in {frame.image.path}",
-                "give all images of a split the same size (or per-frame intrinsics w, h that match)")
-    return first.height, first.width
+def _per_view(arrays: list[np.ndarray] | None) -> PerView | None:
+    return None if arrays is None else per_view([torch.from_numpy(a) for a in arrays])
 
 
-def _mask_files(frames: list[Frame], cache: ImageCache, size: tuple[int, int]) -> torch.Tensor | None:
+def _mask_files(frames: list[Frame], cache: ImageCache) -> list[np.ndarray] | None:
     """The split's mask files as `Views.mask_files` holds them, None when no frame has one."""
-    file_masks = [None if m is None else (m > 0).astype(np.float32) for m in _stack([f.mask for f in frames], cache)]
-    return torch.from_numpy(_filled(file_masks, size)) if any(m is not None for m in file_masks) else None
+    masks = _decode([f.mask for f in frames], cache)
+    return _ones_where_missing([None if m is None else (m > 0).astype(np.float32) for m in masks], frames)
 
 
 def build_views(frames: list[Frame], center: torch.Tensor, scale: float, cache: ImageCache,
                 keep_observed: bool) -> Views:
-    """Decode one split's frames (all one size, else a one-line error naming the odd file).
+    """Decode one split's frames, each at its camera's size: stacked when they share one, else per view (`PerView`).
 
-    object_masks: float32 (N, H, W) in [0, 1], alpha times any mask file, when any frame has one;
-    alphas: float32 (N, H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
-    mask_files: float32 (N, H, W), the mask files alone (1 for frames without one), when any frame has one, each
+    object_masks: float32 (H, W) per view in [0, 1], alpha times any mask file, when any frame has one;
+    alphas: float32 (H, W), the image alpha alone (1 for opaque frames), when any frame is RGBA;
+    mask_files: float32 (H, W), the mask files alone (1 for frames without one), when any frame has one, each
     0 where its file is 0 and 1 elsewhere, as nerfstudio reads them (a mask saved as 0/1 weighted the pixels it
     keeps by 1/255, training on near-black images and scoring them at 59 dB);
-    depths: float32 (N, H, W) camera z in normalised units; observed: bool (N, H, W). Ground
+    depths: float32 (H, W) camera z in normalised units; observed: bool (H, W). Ground
     truth that only some frames of the split have is left out (None) rather than padded.
     """
-    size = _split_size(frames)
-    pixels = _stack([f.image for f in frames], cache)
-    images = np.stack([p[..., :3] for p in pixels]).astype(np.float32)
-    alphas = [p[..., 3] if p.shape[-1] == 4 else None for p in pixels]
-    alpha = torch.from_numpy(_filled(alphas, size)) if any(a is not None for a in alphas) else None
-    mask_files = _mask_files(frames, cache, size)
-    object_masks = alpha if mask_files is None else mask_files if alpha is None else alpha * mask_files
-    depths = _stack([f.depth for f in frames], cache)
-    observed = _stack([f.observed for f in frames], cache) if keep_observed else [None]
+    pixels = _decode([f.image for f in frames], cache)
+    images = per_view([torch.from_numpy(np.ascontiguousarray(p[..., :3], np.float32)) for p in pixels])
+    alphas = _ones_where_missing([p[..., 3] if p.shape[-1] == 4 else None for p in pixels], frames)
+    masks = _mask_files(frames, cache)
+    alpha, mask_files = _per_view(alphas), _per_view(masks)
+    object_masks = (alpha if mask_files is None else mask_files if alphas is None
+                    else _per_view([a * m for a, m in zip(alphas, masks, strict=True)]))
+    depths = _decode([f.depth for f in frames], cache)
+    observed = _decode([f.observed for f in frames], cache) if keep_observed else [None]
     return Views(
         cameras=[normalize_camera(f.camera, center, scale).to(dtype=torch.float32) for f in frames],
-        images=torch.from_numpy(images),
+        images=images,
         names=[f.name for f in frames],
         object_masks=object_masks,
-        depths=torch.from_numpy(np.stack(depths) * np.float32(scale)) if all(d is not None for d in depths) else None,
-        observed=(torch.from_numpy(np.stack(observed) > 0.5) if all(o is not None for o in observed) else None),
+        depths=(per_view([torch.from_numpy(d * np.float32(scale)) for d in depths])
+                if all(d is not None for d in depths) else None),
+        observed=per_view([torch.from_numpy(o > 0.5) for o in observed]) if all(o is not None for o in observed)
+        else None,
         alphas=alpha,
         alpha_background=frames[0].image.background,
         mask_files=mask_files,
@@ -201,7 +197,7 @@ def assemble_cameras(raw: RawScene, cfg: DataConfig, cache: ImageCache, masks: b
     center, scale = scene_normalization(raw)
     return CameraScene(center, scale, CameraViews(
         [normalize_camera(f.camera, center, scale).to(dtype=torch.float32) for f in train], [f.name for f in train],
-        _mask_files(train, cache, _split_size(train)) if masks else None))
+        _per_view(_mask_files(train, cache)) if masks else None))
 
 
 def refuse_split_flags_the_scene_overrides(cfg: DataConfig, scene: Scene) -> None:

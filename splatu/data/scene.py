@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import overload
 
 import torch
 from torch import Tensor
@@ -10,11 +12,48 @@ from torch import Tensor
 from splatu.camera import Camera
 
 
+class ViewList:
+    """One tensor per view, of differing shapes: a split whose images differ in size (nerfstudio's per-frame `w`, `h`,
+    several COLMAP cameras). Indexed as the stacked tensor of a split of one size is, so consumers that go view by view
+    take either: `[i]` is view i's tensor, `[indices]` the views at those indices, iteration goes view by view."""
+
+    def __init__(self, items: Sequence[Tensor]) -> None:
+        self._items = list(items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __iter__(self) -> Iterator[Tensor]:
+        return iter(self._items)
+
+    @overload
+    def __getitem__(self, index: int) -> Tensor: ...
+
+    @overload
+    def __getitem__(self, index: Tensor) -> PerView: ...
+
+    def __getitem__(self, index: int | Tensor) -> PerView:
+        if isinstance(index, Tensor):
+            return per_view([self._items[i] for i in index.tolist()])
+        return self._items[index]
+
+
+PerView = Tensor | ViewList
+"""A split's per-view tensors: stacked, (N, H, W, ...), when its views share one size (the common case, which keeps
+whole-split operations batched), else a `ViewList`."""
+
+
+def per_view(items: Sequence[Tensor]) -> PerView:
+    """`items` stacked when they share one shape, else a `ViewList` of them."""
+    return torch.stack(list(items)) if all(t.shape == items[0].shape for t in items) else ViewList(items)
+
+
 @dataclass
 class Views:
-    """One split: cameras with their images, all of one size.
+    """One split: cameras with their images, each at its own camera's size.
 
-    images are float32 in [0, 1], (N, H, W, 3). The optional tensors are per image:
+    images are float32 in [0, 1], (H, W, 3) per view, stacked to (N, H, W, 3) when the views share one size (a
+    `ViewList` when they do not: `PerView`); every optional tensor is held alike, per image:
     `object_masks` marks the pixels that show the object, which AUSE scores (the images' alpha times the
     scene's mask files, `mask_files`, which training and PSNR use); `alphas` is the images' own alpha when
     they had one (RGBA files; 1 for the split's opaque images), with `images` composited on
@@ -24,15 +63,15 @@ class Views:
     """
 
     cameras: list[Camera]
-    images: Tensor
+    images: PerView
     names: list[str]
-    object_masks: Tensor | None = None
-    depths: Tensor | None = None
-    observed: Tensor | None = None
-    alphas: Tensor | None = None
+    object_masks: PerView | None = None
+    depths: PerView | None = None
+    observed: PerView | None = None
+    alphas: PerView | None = None
     alpha_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    mask_files: Tensor | None = None
-    """The scene's mask files alone (nerfstudio `mask_path`), (N, H, W) in [0, 1]: 0 marks a pixel that
+    mask_files: PerView | None = None
+    """The scene's mask files alone (nerfstudio `mask_path`), (H, W) per view in [0, 1]: 0 marks a pixel that
     training and scoring ignore. `object_masks` is this times the images' alpha."""
 
     def __len__(self) -> int:
@@ -49,7 +88,7 @@ class Views:
         """The views at `indices`, in that order, with every per-image tensor sliced alike."""
         index = torch.as_tensor(indices, dtype=torch.long)
 
-        def pick(t: Tensor | None) -> Tensor | None:
+        def pick(t: PerView | None) -> PerView | None:
             return None if t is None else t[index]
 
         return Views([self.cameras[i] for i in indices], self.images[index], [self.names[i] for i in indices],
@@ -103,7 +142,7 @@ class CameraViews:
 
     cameras: list[Camera]
     names: list[str]
-    mask_files: Tensor | None = None
+    mask_files: PerView | None = None
 
 
 @dataclass(frozen=True)

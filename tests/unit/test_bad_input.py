@@ -291,7 +291,9 @@ def test_image_size_that_disagrees_with_the_intrinsics(tmp_path):
     assert "36x30" in error.what and error.where.endswith(cameras[3].name)
 
 
-def test_mismatched_image_sizes_within_a_split(tmp_path):
+def test_a_frame_of_another_size_within_a_split_loads_at_its_own_size(tmp_path):
+    """Once refused ("image size 20x30 differs from 40x30 ... in the same split"): a frame's own w, h are nerfstudio's
+    per-frame intrinsics, and a split may mix sizes (tests/unit/test_mixed_sizes.py goes on to train and score one)."""
     root = tmp_path / "scene"
     cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
     write_rgb(root / cameras[3].name, noise_image(3, 20, 30))
@@ -301,8 +303,9 @@ def test_mismatched_image_sizes_within_a_split(tmp_path):
         last.update(w=20, cx=10.0)
 
     edit_transforms(root, shrink_last_frame)
-    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
-    assert "differs" in error.what and error.where.endswith(cameras[3].name)
+    scene = load_scene(DataConfig(data=str(root), cache_dir=tmp_path / "cache", eval_split="every-n", eval_every=2))
+    assert scene.train.names == [cameras[1].name, cameras[3].name]
+    assert [tuple(image.shape) for image in scene.train.images] == [(30, 40, 3), (30, 20, 3)]
 
 
 @pytest.mark.parametrize("bad_value", [float("nan"), float("inf")])
