@@ -44,7 +44,10 @@ whole-split operations batched), else a `ViewList`."""
 
 
 def per_view(items: Sequence[Tensor]) -> PerView:
-    """`items` stacked when they share one shape, else a `ViewList` of them."""
+    """`items` stacked when they share one shape, else a `ViewList` of them. One tensor is not copied: a view of a
+    `ViewList` taken alone (`TrainImages` downsamples them so) shares its pixels, as a split of one size's do."""
+    if len(items) == 1:
+        return items[0].unsqueeze(0)
     return torch.stack(list(items)) if all(t.shape == items[0].shape for t in items) else ViewList(items)
 
 
