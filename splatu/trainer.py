@@ -200,7 +200,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 try:
                     outcome = train_step(state, config, images)
                 except NonFiniteUpdate as bad:
-                    raise SplatuError(f"training stopped: the update of step {state.step + 1} made "
+                    raise SplatuError(f"training stopped: the {bad.by} of step {state.step + 1} made "
                                       f"{bad.parameter} non-finite", f"in {run_dir}",
                                       f"{_last_good(run_dir)}; retrain with lower learning rates") from None
                 state.step += 1

@@ -185,12 +185,19 @@ def _nonfinite(loss: torch.Tensor, model: GaussianModel, raster: RasterOutput) -
 
 
 class NonFiniteUpdate(Exception):
-    """An update made a parameter non-finite (finite gradients, but a learning rate past float32's range): the step
-    cannot be skipped once applied, so training stops before anything saves the model."""
+    """A step's update, or the refinement after it, made a parameter non-finite (finite gradients, but a learning rate
+    far too large, or a split of a Gaussian whose log-scale it sent to 1e4): once applied it cannot be skipped, so
+    training stops before anything saves the model."""
 
-    def __init__(self, parameter: str) -> None:
-        super().__init__(parameter)
-        self.parameter = parameter
+    def __init__(self, parameter: str, by: str) -> None:
+        super().__init__(parameter, by)
+        self.parameter, self.by = parameter, by
+
+
+def _refuse_nonfinite(model: GaussianModel, by: str) -> None:
+    corrupted = _nonfinite_parameter(model)
+    if corrupted is not None:
+        raise NonFiniteUpdate(corrupted, by)
 
 
 def _nonfinite_parameter(model: GaussianModel) -> str | None:
@@ -231,11 +238,11 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     if bad is None:
         state.density.observe(render.raster, camera.width, camera.height)
         state.optimizers.step(step)
-        corrupted = _nonfinite_parameter(state.model)
-        if corrupted is not None:
-            raise NonFiniteUpdate(corrupted)
+        _refuse_nonfinite(state.model, "update")
     state.optimizers.zero_grad()
     # a skipped step left the model as it was, so its refinement (or opacity reset) still falls on schedule
     changes = state.density.refine(step, state.model, state.optimizers, views_per_epoch=len(images))
     refined = {k: v for k, v in changes.items() if v}
+    if refined:
+        _refuse_nonfinite(state.model, "refinement")
     return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)

@@ -124,20 +124,26 @@ def _takes(metavar: str) -> str | None:
     return " or ".join(told) + (" (or None)" if optional else "")
 
 
+_TYPED_LIST = re.compile(r"(?:instantiated from|Could not parse arguments|valid parse for arguments:) \[")
+"""Where tyro quotes every value typed for a flag as a list: "no type matching ... could be instantiated from
+[...]", "Could not parse arguments [...] into tuple type", "Could not find valid parse for arguments: [...]"."""
+_TYPED_LAST = re.compile(r": ('.*'|\".*\")\.?$")
+"""Where Python's own message quotes the one value typed: "invalid literal for int() with base 10: 'x'"."""
+
+
 def _typed_values(problem: str) -> list[str] | None:
-    """The values tyro quotes in its parse error `problem`: its first list of strings (['1', 'x']), else the quoted
-    string that ends it (invalid literal for int() with base 10: '1.5')."""
-    for start in (i for i, char in enumerate(problem) if char == "["):
-        for end in (i for i, char in enumerate(problem) if char == "]" and i > start):
+    """The values tyro's parse error `problem` says were typed, or None when it quotes none this way. Only a list
+    where tyro puts one counts: a value typed as "['a', 'b']" is one value, not two."""
+    if listed := _TYPED_LIST.search(problem):
+        start = listed.end() - 1
+        for end in (i for i in range(start, len(problem)) if problem[i] == "]"):  # a value may hold "]" itself
             try:
                 found = ast.literal_eval(problem[start:end + 1])
             except (ValueError, SyntaxError):
                 continue
-            if isinstance(found, list) and all(isinstance(value, str) for value in found):
-                return found
-            break
-    last = re.search(r": ('.*'|\".*\")\.?$", problem)
-    if last is None:
+            return found if isinstance(found, list) and all(isinstance(v, str) for v in found) else None
+        return None
+    if (last := _TYPED_LAST.search(problem)) is None:
         return None
     try:
         value = ast.literal_eval(last.group(1))

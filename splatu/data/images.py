@@ -339,6 +339,21 @@ def _quantise(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return np.clip(np.round(values * top), 0, top).astype(dtype)
 
 
+MIN_RESCALED_SIDE = 8
+"""The smallest side a depth map rescaled to its camera is taken at: a 1x1 or 2x3 "map" matches any shape."""
+
+
+def _is_rescaled(width: int, height: int, camera_width: int, camera_height: int) -> bool:
+    """Whether a width x height map is the camera's image at another resolution: both sides scaled by one factor,
+    each rounded down or up (so the two ranges of factors they allow overlap), and neither side one the camera has,
+    which would make the other side a pixel or so off at the camera's own resolution."""
+    if min(width, height) < MIN_RESCALED_SIDE or width == camera_width or height == camera_height:
+        return False
+    low = max((width - 1) / camera_width, (height - 1) / camera_height)
+    high = min((width + 1) / camera_width, (height + 1) / camera_height)
+    return low <= high
+
+
 def _depth_at_camera_size(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray:
     """A depth map stored at another resolution of its image's shape, brought to the camera's size by nearest
     neighbours, as nerfstudio reads one (depth sensors rarely match the colour camera's resolution); a map of
@@ -346,9 +361,7 @@ def _depth_at_camera_size(values: np.ndarray, recipe: PixelRecipe) -> np.ndarray
     height, width = values.shape[:2]
     if recipe.kind != "depth" or (width, height) == (recipe.width, recipe.height):
         return values
-    same_shape = (abs(height - recipe.height * width / recipe.width) <= 1.0
-                  or abs(width - recipe.width * height / recipe.height) <= 1.0)  # to the pixel, one scale for both
-    if not same_shape:
+    if not _is_rescaled(width, height, recipe.width, recipe.height):
         return values
     return cv2.resize(values, (recipe.width, recipe.height), interpolation=cv2.INTER_NEAREST_EXACT)
 

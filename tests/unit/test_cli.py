@@ -237,6 +237,8 @@ def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
     (["train", "--downscale", "abc"], "--downscale takes a whole number (or None), got 'abc'"),
     (["train", "--downscale=2.5"], "--downscale takes a whole number (or None), got '2.5'"),
     (["train", "--steps", "1e3"], "--steps takes a whole number, got '1e3'"),
+    (["train", "--steps", "['a', 'b']"], "--steps takes a whole number, got \"['a', 'b']\""),  # one value, not two
+    (["train", "--downscale", "x']"], "--downscale takes a whole number (or None), got \"x']\""),
     (["train", "--ssim-lambda", "x"], "--ssim-lambda takes a number, got 'x'"),
     (["train", "--background", "1", "2", "x"], "--background takes 3 numbers, got '1' '2' 'x'"),
     (["train", "--background", "1", "2"], "--background needs 3 values after it"),

@@ -633,15 +633,20 @@ def test_downscaled_depth_and_masks_stay_centred_like_the_colour(tmp_path):
 def test_a_depth_map_at_another_resolution_of_its_images_shape_is_brought_to_the_cameras_size(tmp_path):
     """nerfstudio reads depth sensors' smaller maps by nearest neighbours; splatu refused them, blaming the camera.
     A map of another shape is still refused, and a wrong-size mask is blamed on the mask, not the camera."""
-    coarse = np.arange(12, dtype=np.float32).reshape(3, 4)
+    coarse = np.arange(192, dtype=np.float32).reshape(12, 16)
     np.save(tmp_path / "coarse.npy", coarse)
-    recipe = PixelRecipe(path=tmp_path / "coarse.npy", kind="depth", width=16, height=12, target_width=16,
-                         target_height=12)
+    recipe = PixelRecipe(path=tmp_path / "coarse.npy", kind="depth", width=32, height=24, target_width=32,
+                         target_height=24)
     depth = compute_pixels(recipe)
-    assert depth.shape == (12, 16) and np.array_equal(depth[::4, ::4], coarse)  # each value covers its 4x4 block
-    np.save(tmp_path / "other_shape.npy", np.zeros((4, 8), np.float32))  # 2:1, the camera 4:3
-    with pytest.raises(SplatuError, match="depth map is 8x4 but its camera says 16x12"):
+    assert depth.shape == (24, 32) and np.array_equal(depth[::2, ::2], coarse)  # each value covers its 2x2 block
+    np.save(tmp_path / "other_shape.npy", np.zeros((8, 16), np.float32))  # 2:1, the camera 4:3
+    with pytest.raises(SplatuError, match="depth map is 16x8 but its camera says 32x24"):
         compute_pixels(dataclasses.replace(recipe, path=tmp_path / "other_shape.npy"))
+    # a side a pixel off at the camera's own resolution, or a map too small to have a shape, is a wrong file
+    for shape in ((25, 32), (23, 32), (24, 33), (1, 1), (2, 3), (6, 8)):
+        np.save(tmp_path / "off.npy", np.zeros(shape, np.float32))
+        with pytest.raises(SplatuError, match=f"depth map is {shape[1]}x{shape[0]} but its camera says 32x24"):
+            compute_pixels(dataclasses.replace(recipe, path=tmp_path / "off.npy"))
     cv2.imwrite(str(tmp_path / "mask.png"), np.full((3, 4), 255, np.uint8))
     with pytest.raises(SplatuError, match=r"mask is 4x3 .* make the mask at its image's size, which is the camera's"):
         compute_pixels(dataclasses.replace(recipe, path=tmp_path / "mask.png", kind="mask"))

@@ -259,6 +259,19 @@ def test_an_update_that_overflows_a_parameter_stops_before_any_checkpoint_holds_
     assert list_checkpoints(run_dir) == []
 
 
+def test_a_split_that_overflows_a_parameter_stops_before_any_checkpoint_holds_it(tmp_path, scene):
+    """A large but finite scales' rate sends log-scales to about 1e4, still finite, and the next split's exp()
+    overflows: that step's checkpoint held Inf in means and log_scales."""
+    config = tiny_config(tmp_path, checkpoint_every=1)
+    large = dataclasses.replace(config, optim=dataclasses.replace(config.optim, scales_lr=1e4))
+    with pytest.raises(SplatuError, match=r"the refinement of step \d+ made \w+ non-finite") as err:
+        train_command.train(large)
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert list_checkpoints(run_dir) and str(list_checkpoints(run_dir)[-1]) in str(err.value)
+    for path in list_checkpoints(run_dir):
+        assert all(torch.isfinite(v).all() for v in read_checkpoint(path)["model"].values())
+
+
 def test_the_photometric_loss_never_reaches_u_sh_in_the_training_step(tmp_path, monkeypatch):
     """The other direction, through the trainer's own step: with L_u scaled to 0, u_sh gets an all-zero
     gradient, so a render that let u leak into the colour (and so into the photometric loss) fails here."""
