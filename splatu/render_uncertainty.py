@@ -107,7 +107,8 @@ class RenderUncertaintyConfig:
     """The orbit's elevation swings between +this and −this degrees around the capture's centre."""
     orbit_radius_scale: float = DEFAULT_RADIUS_SCALE
     """Orbit radius as a multiple of the median training-camera distance to the centre (the default half keeps
-    the from-below views above the floor of a capture walked around an object: see splatu.orbit)."""
+    the from-below views above the floor of a capture walked around an object: see splatu.orbit). A capture taken
+    from one side of its subject (fox) wants 1: at half the radius the orbit's cameras sit among its surfaces."""
     gif_fps: int = 6
     """Frames per second of the orbit GIF."""
 
