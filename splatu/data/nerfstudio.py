@@ -157,7 +157,11 @@ def _intrinsics(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     if missing:
         raise SplatuError(f"missing intrinsics {', '.join(missing)}", where,
                           "give w and h (and fl_x or camera_angle_x) at the top level or per frame")
-    width, height = round(values["w"]), round(values["h"])
+    fractional = [f"{key} = {values[key]!r}" for key in ("w", "h") if values[key] != int(values[key])]
+    if fractional:  # a size is counted in pixels; rounding 1080.5 would pick a size the file never gave
+        raise SplatuError(f"image size {', '.join(fractional)} is not a whole number of pixels", where,
+                          "give w and h in whole pixels")
+    width, height = int(values["w"]), int(values["h"])
     if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
         raise SplatuError(f"image size {width}x{height} is not a plausible image size", where,
                           "give w and h in pixels")

@@ -789,6 +789,17 @@ def test_a_nerfstudio_image_width_beyond_opencv_s_sizes_names_the_frame(tmp_path
     assert error.what == "image size 3000000000x30 is not a plausible image size" and cameras[0].name in error.where
 
 
+def test_a_nerfstudio_image_size_that_is_not_a_whole_number_is_refused_and_a_whole_float_is_read(tmp_path):
+    """w = 40.5 was rounded to 40 (and 67.5 to 68, Python's rounding to even): a size the file never gave."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    edit_transforms(root, lambda c: [frame.update(w=40.5) for frame in c["frames"]])
+    error = load_error(root, tmp_path)
+    assert error.what == "image size w = 40.5 is not a whole number of pixels" and cameras[0].name in error.where
+    edit_transforms(root, lambda c: [frame.update(w=40.0) for frame in c["frames"]])
+    assert read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.width == 40
+
+
 @pytest.mark.parametrize(("w", "h", "plausible"), [(2**16, 30, True), (40, 2**16 + 1, False)])
 def test_a_nerfstudio_image_side_may_reach_the_limit_and_not_pass_it(tmp_path, w, h, plausible):
     root = tmp_path / "scene"
