@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
@@ -80,3 +81,23 @@ def _fsync_dir(folder: Path) -> None:
 def atomic_write_text(path: Path, text: str, fix: str = RESUME_AFTER_FREEING) -> None:
     """Write `text` (UTF-8) to `path` atomically (see `atomic_write`)."""
     atomic_write(path, lambda f: f.write(text.encode("utf-8")), fix)
+
+
+def swap_in_folder(staging: Path, root: Path) -> None:
+    """Rename `staging` to `root`, moving any earlier `root` aside first. Another process may be swapping in its
+    own directory at the same moment (two `eval-ause --load` runs of one method on one run): the last rename
+    wins and neither fails."""
+    aside = root.with_name(f".{root.name}.old-{os.getpid()}")
+    shutil.rmtree(aside, ignore_errors=True)
+    while True:
+        try:
+            os.rename(staging, root)  # POSIX: replaces a missing or empty `root`, refuses a full one
+            return
+        except OSError as err:
+            if err.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        try:
+            os.rename(root, aside)
+        except FileNotFoundError:  # the other process moved it aside first
+            continue
+        shutil.rmtree(aside, ignore_errors=True)

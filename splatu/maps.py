@@ -12,15 +12,13 @@ the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just 
 
 from __future__ import annotations
 
-import errno
-import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from splatu.atomic import temporary_sibling
+from splatu.atomic import swap_in_folder, temporary_sibling
 from splatu.data.images import read_image, write_png
 from splatu.errors import (
     SplatuError,
@@ -198,7 +196,7 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
             for name, text in (extra_files or {}).items():
                 (staging / name).write_text(text, encoding="utf-8")
             stored = [read_entry(staging, name) for name in entry_names(staging)]
-            _swap_in(staging, root)
+            swap_in_folder(staging, root)
         except OSError as err:
             if os_error_behind(err) is None:
                 raise
@@ -206,23 +204,3 @@ def write_maps_dir(root: Path, entries: list[MapEntry], extra_files: dict[str, s
         finally:
             shutil.rmtree(staging, ignore_errors=True)
     return stored
-
-
-def _swap_in(staging: Path, root: Path) -> None:
-    """Rename `staging` to `root`, moving any earlier `root` aside first. Another process may be swapping in its
-    own directory at the same moment (two `eval-ause --load` runs of one method on one run): the last rename
-    wins and neither fails."""
-    aside = root.with_name(f".{root.name}.old-{os.getpid()}")
-    shutil.rmtree(aside, ignore_errors=True)
-    while True:
-        try:
-            os.rename(staging, root)  # POSIX: replaces a missing or empty `root`, refuses a full one
-            return
-        except OSError as err:
-            if err.errno not in (errno.ENOTEMPTY, errno.EEXIST):
-                raise
-        try:
-            os.rename(root, aside)
-        except FileNotFoundError:  # the other process moved it aside first
-            continue
-        shutil.rmtree(aside, ignore_errors=True)

@@ -7,21 +7,29 @@ layout `--data <output>` detects as COLMAP.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import shutil
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import tyro
 from rich.console import Console
 
+from splatu.atomic import swap_in_folder
+from splatu.data.images import read_image
 from splatu.data.pycolmap_quiet import pycolmap
+from splatu.data.resolve import colmap_data_path
 from splatu.errors import SplatuError, creatable_dir
 
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"}
+"""What COLMAP 4 reads and training decodes alike (pycolmap cannot read WebP)."""
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -35,13 +43,15 @@ class ProcessImagesConfig:
     """exhaustive: all pairs (best for < ~200 photos); sequential: neighbours in file order (video frames)."""
     camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
     """COLMAP camera model to estimate; all of these are ones the COLMAP loader undistorts."""
-    single_camera: bool = True
-    """All photos share one camera (one phone or video); False estimates intrinsics per photo."""
+    single_camera: bool | None = None
+    """None: one camera shared by all photos when they are all of one size (one phone or video), else one per photo;
+    True: always one (refused for photos of several sizes, which COLMAP cannot share one camera between); False:
+    intrinsics estimated per photo."""
     max_image_size: int = 1600
     """Photos are downscaled to at most this many pixels on their longer side for feature extraction (at least 1;
     one at least their longer side keeps them at full size)."""
     overwrite: bool = False
-    """Replace an existing database.db and sparse/0 in the output folder."""
+    """Replace an existing database.db and sparse/0 in the output folder (only once the new model is complete)."""
     colmap_log: bool = False
     """Also show COLMAP's own (verbose) log lines: its progress, warnings and errors, such as why a photo was
     unreadable (without it splatu says in its own lines which photos it skipped and what failed)."""
@@ -89,7 +99,45 @@ def _photos(images: Path) -> list[str]:
     return names
 
 
-def _stage(console: Console, label: str, work: Callable[[], object]) -> object:
+def _listed(names: list[str]) -> str:
+    """Up to three names, and how many more: a line that stays one line for a folder of hundreds."""
+    return ", ".join(repr(name) for name in names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+
+def _photo_sizes(images: Path, names: list[str]) -> dict[str, tuple[int, int]]:
+    """Each photo's (width, height) as stored, from a full decode by the training loader's own reader: COLMAP reads
+    a truncated JPEG (libjpeg fills the rest grey), so it passed the SfM and only `splatu train` refused it."""
+    sizes: dict[str, tuple[int, int]] = {}
+    bad: list[tuple[str, str]] = []
+    for name in names:
+        try:
+            pixels = read_image(images / name)
+        except SplatuError as err:
+            bad.append((name, err.what))
+            continue
+        sizes[name] = (pixels.shape[1], pixels.shape[0])
+    if bad:
+        raise SplatuError(f"{len(bad)} of {len(names)} photos would not load for training: "
+                          f"{_listed([name for name, _ in bad])} ({bad[0][0]!r}: {bad[0][1]})", f"in {images}",
+                          "copy or export them again in full, or move them out of the folder")
+    return sizes
+
+
+def _camera_mode(single_camera: bool | None, sizes: dict[str, tuple[int, int]], images: Path) -> pycolmap.CameraMode:
+    """One shared camera only for photos of one size: COLMAP refuses every photo of another size than the first
+    (CAMERA_SINGLE_DIM_ERROR). Otherwise one per photo, the finest grouping its reader offers short of per folder."""
+    by_size = {size: name for name, size in reversed(sizes.items())}  # one photo (the first) of each size
+    if single_camera is False or (single_camera is None and len(by_size) > 1):
+        return pycolmap.CameraMode.PER_IMAGE
+    if len(by_size) > 1:
+        shown = ", ".join(f"{name!r} {w}x{h}" for (w, h), name in sorted(by_size.items(), key=lambda i: i[1])[:3])
+        raise SplatuError(f"--single-camera needs photos of one size, but they come in {len(by_size)} sizes "
+                          f"({shown})", f"in {images}", "leave out --single-camera to estimate one camera per "
+                          "photo, or resize the photos to one size")
+    return pycolmap.CameraMode.SINGLE
+
+
+def _stage(console: Console, label: str, work: Callable[[], T]) -> T:
     """Run one pipeline stage under a spinner and report how long it took."""
     start = time.perf_counter()
     with console.status(f"{label}..."):
@@ -111,8 +159,8 @@ def _images_link(images: Path, output: Path) -> Path | None:
 
 
 def _remove_partial(created: list[Path]) -> None:
-    """Delete what a failed run made (database, model folders, the output folder itself), so a retry needs no
-    --overwrite; anything that was there before the run stays."""
+    """Delete what a failed run made (its staging folder, the images link, the output folder itself), so a retry
+    needs no --overwrite; anything that was there before the run stays."""
     for path in created:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)
@@ -129,7 +177,7 @@ def _photos_read(database: Path, names: list[str], images: Path, console: Consol
     finally:
         db.close()
     unread = [name for name in names if name not in read]
-    shown = ", ".join(repr(name) for name in unread[:3]) + (f" and {len(unread) - 3} more" if len(unread) > 3 else "")
+    shown = _listed(unread)
     if len(read) < 2:
         raise SplatuError(f"COLMAP could read only {len(read)} of {len(names)} photos", f"in {images}",
                           f"replace unreadable files ({shown}) with JPEG/PNG photos (--colmap-log shows COLMAP's "
@@ -139,15 +187,15 @@ def _photos_read(database: Path, names: list[str], images: Path, console: Consol
                       "(--colmap-log shows why)", highlight=False, soft_wrap=True)
 
 
-def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, console: Console) -> None:
-    """Extract, match and map; the largest model goes to <output>/sparse/0."""
-    database, sparse = output / "database.db", output / "sparse" / "0"
+def _reconstruct(cfg: ProcessImagesConfig, names: list[str], mode: pycolmap.CameraMode, staging: Path,
+                 console: Console) -> pycolmap.Reconstruction:
+    """Extract, match and map into `staging` (database.db, sparse/0), which `_swap_in` then puts in place."""
+    database = staging / "database.db"
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = cfg.max_image_size
     extraction.use_gpu = False
-    mode = pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE
     _stage(console, "extracting SIFT features", lambda: pycolmap.extract_features(
         database, cfg.images, image_names=names, camera_mode=mode, reader_options=reader,
         extraction_options=extraction, device=pycolmap.Device.cpu))
@@ -155,7 +203,6 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
     match = pycolmap.match_exhaustive if cfg.matcher == "exhaustive" else pycolmap.match_sequential
     _stage(console, f"matching features ({cfg.matcher})", lambda: match(database, device=pycolmap.Device.cpu))
 
-    models_dir = Path(tempfile.mkdtemp(prefix=".models-", dir=output))  # never a folder the user had
     registered = [0]
 
     def count(n_images: int) -> Callable[[], None]:
@@ -165,51 +212,64 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], output: Path, conso
 
         return report
 
-    try:
-        models = _stage(console, "incremental mapping", lambda: pycolmap.incremental_mapping(
-            database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
-    finally:
-        shutil.rmtree(models_dir, ignore_errors=True)
+    models_dir = staging / "models"
+    models = _stage(console, "incremental mapping", lambda: pycolmap.incremental_mapping(
+        database, cfg.images, models_dir, initial_image_pair_callback=count(2), next_image_callback=count(1)))
     if not models:
         retry = "try --matcher exhaustive" if cfg.matcher == "sequential" else "check they show one static scene"
         raise SplatuError("COLMAP could not reconstruct the scene (no model)", f"from {cfg.images}",
                           f"take more overlapping photos, or {retry}")
     best = max(models.values(), key=lambda r: r.num_reg_images())  # type: ignore[union-attr]
-    sparse.mkdir(parents=True, exist_ok=True)
+    sparse = staging / "sparse" / "0"
+    sparse.mkdir(parents=True)
     best.write(sparse)
-    console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
-                  f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
-                  soft_wrap=True)
+    return best
+
+
+def _swap_in(staging: Path, output: Path) -> None:
+    """Put the complete new model, then its database, in place of any earlier ones: until here an interrupted or
+    failed run left the earlier model as it was."""
+    (output / "sparse").mkdir(exist_ok=True)
+    swap_in_folder(staging / "sparse" / "0", output / "sparse" / "0")
+    os.replace(staging / "database.db", output / "database.db")
 
 
 def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
     """Run SfM on cfg.images and return the scene folder holding sparse/0; a failed run leaves nothing behind."""
     console = console or Console(stderr=True)
     cfg.validate()
+    cfg = dataclasses.replace(cfg, images=Path(os.path.abspath(cfg.images)))  # "." has no name to name the output by
     names = _photos(cfg.images)
-    output = cfg.output or default_output(cfg.images)
+    output = Path(os.path.abspath(cfg.output or default_output(cfg.images)))
     database, sparse = output / "database.db", output / "sparse" / "0"
     if (database.exists() or sparse.exists()) and not cfg.overwrite:
         raise SplatuError("a COLMAP database or model already exists", f"in {output}",
                           "pass --overwrite or choose another --output")
     link = _images_link(cfg.images, output)
-    created = [path for path in (output, output / "sparse") if not path.exists()] + [database, sparse]
+    sizes = _stage(console, f"decoding {len(names)} photos", lambda: _photo_sizes(cfg.images, names))
+    mode = _camera_mode(cfg.single_camera, sizes, cfg.images)
+    created = [path for path in (output, output / "sparse") if not path.exists()] + ([link] if link else [])
     creatable_dir(output, "--output").mkdir(parents=True, exist_ok=True)  # a file there raised FileExistsError
-    database.unlink(missing_ok=True)
-    if sparse.exists():
-        shutil.rmtree(sparse)
+    staging = Path(tempfile.mkdtemp(prefix=".process-images-", dir=output))  # never a folder the user had
     # COLMAP's warnings and errors are raw log lines beside splatu's own for the same thing (an unreadable photo,
     # no model); a failure COLMAP cannot go on from is its FATAL line and an exception
     pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.FATAL
-    console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU)")
+    cameras = "one camera" if mode == pycolmap.CameraMode.SINGLE else "one camera per photo"
+    console.print(f"structure from motion on {len(names)} photos in {cfg.images} (CPU, {cameras})", soft_wrap=True)
     try:
-        _reconstruct(cfg, names, output, console)
+        best = _reconstruct(cfg, names, mode, staging, console)
         if link is not None:
             link.symlink_to(cfg.images.resolve(), target_is_directory=True)
+        _swap_in(staging, output)
     except BaseException:
         _remove_partial(created)
         raise
-    console.print(f"train on it with: splatu train --data {output}", soft_wrap=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
+                  f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
+                  soft_wrap=True)
+    console.print(f"train on it with: splatu train --data {colmap_data_path(output)}", soft_wrap=True)
     return output
 
 

@@ -63,6 +63,12 @@ def read_scene_files(path: Path, downscale: int, background: tuple[float, float,
                       f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
 
 
+def colmap_data_path(root: Path) -> Path:
+    """What `--data` must name to load the COLMAP model in root/sparse/0: the folder itself, unless a
+    transforms.json or NeRF-synthetic split there wins over it in `read_scene_files`."""
+    return root / "sparse" / "0" if (root / "transforms.json").is_file() or is_blender(root) else root
+
+
 def real_poster_capture() -> Path | None:
     """The first place that holds the real poster capture, if any."""
     return next((place for place in real_poster_candidates() if (place / "transforms.json").is_file()), None)

@@ -647,17 +647,22 @@ def test_corrupt_depth_npy_is_named_without_numpy_advice(tmp_path):
     assert error.what == "depth map is not a valid .npy array of numbers" and error.where.endswith("d.npy")
 
 
+def write_webp_named_png(path: Path, seed: int) -> None:
+    """A photo OpenCV (the training loader) decodes by its content but COLMAP 4 cannot read: WebP bytes."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(cv2.imencode(".webp", noise_image(seed, 32, 32))[1].tobytes())
+
+
 def test_failed_process_images_leaves_nothing_so_a_retry_needs_no_overwrite(tmp_path):
     photos = tmp_path / "photos"
-    photos.mkdir()
-    for name in ("a.jpg", "b.jpg"):
-        (photos / name).write_text("not a photo")
+    for i, name in enumerate(("a.png", "b.png")):
+        write_webp_named_png(photos / name, i)
     config = ProcessImagesConfig(images=photos, output=tmp_path / "out")
     for _attempt in range(2):
         with pytest.raises(SplatuError) as caught:
             process_images(config)
         assert caught.value.what == "COLMAP could read only 0 of 2 photos"
-        assert caught.value.fix.startswith("replace unreadable files ('a.jpg', 'b.jpg') with JPEG/PNG photos")
+        assert caught.value.fix.startswith("replace unreadable files ('a.png', 'b.png') with JPEG/PNG photos")
         assert not (tmp_path / "out").exists()
 
 
@@ -667,11 +672,11 @@ def test_process_images_names_a_photo_colmap_could_not_read_in_one_line_of_its_o
     photos = tmp_path / "photos"
     for i in range(3):
         write_rgb(photos / f"{i}.png", noise_image(i, 64, 64))
-    (photos / "3.jpg").write_bytes(b"\xff\xd8\xff\xe0 a truncated JPEG")
+    write_webp_named_png(photos / "3.png", 3)
     with pytest.raises(SplatuError, match="no model"):  # unrelated noise: nothing matches
         process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
     err = capfd.readouterr().err.splitlines()
-    assert "  skipped 1 of 4 photos COLMAP could not read: '3.jpg' (--colmap-log shows why)" in err
+    assert "  skipped 1 of 4 photos COLMAP could not read: '3.png' (--colmap-log shows why)" in err
     assert not [line for line in err if re.match(r"[IWE]\d{8} ", line)]  # no glog line
 
 
@@ -683,7 +688,133 @@ def test_process_images_without_a_model_does_not_suggest_the_default_matcher(tmp
     with pytest.raises(SplatuError) as caught:
         process_images(ProcessImagesConfig(images=photos, overwrite=True))
     assert "no model" in caught.value.what and "--matcher" not in caught.value.fix
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["database.db", "images"]
+
+
+def test_a_failed_overwrite_keeps_the_earlier_model(tmp_path):
+    """--overwrite deleted database.db and sparse/0 before the new run, so a failed or interrupted one lost them."""
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 64, 64))  # unrelated noise: nothing matches
+    out = tmp_path / "out"
+    (out / "sparse" / "0").mkdir(parents=True)
+    (out / "sparse" / "0" / "cameras.txt").write_text("the old model")
+    (out / "database.db").write_text("the old database")
+    with pytest.raises(SplatuError, match="no model"):
+        process_images(ProcessImagesConfig(images=photos, output=out, overwrite=True))
+    assert (out / "sparse" / "0" / "cameras.txt").read_text() == "the old model"
+    assert (out / "database.db").read_text() == "the old database"
+    assert sorted(p.name for p in out.iterdir()) == ["database.db", "sparse"]
+    assert sorted(p.name for p in (out / "sparse").iterdir()) == ["0"]
+
+
+def stop_at_the_sfm(monkeypatch, seen: list) -> None:
+    """Replace the SfM by one that records where it would have written and fails."""
+    from splatu.data import process_images as P
+
+    def reconstruct(cfg, names, mode, staging, console):
+        seen.append((names, mode, staging.parent))
+        raise SplatuError("stopped", "in the test", "none")
+
+    monkeypatch.setattr(P, "_reconstruct", reconstruct)
+
+
+@pytest.mark.parametrize(("folder", "output"), [("shots", "shots-colmap"), ("images", ".")])
+def test_process_images_of_the_current_folder_names_its_output_by_the_folder(tmp_path, monkeypatch, folder, output):
+    """`splatu process-images .` raised ValueError: PosixPath('.') has an empty name."""
+    photos = tmp_path / folder
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    seen: list = []
+    stop_at_the_sfm(monkeypatch, seen)
+    monkeypatch.chdir(photos)
+    with pytest.raises(SplatuError, match="stopped"):
+        process_images(ProcessImagesConfig(images=Path(".")))
+    assert seen[0][2] == (tmp_path / output).resolve()
+
+
+def test_photos_of_several_sizes_get_one_camera_each(tmp_path, capfd):
+    """One shared camera made COLMAP drop every photo of another size than the first (CAMERA_SINGLE_DIM_ERROR),
+    reported as a photo it could not read."""
+    photos = tmp_path / "photos"
+    for i, (width, height) in enumerate([(64, 64), (64, 48), (48, 64)]):
+        write_rgb(photos / f"{i}.png", noise_image(i, width, height))
+    with pytest.raises(SplatuError, match="no model"):  # unrelated noise: nothing matches
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    err = capfd.readouterr().err
+    assert "could not read" not in err and "(CPU, one camera per photo)" in err
+
+
+def test_photos_of_one_size_share_one_camera(tmp_path, monkeypatch):
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    seen: list = []
+    stop_at_the_sfm(monkeypatch, seen)
+    with pytest.raises(SplatuError, match="stopped"):
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert seen[0][1] == pycolmap.CameraMode.SINGLE
+
+
+def test_a_single_camera_forced_on_photos_of_several_sizes_is_one_line(tmp_path, monkeypatch):
+    photos = tmp_path / "photos"
+    for i, (width, height) in enumerate([(16, 16), (16, 12), (16, 16)]):
+        write_rgb(photos / f"{i}.png", noise_image(i, width, height))
+    stop_at_the_sfm(monkeypatch, [])
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out", single_camera=True))
+    assert caught.value.what == "--single-camera needs photos of one size, but they come in 2 sizes ('0.png' 16x16, " \
+        "'1.png' 16x12)"
+    assert "leave out --single-camera" in caught.value.fix and not (tmp_path / "out").exists()
+
+
+def test_a_truncated_jpeg_is_refused_before_the_sfm(tmp_path, monkeypatch):
+    """COLMAP reads a truncated JPEG, so it passed the SfM and then `splatu train` refused it."""
+    photos = tmp_path / "photos"
+    for i in range(3):
+        write_rgb(photos / f"{i}.jpg", noise_image(i, 32, 32))
+    data = (photos / "1.jpg").read_bytes()
+    (photos / "1.jpg").write_bytes(data[: len(data) * 2 // 3])
+    stop_at_the_sfm(monkeypatch, [])
+    with pytest.raises(SplatuError) as caught:
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert caught.value.what.startswith("1 of 3 photos would not load for training: '1.jpg' ('1.jpg': cannot decode "
+                                        "image (truncated JPEG")
+    assert "\n" not in str(caught.value) and not (tmp_path / "out").exists()
+
+
+def test_webp_photos_are_left_out(tmp_path, monkeypatch):
+    """WebP was listed as accepted, but COLMAP 4 cannot read it."""
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    (photos / "2.webp").write_bytes(cv2.imencode(".webp", noise_image(2, 16, 16))[1].tobytes())
+    seen: list = []
+    stop_at_the_sfm(monkeypatch, seen)
+    with pytest.raises(SplatuError, match="stopped"):
+        process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert seen[0][0] == ["0.png", "1.png"]
+
+
+@pytest.mark.parametrize(("scene_file", "data"), [(None, "out"), ("transforms.json", "out/sparse/0")])
+def test_process_images_prints_the_data_path_that_loads_its_model(tmp_path, monkeypatch, capfd, scene_file, data):
+    """A transforms.json in the output wins over sparse/0 when --data names the folder."""
+    from splatu.data import process_images as P
+
+    def reconstruct(cfg, names, mode, staging, console):
+        (staging / "sparse" / "0").mkdir(parents=True)
+        (staging / "database.db").write_text("new")
+        return pycolmap.Reconstruction()
+
+    photos = tmp_path / "photos"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    if scene_file:
+        (tmp_path / "out").mkdir()
+        (tmp_path / "out" / scene_file).write_text("{}")
+    monkeypatch.setattr(P, "_reconstruct", reconstruct)
+    process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
+    assert f"train on it with: splatu train --data {tmp_path / data}" in capfd.readouterr().err.splitlines()
 
 
 def test_a_conflicting_images_folder_is_refused_before_the_sfm_runs(tmp_path, monkeypatch):
