@@ -117,8 +117,9 @@ def _photo_sizes(images: Path, names: list[str]) -> dict[str, tuple[int, int]]:
             continue
         sizes[name] = (pixels.shape[1], pixels.shape[0])
     if bad:
+        reason = bad[0][1] if len(bad) == 1 else f"{bad[0][0]!r}: {bad[0][1]}"
         raise SplatuError(f"{len(bad)} of {len(names)} photos would not load for training: "
-                          f"{_listed([name for name, _ in bad])} ({bad[0][0]!r}: {bad[0][1]})", f"in {images}",
+                          f"{_listed([name for name, _ in bad])} ({reason})", f"in {images}",
                           "copy or export them again in full, or move them out of the folder")
     return sizes
 

@@ -110,15 +110,22 @@ def test_second_load_hits_the_image_cache(tmp_path):
 
 
 @pytest.mark.slow
-def test_process_images_reconstructs_lund_door_and_the_loader_reads_it(tmp_path):
-    """~30-45 s on 2 busy cores: SIFT on 12 photos at 484 px, exhaustive matching, incremental mapping."""
+def test_process_images_reconstructs_lund_door_and_the_loader_reads_it(tmp_path, capfd):
+    """~30-45 s on 2 busy cores: SIFT on 12 photos at 484 px, exhaustive matching, incremental mapping. Two photos
+    are of another size (one camera per photo; one shared camera dropped them), and the scene folder already holds
+    a transforms.json, which `--data <folder>` would load instead, so the printed line names sparse/0."""
     photos = tmp_path / "photos"
     photos.mkdir()
-    for path in sorted((shared_scene("lund_door") / "images").glob("*.JPG")):
-        small = cv2.resize(cv2.imread(str(path)), (324, 484), interpolation=cv2.INTER_AREA)
-        cv2.imwrite(str(photos / path.name), small)
+    for i, path in enumerate(sorted((shared_scene("lund_door") / "images").glob("*.JPG"))):
+        size = (270, 404) if i in (3, 8) else (324, 484)
+        cv2.imwrite(str(photos / path.name), cv2.resize(cv2.imread(str(path)), size, interpolation=cv2.INTER_AREA))
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "scene" / "transforms.json").write_text("{}")
     output = process_images(ProcessImagesConfig(images=photos, output=tmp_path / "scene", max_image_size=640))
-    scene = load_scene(DataConfig(data=str(output), cache_dir=tmp_path / "cache", eval_split="every-n"))
+    data = output / "sparse" / "0"
+    assert f"train on it with: splatu train --data {data}" in capfd.readouterr().err.splitlines()
+    scene = load_scene(DataConfig(data=str(data), cache_dir=tmp_path / "cache", eval_split="every-n"))
     assert len(scene.train) + len(scene.eval) >= 10
     assert scene.points.shape[0] > 1000
-    assert scene.train.images.shape[1:] == (484, 324, 3)
+    sizes = {(camera.height, camera.width) for camera in [*scene.train.cameras, *scene.eval.cameras]}
+    assert sizes == {(484, 324), (404, 270)}
