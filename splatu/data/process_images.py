@@ -126,7 +126,8 @@ def _photo_sizes(images: Path, names: list[str]) -> dict[str, tuple[int, int]]:
 
 def _camera_mode(single_camera: bool | None, sizes: dict[str, tuple[int, int]], images: Path) -> pycolmap.CameraMode:
     """One shared camera only for photos of one size: COLMAP refuses every photo of another size than the first
-    (CAMERA_SINGLE_DIM_ERROR). Otherwise one per photo, the finest grouping its reader offers short of per folder."""
+    (CAMERA_SINGLE_DIM_ERROR). Otherwise one per photo: its reader has no camera per size (its AUTO mode, tried,
+    also made one per photo)."""
     by_size = {size: name for name, size in reversed(sizes.items())}  # one photo (the first) of each size
     if single_camera is False or (single_camera is None and len(by_size) > 1):
         return pycolmap.CameraMode.PER_IMAGE
@@ -160,7 +161,7 @@ def _images_link(images: Path, output: Path) -> Path | None:
 
 
 def _remove_partial(created: list[Path]) -> None:
-    """Delete what a failed run made (its staging folder, the images link, the output folder itself), so a retry
+    """Delete what a failed run made (the images link, the sparse folder, the output folder itself), so a retry
     needs no --overwrite; anything that was there before the run stays."""
     for path in created:
         if path.is_dir() and not path.is_symlink():
