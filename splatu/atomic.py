@@ -84,20 +84,22 @@ def atomic_write_text(path: Path, text: str, fix: str = RESUME_AFTER_FREEING) ->
 
 
 def swap_in_folder(staging: Path, root: Path) -> None:
-    """Rename `staging` to `root`, moving any earlier `root` aside first. Another process may be swapping in its
-    own directory at the same moment (two `eval-ause --load` runs of one method on one run): the last rename
-    wins and neither fails."""
+    """Rename `staging` to `root`, moving any earlier `root` aside first and deleting it only once `staging` is in
+    place: a stop or a failure leaves the earlier folder, as it was, at `root` or (between two renames) aside.
+    Another process may be swapping in its own directory at the same moment (two `eval-ause --load` runs of one
+    method on one run): the last rename wins and neither fails."""
     aside = root.with_name(f".{root.name}.old-{os.getpid()}")
     shutil.rmtree(aside, ignore_errors=True)
     while True:
         try:
             os.rename(staging, root)  # POSIX: replaces a missing or empty `root`, refuses a full one
-            return
+            break
         except OSError as err:
             if err.errno not in (errno.ENOTEMPTY, errno.EEXIST):
                 raise
+        shutil.rmtree(aside, ignore_errors=True)  # a later pass's: another process's folder took `root` since
         try:
             os.rename(root, aside)
         except FileNotFoundError:  # the other process moved it aside first
             continue
-        shutil.rmtree(aside, ignore_errors=True)
+    shutil.rmtree(aside, ignore_errors=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shlex
 import shutil
 import tempfile
 import time
@@ -25,6 +26,7 @@ from splatu.data.images import read_image
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.data.resolve import colmap_data_path
 from splatu.errors import SplatuError, creatable_dir
+from splatu.interrupts import finish_first
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"}
 """What COLMAP 4 reads and training decodes alike (pycolmap cannot read WebP)."""
@@ -83,9 +85,12 @@ def _photo_name(path: Path) -> str:
     return path.name
 
 
-def _photos(images: Path) -> list[str]:
-    """The photos' names, in file order; too few is one line that names what was skipped, since a folder of HEIC
-    photos, or of subfolders, otherwise reads as an empty one."""
+PHOTO_KINDS = "/".join(sorted(suffix[1:] for suffix in IMAGE_SUFFIXES))
+
+
+def _photos(images: Path) -> tuple[list[str], list[str]]:
+    """The photos' names, in file order, and the other files' (hidden ones aside); too few photos is one line that
+    names what was skipped, since a folder of HEIC photos, or of subfolders, otherwise reads as an empty one."""
     if not images.is_dir():
         raise SplatuError("photo folder not found", f"in {images}", "pass a folder of JPEG/PNG photos")
     entries = sorted(images.iterdir())
@@ -94,9 +99,11 @@ def _photos(images: Path) -> list[str]:
         others = [p.name for p in entries if p.suffix.lower() not in IMAGE_SUFFIXES]
         skipped = f" ({len(others)} other entries skipped, e.g. {others[0]!r})" if others else ""
         raise SplatuError(f"too few photos ({len(names)}): structure from motion needs at least 2{skipped}",
-                          f"in {images}", "add overlapping photos of the scene, directly in the folder, as "
-                          f"{'/'.join(sorted(suffix[1:] for suffix in IMAGE_SUFFIXES))} files")
-    return names
+                          f"in {images}", f"add overlapping photos of the scene, directly in the folder, as "
+                          f"{PHOTO_KINDS} files")
+    others = [p.name for p in entries if p.suffix.lower() not in IMAGE_SUFFIXES and p.is_file()
+              and not p.name.startswith(".")]
+    return names, others
 
 
 def _listed(names: list[str]) -> str:
@@ -230,10 +237,12 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], mode: pycolmap.Came
 
 def _swap_in(staging: Path, output: Path) -> None:
     """Put the complete new model, then its database, in place of any earlier ones: until here an interrupted or
-    failed run left the earlier model as it was."""
-    (output / "sparse").mkdir(exist_ok=True)
-    swap_in_folder(staging / "sparse" / "0", output / "sparse" / "0")
-    os.replace(staging / "database.db", output / "database.db")
+    failed run left the earlier model as it was, and a stop now waits for both, so the model and the database
+    that made it stay a pair."""
+    with finish_first():
+        (output / "sparse").mkdir(exist_ok=True)
+        swap_in_folder(staging / "sparse" / "0", output / "sparse" / "0")
+        os.replace(staging / "database.db", output / "database.db")
 
 
 def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
@@ -241,17 +250,21 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     console = console or Console(stderr=True)
     cfg.validate()
     cfg = dataclasses.replace(cfg, images=Path(os.path.abspath(cfg.images)))  # "." has no name to name the output by
-    names = _photos(cfg.images)
+    names, others = _photos(cfg.images)
     output = Path(os.path.abspath(cfg.output or default_output(cfg.images)))
     database, sparse = output / "database.db", output / "sparse" / "0"
     if (database.exists() or sparse.exists()) and not cfg.overwrite:
         raise SplatuError("a COLMAP database or model already exists", f"in {output}",
                           "pass --overwrite or choose another --output")
     link = _images_link(cfg.images, output)
+    creatable_dir(output, "--output")  # before decoding the photos, which takes minutes for hundreds of large ones
+    if others:  # a WebP or HEIC photo among them would otherwise be left out without a word
+        console.print(f"  left out {len(others)} files that are not {PHOTO_KINDS} photos: {_listed(others)}",
+                      highlight=False, soft_wrap=True)
     sizes = _stage(console, f"decoding {len(names)} photos", lambda: _photo_sizes(cfg.images, names))
     mode = _camera_mode(cfg.single_camera, sizes, cfg.images)
     created = [path for path in (output, output / "sparse") if not path.exists()] + ([link] if link else [])
-    creatable_dir(output, "--output").mkdir(parents=True, exist_ok=True)  # a file there raised FileExistsError
+    output.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".process-images-", dir=output))  # never a folder the user had
     # COLMAP's warnings and errors are raw log lines beside splatu's own for the same thing (an unreadable photo,
     # no model); a failure COLMAP cannot go on from is its FATAL line and an exception
@@ -271,7 +284,8 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
                   f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
                   soft_wrap=True)
-    console.print(f"train on it with: splatu train --data {colmap_data_path(output)}", soft_wrap=True)
+    console.print(f"train on it with: splatu train --data {shlex.quote(str(colmap_data_path(output)))}",
+                  soft_wrap=True)
     return output
 
 

@@ -8,6 +8,8 @@ import json
 import math
 import os
 import re
+import shlex
+import signal
 from pathlib import Path
 
 import cv2
@@ -783,22 +785,59 @@ def test_a_truncated_jpeg_is_refused_before_the_sfm(tmp_path, monkeypatch):
     assert "\n" not in str(caught.value) and not (tmp_path / "out").exists()
 
 
-def test_webp_photos_are_left_out(tmp_path, monkeypatch):
-    """WebP was listed as accepted, but COLMAP 4 cannot read it."""
+def test_webp_photos_are_left_out_and_named(tmp_path, monkeypatch, capfd):
+    """WebP was listed as accepted, but COLMAP 4 cannot read it; a photo left out is named, not dropped silently."""
     photos = tmp_path / "photos"
     for i in range(2):
         write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
     (photos / "2.webp").write_bytes(cv2.imencode(".webp", noise_image(2, 16, 16))[1].tobytes())
+    (photos / ".DS_Store").write_bytes(b"")  # hidden files are no one's photos
     seen: list = []
     stop_at_the_sfm(monkeypatch, seen)
     with pytest.raises(SplatuError, match="stopped"):
         process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
     assert seen[0][0] == ["0.png", "1.png"]
+    assert "  left out 1 files that are not bmp/jpeg/jpg/png/tif/tiff photos: '2.webp'" in capfd.readouterr().err
 
 
-@pytest.mark.parametrize(("scene_file", "data"), [(None, "out"), ("transforms.json", "out/sparse/0")])
+def test_a_stop_while_the_new_model_replaces_the_old_one_keeps_a_whole_model_and_its_database(tmp_path, monkeypatch):
+    """The old model was deleted before the new one was renamed in, and the database replaced after: a stop between
+    left no sparse/0 (the old one in a hidden folder), or a new model beside the old database."""
+    from splatu import atomic
+    from splatu.data import process_images as P
+
+    def reconstruct(cfg, names, mode, staging, console):
+        (staging / "sparse" / "0").mkdir(parents=True)
+        (staging / "sparse" / "0" / "cameras.txt").write_text("the new model")
+        (staging / "database.db").write_text("the new database")
+        return pycolmap.Reconstruction()
+
+    real_rmtree = atomic.shutil.rmtree
+
+    def stopped_while_deleting_the_old_model(path, *args, **kwargs):
+        if (Path(path) / "cameras.txt").is_file():
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_rmtree(path, *args, **kwargs)
+
+    photos, out = tmp_path / "photos", tmp_path / "out"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    (out / "sparse" / "0").mkdir(parents=True)
+    (out / "sparse" / "0" / "cameras.txt").write_text("the old model")
+    (out / "database.db").write_text("the old database")
+    monkeypatch.setattr(P, "_reconstruct", reconstruct)
+    monkeypatch.setattr(atomic.shutil, "rmtree", stopped_while_deleting_the_old_model)
+    with pytest.raises(KeyboardInterrupt):
+        process_images(ProcessImagesConfig(images=photos, output=out, overwrite=True))
+    assert (out / "sparse" / "0" / "cameras.txt").read_text() == "the new model"
+    assert (out / "database.db").read_text() == "the new database"
+    assert sorted(p.name for p in (out / "sparse").iterdir()) == ["0"]
+
+
+@pytest.mark.parametrize(("scene_file", "data"), [(None, "my out"), ("transforms.json", "my out/sparse/0")])
 def test_process_images_prints_the_data_path_that_loads_its_model(tmp_path, monkeypatch, capfd, scene_file, data):
-    """A transforms.json in the output wins over sparse/0 when --data names the folder."""
+    """A transforms.json in the output wins over sparse/0 when --data names the folder; the line pastes into a shell
+    as printed, a space in the path included."""
     from splatu.data import process_images as P
 
     def reconstruct(cfg, names, mode, staging, console):
@@ -810,11 +849,11 @@ def test_process_images_prints_the_data_path_that_loads_its_model(tmp_path, monk
     for i in range(2):
         write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
     if scene_file:
-        (tmp_path / "out").mkdir()
-        (tmp_path / "out" / scene_file).write_text("{}")
+        (tmp_path / "my out").mkdir()
+        (tmp_path / "my out" / scene_file).write_text("{}")
     monkeypatch.setattr(P, "_reconstruct", reconstruct)
-    process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
-    assert f"train on it with: splatu train --data {tmp_path / data}" in capfd.readouterr().err.splitlines()
+    process_images(ProcessImagesConfig(images=photos, output=tmp_path / "my out"))
+    assert f"train on it with: splatu train --data {shlex.quote(str(tmp_path / data))}" in capfd.readouterr().err
 
 
 def test_a_conflicting_images_folder_is_refused_before_the_sfm_runs(tmp_path, monkeypatch):
