@@ -195,6 +195,7 @@ class NonFiniteUpdate(Exception):
 
 
 def _refuse_nonfinite(model: GaussianModel, by: str) -> None:
+    """Raise `NonFiniteUpdate` naming what `by` (the update, the refinement) made non-finite."""
     corrupted = _nonfinite_parameter(model)
     if corrupted is not None:
         raise NonFiniteUpdate(corrupted, by)
