@@ -259,7 +259,7 @@ def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> 
     link = _images_link(cfg.images, output)
     creatable_dir(output, "--output")  # before decoding the photos, which takes minutes for hundreds of large ones
     if others:  # a WebP or HEIC photo among them would otherwise be left out without a word
-        console.print(f"  left out {len(others)} files that are not {PHOTO_KINDS} photos: {_listed(others)}",
+        console.print(f"  left out, as not {PHOTO_KINDS} photos: {_listed(others)}",
                       highlight=False, soft_wrap=True)
     sizes = _stage(console, f"decoding {len(names)} photos", lambda: _photo_sizes(cfg.images, names))
     mode = _camera_mode(cfg.single_camera, sizes, cfg.images)

@@ -797,7 +797,7 @@ def test_webp_photos_are_left_out_and_named(tmp_path, monkeypatch, capfd):
     with pytest.raises(SplatuError, match="stopped"):
         process_images(ProcessImagesConfig(images=photos, output=tmp_path / "out"))
     assert seen[0][0] == ["0.png", "1.png"]
-    assert "  left out 1 files that are not bmp/jpeg/jpg/png/tif/tiff photos: '2.webp'" in capfd.readouterr().err
+    assert "  left out, as not bmp/jpeg/jpg/png/tif/tiff photos: '2.webp'" in capfd.readouterr().err
 
 
 def test_a_stop_while_the_new_model_replaces_the_old_one_keeps_a_whole_model_and_its_database(tmp_path, monkeypatch):
