@@ -14,7 +14,13 @@ import torch
 from splatu.data.config import DataConfig
 from splatu.data.frames import Frame, RawScene
 from splatu.data.images import ImageCache, PixelRecipe, load_pixels
-from splatu.data.normalize import coincident_within, normalization, normalize_camera, normalize_points
+from splatu.data.normalize import (
+    coincident_within,
+    coordinate_size,
+    normalization,
+    normalize_camera,
+    normalize_points,
+)
 from splatu.data.scene import CameraScene, CameraViews, PerView, Scene, Views, per_view
 from splatu.data.splits import contiguous_split, every_n_split, list_split
 from splatu.errors import SplatuError
@@ -149,11 +155,18 @@ def refuse_outlying_camera(frames: list[Frame], centers: torch.Tensor, source: s
     """One line naming the frame whose camera sits absurdly far from all the others (e.g. a translation of 1e20)."""
     distance = (centers - centers.median(dim=0).values).norm(dim=-1)
     typical, worst = float(distance.median()), int(distance.argmax())
-    # cameras that coincide but for rounding (a capture turning on one spot) have no typical distance to compare with
-    if typical > coincident_within(centers) and float(distance[worst]) > OUTLYING_CAMERA_RATIO * typical:
-        raise SplatuError(f"the camera of {frames[worst].name!r} is {float(distance[worst]) / typical:.3g} times "
-                          "farther from the others' median position than they are", f"in {source}",
-                          "fix or remove that frame's pose")
+    farthest = float(distance[worst])
+    if typical > coincident_within(centers):
+        if farthest > OUTLYING_CAMERA_RATIO * typical:
+            raise SplatuError(f"the camera of {frames[worst].name!r} is {farthest / typical:.3g} times farther from "
+                              "the others' median position than they are", f"in {source}",
+                              "fix or remove that frame's pose")
+    # cameras that coincide but for rounding (a capture turning on one spot) have no typical distance: their
+    # coordinates' own size stands in (1e6 m from a capture in metres, 3e12 from one at geo-referenced 3e6)
+    elif farthest > OUTLYING_CAMERA_RATIO * coordinate_size(centers):
+        raise SplatuError(f"the camera of {frames[worst].name!r} is {farthest:.3g} from the position most cameras "
+                          f"share, over {OUTLYING_CAMERA_RATIO:.0e} times the size of their coordinates",
+                          f"in {source}", "fix or remove that frame's pose")
 
 
 def scene_normalization(raw: RawScene) -> tuple[torch.Tensor, float]:

@@ -19,10 +19,15 @@ a pose's R^T t spreads the centres of cameras turning on one spot by about 1e-16
 at 3e6 (geo-referenced) had a "baseline" of 4e-10 and took a scale of 1e9 from rounding noise alone."""
 
 
+def coordinate_size(centers: Tensor) -> float:
+    """The size of camera centres' (N, 3) coordinates: their median position's largest, at least 1 (not the largest
+    centre's, which one broken pose at 1e20 would make)."""
+    return max(1.0, float(centers.median(dim=0).values.abs().max()))
+
+
 def coincident_within(centers: Tensor) -> float:
-    """The distance under which camera centres `centers` (N, 3) coincide: COINCIDENT of the size of their median
-    position's coordinates (not of the largest, which one broken pose at 1e20 would make)."""
-    return COINCIDENT * max(1.0, float(centers.median(dim=0).values.abs().max()))
+    """The distance under which camera centres `centers` (N, 3) coincide: COINCIDENT of their coordinates' size."""
+    return COINCIDENT * coordinate_size(centers)
 
 
 def normalization(centers: Tensor) -> tuple[Tensor, float]:

@@ -385,6 +385,29 @@ def test_cameras_turning_on_one_spot_load_at_any_coordinates(tmp_path, place):
     assert scale == 1.0 and np.allclose(center.numpy(), [place, place / 3, 7.0], rtol=1e-12, atol=1e-9)
 
 
+@pytest.mark.parametrize(("place", "far", "refused"), [(0.0, 1e20, True), (3e6, 1e20, True), (0.0, 1.0, False),
+                                                      (3e6, 1e6, False)])
+def test_one_broken_pose_among_cameras_on_one_spot_names_the_frame(tmp_path, place, far, refused):
+    """With every other camera on one spot there is no typical distance, so a pose at 1e20 loaded and normalisation
+    scaled the scene by 1e-20; a camera at a plausible distance (1 m, or 1e6 at geo-referenced coordinates) loads."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=6)
+
+    def one_pushed_away(content):
+        for frame in content["frames"]:
+            for row, value in zip(frame["transform_matrix"][:3], (place, place / 3, 7.0), strict=True):
+                row[3] = value
+        next(f for f in content["frames"] if f["file_path"] == cameras[2].name)["transform_matrix"][0][3] += far
+
+    edit_transforms(root, one_pushed_away)
+    if not refused:
+        scene_normalization(read_scene_files(root, 1, (1.0, 1.0, 1.0)))
+        return
+    error = load_error(root, tmp_path)
+    assert error.what.startswith(f"the camera of {cameras[2].name!r} is 1e+20 from the position most cameras share")
+    assert error.where.endswith("transforms.json")
+
+
 def test_pose_beyond_float32_names_the_frame(tmp_path):
     """Finite in the file, infinite in training: it once trained on, every Gaussian collapsing to one point."""
     root = tmp_path / "scene"
