@@ -227,6 +227,16 @@ def uncertainty_heads(cfg: UncertaintyLossConfig, model_degree: int) -> list[Unc
     return [own, *(parse_head(spec, cfg, model_degree) for spec in cfg.extra_heads)]
 
 
+def refuse_copies_of_the_own_head(cfg: UncertaintyLossConfig, model_degree: int) -> None:
+    """An extra head with the run's own settings at the model's degree would train a second copy of channel 0 under
+    another name (`validate` compares the extra heads with each other only: it does not know the model's degree)."""
+    own, *extra = uncertainty_heads(cfg, model_degree)
+    for head in extra:
+        if (head.loss, head.degree) == (own.loss, own.degree):
+            raise SplatuError(f"uncertainty head {head.name!r} repeats the run's own settings", IN_HEADS,
+                              "drop it (the run's own head already trains them), or change a setting")
+
+
 def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: RasterOutput, cfg: UncertaintyLossConfig,
                      generators: Sequence[torch.Generator] | None = None) -> Tensor:
     """L_u for one training view (REFERENCE §1), summed over the uncertainty heads, each scaled by its weight.

@@ -32,7 +32,7 @@ from splatu.ensemble_training import counted_in_ensemble, enclosing_ensemble_loc
 from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
-from splatu.losses import uncertainty_heads
+from splatu.losses import refuse_copies_of_the_own_head
 from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
@@ -49,7 +49,7 @@ def check_options(config: TrainConfig) -> None:
     check_parts(config)
     config.data.refuse_unused_flags()
     refuse_unused_poster_options(config.data)
-    uncertainty_heads(config.uncertainty, config.model.u_sh_degree)
+    refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
 
 
 def budget_note(config: TrainConfig, scene: Scene) -> str | None:

@@ -16,6 +16,7 @@ from splatu.losses import (
     l1,
     photometric_loss,
     psnr,
+    refuse_copies_of_the_own_head,
     ssim,
     ssim_map,
     uncertainty_heads,
@@ -197,6 +198,19 @@ def test_repeated_extra_heads_and_heads_with_the_loss_off_are_user_errors():
         UncertaintyLossConfig(extra_heads=("lam=0.1,degree=1", "degree=1,lam=0.1"))
     with pytest.raises(SplatuError, match="would never train"):
         UncertaintyLossConfig(off=True, extra_heads=("lam=0.1",))
+
+
+@pytest.mark.parametrize(("spec", "model_degree", "copy"), [("lam=0.3", 3, True), ("lam=0.30,degree=1", 1, True),
+                                                            ("lam=0.3,degree=1", 3, False), ("lam=0.2", 3, False)])
+def test_an_extra_head_that_copies_the_runs_own_head_is_a_user_error(spec, model_degree, copy):
+    """It was accepted and trained channel 0 again under another name; the same settings at another degree, or
+    another λ, are a head of their own."""
+    config = UncertaintyLossConfig(extra_heads=(spec,))
+    if not copy:
+        refuse_copies_of_the_own_head(config, model_degree)
+        return
+    with pytest.raises(SplatuError, match=f"uncertainty head '{spec}' repeats the run's own settings"):
+        refuse_copies_of_the_own_head(config, model_degree)
 
 
 def test_extra_heads_are_the_own_settings_with_overrides_in_their_own_channels():
