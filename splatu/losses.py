@@ -118,8 +118,8 @@ class UncertaintyLossConfig:
     lam: float = 0.3
     """λ in (1−λ)·u(d) + λ·(1−u(−d)); must be < 0.5 so that a Gaussian seen from opposite sides ends up certain
     from both (antipodal, mean). `weighted` scales the first term by the max blend weight w, so there this holds
-    only where w > λ/(1−λ) (0.43 at λ = 0.3): a Gaussian that never gives any pixel more than that stays uncertain
-    even from where it was seen."""
+    only where w > λ/(1−λ) (0.43 at λ = 0.3): seen from opposite sides (or at u-SH degree 0, where u has no
+    direction), a Gaussian that never gives any pixel more than that ends up uncertain from both."""
     threshold: float = 0.05
     """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean)."""
     num_dirs: int = 16
