@@ -81,8 +81,9 @@ class TrainConfig:
     ssim_lambda: float = 0.2
     """Weight of (1 - SSIM) in the photometric loss; L1 gets 1 - ssim_lambda."""
     train_background: Literal["random", "black", "white"] = "random"
-    """Training background: random (a new colour each step, so empty space cannot fake colour) or fixed (use
-    white for images composited on white, e.g. NeRF-synthetic); evaluation renders on black (white if white)."""
+    """Training background: random (a new colour each step, so empty space cannot fake colour; images with an
+    alpha channel are recomposited on it) or fixed (white for RGB images already composited on white, which have
+    no alpha to recomposite); evaluation renders on black (white if white)."""
     eval_every_steps: int = 0
     """Evaluate on the held-out views every this many steps (0: only at the end)."""
     log_every: int = 10

@@ -29,7 +29,9 @@ class DataConfig:
     split_seed: int = 0
     """Seed for where the contiguous eval block starts."""
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """RGB colour that RGBA images (NeRF-synthetic) are composited on."""
+    """RGB colour that RGBA images (NeRF-synthetic) are stored composited on. Their alpha is kept, and training
+    and evaluation recomposite them on their own backgrounds (--train-background), so this moves results only by
+    the stored images' 8- or 16-bit rounding."""
     cache_dir: Path | None = None
     """Where decoded, undistorted and resized images are cached; None means $SPLATU_CACHE or ~/.cache/splatu."""
     poster: PosterConfig = field(default_factory=PosterConfig)

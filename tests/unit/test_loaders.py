@@ -300,6 +300,29 @@ def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):
     assert scene.points.shape == (0, 3)
 
 
+def test_the_stored_background_moves_rgba_targets_by_rounding_only(tmp_path):
+    """--background is only what the decoded images are stored on: a target on any render background is the same,
+    within each load's 8-bit rounding of its stored composite, whatever colour they were stored on."""
+    root = tmp_path / "lego"
+    for split in ("train", "test"):
+        frames = []
+        for i in range(2):
+            write_rgb(root / split / f"r_{i}.png", noise_image(10 * i + len(split), 20, 16, channels=4))
+            pose = np.eye(4)
+            pose[:3, 3] = [i, 2.0, 1.0]
+            frames.append({"file_path": f"./{split}/r_{i}", "transform_matrix": pose.tolist()})
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": frames}))
+    white = load_scene(config(root, tmp_path / "a", background=(1.0, 1.0, 1.0)))
+    black = load_scene(config(root, tmp_path / "b", background=(0.0, 0.0, 0.0)))
+    assert (white.train.images[0] - black.train.images[0]).abs().max() > 0.5  # stored on different colours
+    for render_background in (torch.zeros(3), torch.ones(3), torch.tensor([0.2, 0.9, 0.4])):
+        for views in ("train", "eval"):
+            for i in range(2):
+                on_white = getattr(white, views).target(i, render_background)
+                on_black = getattr(black, views).target(i, render_background)
+                assert (on_white - on_black).abs().max() <= 1.0 / 255 + 1e-6
+
+
 def _write_colmap_text(root: Path, model: str, params: list[float], cameras) -> None:
     sparse = root / "sparse" / "0"
     sparse.mkdir(parents=True)
