@@ -62,9 +62,9 @@ class AbConfig:
     """Where to write the results."""
 
 
-def rename_package(source: str, old: str = "splatu", new: str = BASE_PACKAGE) -> str:
-    """Point a module's absolute imports of package `old` at `new` (only import statements are touched)."""
-    return re.sub(rf"^(\s*(?:from|import)\s+){old}\b", rf"\g<1>{new}", source, flags=re.MULTILINE)
+def rename_package(source: str) -> str:
+    """Point a module's absolute imports of splatu at BASE_PACKAGE (only import statements are touched)."""
+    return re.sub(r"^(\s*(?:from|import)\s+)splatu\b", rf"\g<1>{BASE_PACKAGE}", source, flags=re.MULTILINE)
 
 
 def resolve_commit(revision: str) -> str:

@@ -327,8 +327,8 @@ def targets(scene_name: str, rows: dict[str, dict[str, Any]], ensemble: str) -> 
     return [(f"{scene_name}: {what}", value, target, ok) for what, value, target, ok in result]
 
 
-def _cell(value: float | None, digits: int = 3) -> str:
-    return "n/a" if value is None else f"{value:.{digits}f}"
+def _cell(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
 
 
 def markdown(results: dict[str, Any], budget: Budget) -> str:
