@@ -164,7 +164,7 @@ def test_start_normalised_curves_start_at_one_and_random_baseline_averages_its_s
     zero = A.start_normalised(A.random_curves(np.zeros(50), "mae", 0))
     assert np.all(zero.oracle == 1.0) and np.all(zero.sparsification == 1.0)  # no error: kept err as all do
     per_seed = [A.ause(A.random_curves(errors, "mae", s)) for s in A.RANDOM_SEEDS]
-    assert A.random_baseline(errors, "mae")[0] == pytest.approx(np.mean(per_seed))
+    assert A.random_baseline(errors)[0] == pytest.approx(np.mean(per_seed))
 
 
 def test_pixels_outside_the_valid_mask_change_no_score():
