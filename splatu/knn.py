@@ -58,10 +58,10 @@ def _bulk_extent(points: Tensor) -> float:
     return float((high - low).max())
 
 
-def _typical_kth_distance(points: Tensor, k: int, sample: int = 256) -> float:
-    """90th percentile of the exact k-th neighbour distance over a fixed sample of points."""
+def _typical_kth_distance(points: Tensor, k: int) -> float:
+    """90th percentile of the exact k-th neighbour distance over a fixed sample of 256 points."""
     n = points.shape[0]
-    idx = torch.linspace(0, n - 1, min(sample, n)).long()
+    idx = torch.linspace(0, n - 1, min(256, n)).long()
     d = torch.cdist(points[idx], points)
     d[torch.arange(idx.numel()), idx] = math.inf
     kth = d.topk(k, dim=1, largest=False).values[:, -1]
