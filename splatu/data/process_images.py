@@ -245,9 +245,9 @@ def _swap_in(staging: Path, output: Path) -> None:
         os.replace(staging / "database.db", output / "database.db")
 
 
-def process_images(cfg: ProcessImagesConfig, console: Console | None = None) -> Path:
+def process_images(cfg: ProcessImagesConfig) -> Path:
     """Run SfM on cfg.images and return the scene folder holding sparse/0; a failed run leaves nothing behind."""
-    console = console or Console(stderr=True)
+    console = Console(stderr=True)
     cfg.validate()
     cfg = dataclasses.replace(cfg, images=Path(os.path.abspath(cfg.images)))  # "." has no name to name the output by
     names, others = _photos(cfg.images)
