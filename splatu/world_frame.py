@@ -24,6 +24,8 @@ from splatu.sh import num_sh_bases, sh_basis
 
 FLOAT32_ROUNDING = 1e-7
 """Relative error of rounding a float64 to float32 (at most 2⁻²⁴ ≈ 6e-8)."""
+SAME_FRAME_TOLERANCE = 1e-6
+"""Float noise between two normalisations of the same scene (`WorldTransform.matches`)."""
 SAMPLE_DIRECTIONS = 64
 """Directions the SH rotation is fitted on; any ≥ 16 spread-out ones determine it exactly."""
 
@@ -55,13 +57,13 @@ class WorldTransform:
     def from_state(cls, state: dict[str, Any]) -> WorldTransform:
         return cls(state["rotation"].double(), state["translation"].double(), float(state["scale"]))
 
-    def matches(self, other: WorldTransform, tolerance: float = 1e-6) -> bool:
+    def matches(self, other: WorldTransform) -> bool:
         """Same transform up to float noise (the scene was reloaded, not changed). Runs saved before the scene's
         centre was kept in float64 recorded it rounded to float32: that rounding is noise too."""
-        return (math.isclose(self.scale, other.scale, rel_tol=tolerance)
-                and torch.allclose(self.rotation, other.rotation, atol=tolerance)
+        return (math.isclose(self.scale, other.scale, rel_tol=SAME_FRAME_TOLERANCE)
+                and torch.allclose(self.rotation, other.rotation, atol=SAME_FRAME_TOLERANCE)
                 and torch.allclose(self.translation, other.translation, rtol=FLOAT32_ROUNDING,
-                                   atol=tolerance * (1 + self.scale)))
+                                   atol=SAME_FRAME_TOLERANCE * (1 + self.scale)))
 
     def points(self, x: Tensor) -> Tensor:
         """Normalised points (N, 3) in the world frame."""
