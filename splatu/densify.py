@@ -66,7 +66,7 @@ class DensifyConfig:
     not pruned just because they were not drawn (0: that floor alone)."""
     pause_after_reset: int = 0
     """Steps without densification or culling after each opacity reset, for opacities to recover (splatfacto
-    waits for the number of training images; the presets, at 2,000–4,000 steps, do not wait)."""
+    waits for the number of training images; the presets, at 2,000 and 3,000 steps, do not wait)."""
 
     def validate(self) -> None:
         """Raise a one-line SplatuError for a schedule or budget below 1, a negative or non-finite step or

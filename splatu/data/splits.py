@@ -1,7 +1,7 @@
 """Eval splits: which frames are held out.
 
 `contiguous` holds out a block of consecutive frames, which creates an unseen angle as in
-the paper's 50 consecutive poster frames; `every_n` is nerfstudio's rule; an explicit list
+the paper's 50 consecutive poster frames; `every-n` is nerfstudio's rule; an explicit list
 names the eval frames.
 """
 
