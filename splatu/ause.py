@@ -86,7 +86,7 @@ def sparsification_curves(errors: np.ndarray, uncertainty: np.ndarray, metric: M
 
 
 def ause(curves: Curves) -> float:
-    """trapz((S - O)/M, r) over [0, 0.99] with M = max(max O, max S); 0 when M is 0."""
+    """np.trapezoid((S - O)/M, r) over [0, 0.99] with M = max(max O, max S); 0 when M is 0."""
     normaliser = max(curves.oracle.max(), curves.sparsification.max())
     if normaliser <= 0.0:
         return 0.0
@@ -94,7 +94,7 @@ def ause(curves: Curves) -> float:
 
 
 def ausc(curve: np.ndarray) -> float:
-    """trapz(curve, r) over [0, 0.99]: the area under one curve, in the metric's own error units."""
+    """np.trapezoid(curve, r) over [0, 0.99]: the area under one curve, in the metric's own error units."""
     return float(np.trapezoid(curve, FRACTIONS))
 
 
