@@ -52,7 +52,6 @@ from splatu.data.poster.generate import build_scene, camera_path
 from splatu.data.poster.geometry import PosterScene
 from splatu.data.poster.raycast import blocked
 from splatu.data.poster.render import render
-from splatu.data.poster.visibility import RELATIVE_TOLERANCE
 from splatu.data.resolve import load_scene, real_poster_candidates
 from splatu.data.scene import Views
 from splatu.errors import SplatuError
@@ -113,7 +112,7 @@ def nearest_view_colours(world: PosterScene, points: Tensor, viewer: Tensor, cam
         v = K[view, 1, 1] * p[:, 1] / z + K[view, 1, 2]
         height, width = images.shape[1:3]
         inside = (p[:, 2] > near[view]) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        inside[inside.clone()] = ~blocked(world, centres[view[inside]], points[pending[inside]], RELATIVE_TOLERANCE)
+        inside[inside.clone()] = ~blocked(world, centres[view[inside]], points[pending[inside]])
         colours[pending[inside]] = bilinear(images, view[inside], u[inside] - 0.5, v[inside] - 0.5)
         pending = pending[~inside]
     return colours

@@ -11,7 +11,7 @@ import torch
 from splatu.data.poster.generate import build_scene, camera_path, standin_splits
 from splatu.data.poster.raycast import blocked
 from splatu.data.poster.render import render
-from splatu.data.poster.visibility import RELATIVE_TOLERANCE, in_view
+from splatu.data.poster.visibility import in_view
 from splatu.model import GaussianModel, ModelConfig
 from tests.benchmark_scripts import benchmark_script
 from tests.small_models import SIZE, noise_views, two_cameras
@@ -111,7 +111,7 @@ def test_nearest_view_colours_takes_the_closest_view_in_angle_that_sees_each_poi
     sees = in_view(train, points)
     for k in range(len(train)):
         rows = sees[k].nonzero()[:, 0]
-        sees[k, rows] = ~blocked(world, centres[k].expand(rows.numel(), 3), points[rows], RELATIVE_TOLERANCE)
+        sees[k, rows] = ~blocked(world, centres[k].expand(rows.numel(), 3), points[rows])
     to_viewer = torch.nn.functional.normalize(viewer.center().double() - points, dim=-1)
     cosines = torch.stack([(torch.nn.functional.normalize(c - points, dim=-1) * to_viewer).sum(-1) for c in centres])
     best = torch.where(sees, cosines, -math.inf).argmax(0).float()

@@ -19,6 +19,8 @@ from splatu.data.poster.geometry import PosterScene
 
 T_MIN = 1e-9
 """Hits closer than this to the origin are ignored (origins never sit on a surface)."""
+RELATIVE_TOLERANCE = 1e-6
+"""A surface hit closer than this fraction of the way short of the target does not block it (`blocked`)."""
 
 
 @dataclass(frozen=True)
@@ -135,22 +137,22 @@ def cast(scene: PosterScene, origin: Tensor, directions: Tensor) -> Hits:
     return Hits(t=hits["t"], box=box, axis=hits["axis"], side=hits["side"], local=local)
 
 
-def blocked(scene: PosterScene, origins: Tensor, targets: Tensor, tolerance: float) -> Tensor:
+def blocked(scene: PosterScene, origins: Tensor, targets: Tensor) -> Tensor:
     """Whether each segment origin -> target (N, 3 each) is blocked by an object before the target.
 
     The room cannot block: origins and targets are inside it. A hit counts as blocking when it
-    is more than `tolerance` (a fraction of the segment) short of the target, so a target lying
+    is more than RELATIVE_TOLERANCE (a fraction of the segment) short of the target, so a target lying
     on a surface does not block itself.
     """
     directions = targets - origins
     n = directions.shape[0]
     result = torch.zeros(n, dtype=torch.bool)
-    limit = torch.full((n,), 1.0 - tolerance, dtype=directions.dtype)
+    limit = torch.full((n,), 1.0 - RELATIVE_TOLERANCE, dtype=directions.dtype)
     rows = _enters_objects(scene, origins, directions, limit).nonzero()[:, 0]
     if rows.numel() == 0:
         return result
     o, d = origins[rows], directions[rows]
     for index in range(1, len(scene.boxes)):
         t_box, _, _ = _slab(*_box_frame(scene, index, o, d), scene.halves[index])
-        result[rows[t_box < 1.0 - tolerance]] = True
+        result[rows[t_box < 1.0 - RELATIVE_TOLERANCE]] = True
     return result

@@ -14,9 +14,6 @@ from splatu.camera import Camera
 from splatu.data.poster.geometry import PosterScene
 from splatu.data.poster.raycast import blocked
 
-RELATIVE_TOLERANCE = 1e-6
-"""A surface hit closer than this fraction of the way short of the point does not block it."""
-
 
 def in_view(cameras: list[Camera], points: Tensor) -> Tensor:
     """(C, N): which points are in front of each camera and project inside its image."""
@@ -58,6 +55,6 @@ def observed_mask(scene: PosterScene, points: Tensor, train_cameras: list[Camera
             continue
         rows = pending[point_index]
         origins = centers[torch.tensor(group)[cam_index]]
-        clear = ~blocked(scene, origins, points[rows], RELATIVE_TOLERANCE)
+        clear = ~blocked(scene, origins, points[rows])
         observed[rows[clear]] = True
     return observed
