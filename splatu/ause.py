@@ -64,7 +64,7 @@ def _curve_of_order(errors_in_order: np.ndarray, metric: Metric) -> np.ndarray:
     return np.sqrt(means) if metric == "rmse" else means
 
 
-def uncertainty_order(uncertainty: np.ndarray, tie_seed: int = TIE_SEED) -> np.ndarray:
+def uncertainty_order(uncertainty: np.ndarray, tie_seed: int) -> np.ndarray:
     """Pixel indices by increasing u; equal u keep the order of a fixed random permutation."""
     flat = uncertainty.reshape(-1)
     permutation = np.random.default_rng(tie_seed).permutation(flat.size)

@@ -31,8 +31,8 @@ from splatu.training_step import StepHook
 ENSEMBLE_SESSIONS = "ensemble_sessions.json"
 
 
-def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook] = (),
-                 began: Callable[[], None] | None = None) -> None:
+def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook],
+                 began: Callable[[], None] | None) -> None:
     """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it; the
     caller holds the member's `training_lock`, under which this choice is made. `began` as in `train_locked_run`."""
     if (member_dir / "summary.json").is_file():
@@ -81,7 +81,7 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
 
 
 def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
-                          hooks: Sequence[StepHook] = ()) -> dict[str, Any]:
+                          hooks: Sequence[StepHook]) -> dict[str, Any]:
     """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time; the caller
     holds `run_dir`'s `training_lock`.
 

@@ -81,7 +81,7 @@ def save_panel(path: Path, rgb: np.ndarray, uncertainty: np.ndarray, u_scale: Co
 
 
 def save_orbit_gif(path: Path, rgbs: Sequence[np.ndarray], uncertainties: Sequence[np.ndarray],
-                   u_scale: ColourScale, titles: Sequence[str], fps: int = 8) -> None:
+                   u_scale: ColourScale, titles: Sequence[str], fps: int) -> None:
     """Animated GIF of the orbit, render beside uncertainty, on one fixed colour scale."""
     height, width = uncertainties[0].shape
     fig, axes = plt.subplots(1, 2, figsize=(2 * (3.2 * width / height + 0.9), 3.6))

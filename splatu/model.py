@@ -233,7 +233,7 @@ def head_coefficients(u_sh: Tensor, channel: int, degree: int) -> Tensor:
     return u_sh[:, :num_sh_bases(degree), channel:channel + 1]
 
 
-def initial_u_sh(n: int, cfg: ModelConfig, heads: int = 1) -> Tensor:
+def initial_u_sh(n: int, cfg: ModelConfig, heads: int) -> Tensor:
     """(n, Ku, heads) uncertainty SH that is sigmoid(u_init_logit) in every direction."""
     u_sh = torch.zeros(n, num_sh_bases(cfg.u_sh_degree), heads)
     u_sh[:, 0, :] = cfg.u_init_logit / C0

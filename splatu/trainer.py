@@ -168,7 +168,7 @@ def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene
 # --- the loop --------------------------------------------------------------------------------
 
 def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path,
-             hooks: Sequence[StepHook] = ()) -> tuple[TrainState, TrainConfig]:
+             hooks: Sequence[StepHook]) -> tuple[TrainState, TrainConfig]:
     """Train from `state.step` to `config.steps`, with checkpoints, evaluation and Ctrl-C / SIGTERM handling.
 
     Returns the config too: choosing the SH degrees mid-run (`--degree-choice.on`) changes it.
@@ -392,7 +392,7 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
         return train_locked_run(config, scene, run_dir, hooks, checkpoint, wall_start)
 
 
-def train_locked_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook] = (),
+def train_locked_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[StepHook],
                      checkpoint: dict[str, Any] | None = None, wall_start: float | None = None,
                      began: Callable[[], None] | None = None) -> dict[str, Any]:
     """`train_run` for a caller that holds `run_dir`'s `training_lock` (a second acquisition, even by the same

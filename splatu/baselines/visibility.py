@@ -18,8 +18,8 @@ from splatu.model import GaussianModel
 
 
 @torch.no_grad()
-def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, masks: PerView | None = None,
-                  on_view: Callable[[], object] = lambda: None) -> Tensor:
+def seen_in_views(model: GaussianModel, cameras: list[Camera], threshold: float, masks: PerView | None,
+                  on_view: Callable[[], object]) -> Tensor:
     """(N, len(cameras)) bool: whether each Gaussian's max weight w = T·α in each camera is ≥ `threshold`, over the
     pixels of its mask (H, W per view; > 0 counts) when the views have mask files, as the training loss counts them.
     Weights do not depend on colour, so the views render at colour-SH degree 0. `on_view` is called after each

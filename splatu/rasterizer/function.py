@@ -115,7 +115,7 @@ class CompositeFunction(torch.autograd.Function):
 
 def composite(
     g: GaussianParams, background: Tensor, entries: BlockEntries, width: int, height: int,
-    absgrad: Tensor, max_elements: int, contribution_mask: Tensor | None = None,
+    absgrad: Tensor, max_elements: int, contribution_mask: Tensor | None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, int]:
     """image (H,W,C), alpha (H,W), Σ w·z (H,W), contrib_sum, contrib_max, pair count; no-grad path saves nothing.
     `contribution_mask` (H, W, bool) limits contrib_sum and contrib_max to its pixels."""
