@@ -14,8 +14,7 @@ from typing import Any
 class TrainingInterrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
 
-    def __init__(self, what: str, run_dir: Path, step: int, signal_number: int = signal.SIGINT,
-                 resumable: bool = True) -> None:
+    def __init__(self, what: str, run_dir: Path, step: int, signal_number: int, resumable: bool = True) -> None:
         self.message = (f"{what}; resume with `splatu train --resume {run_dir}`" if resumable
                         else f"{what}; nothing to resume, so run the same `splatu train` command again")
         super().__init__(self.message)
