@@ -24,7 +24,13 @@ from splatu.checkpoint import (
 )
 from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
-from splatu.data.resolve import POSTER, load_scene, refuse_unused_poster_options
+from splatu.data.resolve import (
+    POSTER,
+    downscale_note,
+    load_scene,
+    refuse_unused_poster_options,
+    with_chosen_downscale,
+)
 from splatu.data.scene import Scene
 from splatu.degree_choice import held_out_block, with_choice_heads
 from splatu.ensemble_dirs import ensemble_config, ensemble_members
@@ -165,11 +171,13 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
         config = with_choice_heads(config)
     check_options(config)
     creatable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
+    given = config.data
+    config = dataclasses.replace(config, data=with_chosen_downscale(given))
     scene = load_scene(config.data)
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    for note in (resolution_note(config), budget_note(config, scene)):
+    for note in (downscale_note(given, config.data), resolution_note(config), budget_note(config, scene)):
         if note is not None:  # after the scene line, which a run's output starts with
             console.print(note, soft_wrap=True)
     if config.degree_choice.on:

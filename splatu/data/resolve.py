@@ -9,11 +9,12 @@ or a COLMAP model (sparse/0, bin or txt).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
 from splatu.config_values import changed_options
-from splatu.data.assemble import assemble, assemble_cameras
+from splatu.data.assemble import MIN_DOWNSCALED_SIDE, assemble, assemble_cameras
 from splatu.data.blender import is_blender, load_blender
 from splatu.data.colmap import empty_sparse_dir, find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
@@ -97,6 +98,34 @@ def refuse_unused_poster_options(cfg: DataConfig) -> None:
     if real is not None:
         raise SplatuError(f"{flags} {shape} the built-in stand-in, but --data poster trains on the real capture",
                           f"in {real}", f"drop {flags}, or move the capture away to train on the stand-in")
+
+
+def with_chosen_downscale(cfg: DataConfig) -> DataConfig:
+    """`cfg` with --downscale chosen when it is not given: the smallest power of two that brings every image's
+    longer side to --max-image-size or less (nerfstudio's rule), short of shrinking a side below
+    MIN_DOWNSCALED_SIDE. A new run records the factor in its config, so its renders and resumes load the same
+    sizes; a saved config without one (older runs) loads at full size, as it trained."""
+    if cfg.downscale is not None:
+        return cfg
+    cfg.validate()
+    if cfg.data == POSTER and real_poster_capture() is None:  # the stand-in's size is an option: no need to build it
+        sizes = [(cfg.poster.width, cfg.poster.height)]
+    else:
+        sizes = [(f.camera.width, f.camera.height) for f in read_scene_files(scene_path(cfg), 1, cfg.background,
+                                                                             False).frames]
+    longest, shortest = max(max(size) for size in sizes), min(min(size) for size in sizes)
+    factor = 1
+    while longest / factor > cfg.max_image_size and shortest // (2 * factor) >= MIN_DOWNSCALED_SIDE:
+        factor *= 2
+    return dataclasses.replace(cfg, downscale=factor)
+
+
+def downscale_note(given: DataConfig, chosen: DataConfig) -> str | None:
+    """What `train` says when it chose the downscale itself and shrank the images: the factor and how to undo it."""
+    if given.downscale is not None or chosen.downscale in (None, 1):
+        return None
+    return (f"note: images loaded at 1/{chosen.downscale} of their size, their longer side at most "
+            f"{chosen.max_image_size} px (--max-image-size); --downscale 1 trains at full size, with slower steps")
 
 
 def load_scene(cfg: DataConfig) -> Scene:

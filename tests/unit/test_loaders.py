@@ -16,6 +16,7 @@ import pycolmap
 import pytest
 import torch
 
+from splatu.cli import entrypoint
 from splatu.data import colmap, images
 from splatu.data.config import DataConfig
 from splatu.data.images import (
@@ -32,7 +33,14 @@ from splatu.data.normalize import normalize_camera
 from splatu.data.ply import read_ply_points, write_ply_points
 from splatu.data.poster import PosterConfig
 from splatu.data.poster.path import camera_path
-from splatu.data.resolve import load_camera_scene, load_scene, read_scene_files, refuse_unused_poster_options
+from splatu.data.resolve import (
+    downscale_note,
+    load_camera_scene,
+    load_scene,
+    read_scene_files,
+    refuse_unused_poster_options,
+    with_chosen_downscale,
+)
 from splatu.errors import SplatuError
 from tests.conftest import shared_scene
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
@@ -321,6 +329,52 @@ def test_the_stored_background_moves_rgba_targets_by_rounding_only(tmp_path):
                 on_white = getattr(white, views).target(i, render_background)
                 on_black = getattr(black, views).target(i, render_background)
                 assert (on_white - on_black).abs().max() <= 1.0 / 255 + 1e-6
+
+
+@pytest.mark.parametrize(("sizes", "factor"), [
+    ([(1600, 1200)], 1),  # at the limit: full size
+    ([(1601, 900)], 2),
+    ([(1296, 1936)], 2),  # lund_door's photos, portrait
+    ([(4032, 3024)], 4),  # a phone's 12 megapixels: 1008x756
+    ([(6000, 4000)], 4),
+    ([(1000, 800), (3300, 2200)], 4),  # mixed sizes: the largest decides
+])
+def test_without_downscale_train_takes_the_power_of_two_that_brings_the_longer_side_to_1600(tmp_path, sizes, factor):
+    """As nerfstudio's loaders choose when --downscale is not given: trained at full size, lund_door's 1296x1936
+    photos ran at 0.6 steps a second on 2 cores, so `fast` would have taken most of an hour."""
+    cameras = [ring_cameras(len(sizes), width, height)[i] for i, (width, height) in enumerate(sizes)]
+    write_transforms(tmp_path / "transforms.json", cameras, [f"images/{i}.png" for i in range(len(cameras))])
+    given = config(tmp_path, tmp_path)
+    chosen = with_chosen_downscale(given)
+    assert chosen == dataclasses.replace(given, downscale=factor)
+    note = downscale_note(given, chosen)
+    assert (note is None) == (factor == 1)
+    assert note is None or note.startswith(f"note: images loaded at 1/{factor} of their size")
+    for fixed in (1, 3):  # a given --downscale is kept, and nothing is said
+        kept = dataclasses.replace(given, downscale=fixed)
+        assert with_chosen_downscale(kept) == kept and downscale_note(kept, kept) is None
+
+
+def test_max_image_size_sets_the_limit_and_is_checked(tmp_path, capsys):
+    write_transforms(tmp_path / "transforms.json", ring_cameras(3, 1296, 1936), ["a.png", "b.png", "c.png"])
+    for size, factor in ((2000, 1), (1936, 1), (1935, 2), (968, 2), (500, 4), (100, 32)):
+        assert with_chosen_downscale(config(tmp_path, tmp_path, max_image_size=size)).downscale == factor
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--data", str(tmp_path), "--max-image-size", "0"])
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "error: --max-image-size must be at least 8 (got 0), in the options, pass --max-image-size of at least 8"]
+
+
+def test_the_chosen_downscale_never_shrinks_a_side_below_the_smallest_usable(tmp_path):
+    """A panorama strip 8,000 px long and 40 px high: 1/8 would bring it to 1000 px, but its short side to 5."""
+    write_transforms(tmp_path / "transforms.json", ring_cameras(3, 8000, 40), ["a.png", "b.png", "c.png"])
+    assert with_chosen_downscale(config(tmp_path, tmp_path)).downscale == 4  # 2000x10: still 8 px or more a side
+
+
+def test_the_stand_in_keeps_its_size_without_being_built(tmp_path, monkeypatch):
+    monkeypatch.setattr("splatu.data.resolve.build_poster_standin", lambda *a: pytest.fail("built the stand-in"))
+    given = DataConfig(cache_dir=tmp_path)
+    assert with_chosen_downscale(given).downscale == 1
 
 
 def _write_colmap_text(root: Path, model: str, params: list[float], cameras) -> None:
