@@ -279,11 +279,12 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
 
 def _copy_fix(recipe: PixelRecipe, expected: str) -> str:
     """What to do about a pre-downscaled copy (in images_N) of the wrong size: make it again, or do without it (the
-    loader then shrinks the full-size image itself). The camera is not at fault when the full-size images fit it."""
+    loader then shrinks the full-size image itself). The camera is not at fault when the full-size images fit it.
+    Full size is --downscale 1: without the flag, `train` picks a factor itself, which may be this one again."""
     n = recipe.source_downscale
     folder = next((p.name for p in recipe.path.parents if p.name.endswith(f"_{n}")), recipe.path.parent.name)
     return (f"regenerate {folder} at {expected} (1/{n} of the camera's size), or remove {folder} to have "
-            f"--downscale {n} shrink the full-size images as they load (or drop --downscale)")
+            f"--downscale {n} shrink the full-size images as they load (or train at full size with --downscale 1)")
 
 
 def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:

@@ -247,7 +247,7 @@ def test_images_n_folder_is_used_for_downscale(tmp_path):
 
 @pytest.mark.parametrize(("size", "fix"), [
     ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 "
-               "shrink the full-size images as they load (or drop --downscale)"),
+               "shrink the full-size images as they load (or train at full size with --downscale 1)"),
     ((15, 20), "swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
                "stored on its side (an EXIF orientation, which is not applied), save it upright"),
 ])
@@ -266,6 +266,21 @@ def test_a_downscaled_copy_of_the_wrong_size_is_told_against_the_cameras_size_in
     assert caught.value.fix == fix
 
 
+def test_a_wrong_downscaled_copy_under_the_chosen_downscale_is_not_told_to_drop_the_flag(tmp_path):
+    """Without --downscale, train picks the factor itself and reads images_N: "drop --downscale" would pick the same
+    factor again (and the user gave none), so the way to full size is --downscale 1."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 21 if i == 2 else 20, 15))
+    chosen = with_chosen_downscale(config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2))
+    assert chosen.downscale == 2
+    with pytest.raises(SplatuError) as caught:
+        load_scene(chosen)
+    assert "drop --downscale" not in caught.value.fix
+    assert caught.value.fix.endswith("(or train at full size with --downscale 1)")
+
+
 def test_a_colmap_downscaled_copy_of_the_wrong_size_names_its_folder(tmp_path):
     """The image's name may hold folders of its own (cam1/img_1.png): the copy's folder is the one named images_N."""
     root = tmp_path / "scene"
@@ -281,7 +296,7 @@ def test_a_colmap_downscaled_copy_of_the_wrong_size_names_its_folder(tmp_path):
     assert str(caught.value) == (
         f"image is 20x16, but the camera's 40x30 at --downscale 2 is 20x15, in {root / 'images_2/cam1/img_1.png'}, "
         "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 shrink "
-        "the full-size images as they load (or drop --downscale)")
+        "the full-size images as they load (or train at full size with --downscale 1)")
 
 
 def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):
