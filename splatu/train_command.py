@@ -177,7 +177,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)
-    for note in (downscale_note(given, config.data), resolution_note(config), budget_note(config, scene)):
+    longest = max(max(c.width, c.height) for views in (scene.train, scene.eval, *scene.extra_eval.values())
+                  for c in views.cameras)
+    for note in (downscale_note(given, config.data, longest), resolution_note(config), budget_note(config, scene)):
         if note is not None:  # after the scene line, which a run's output starts with
             console.print(note, soft_wrap=True)
     if config.degree_choice.on:

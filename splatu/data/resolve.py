@@ -120,12 +120,18 @@ def with_chosen_downscale(cfg: DataConfig) -> DataConfig:
     return dataclasses.replace(cfg, downscale=factor)
 
 
-def downscale_note(given: DataConfig, chosen: DataConfig) -> str | None:
-    """What `train` says when it chose the downscale itself and shrank the images: the factor and how to undo it."""
+def downscale_note(given: DataConfig, chosen: DataConfig, longest: int) -> str | None:
+    """What `train` says when it chose the downscale itself and shrank the images: the factor and how to undo it.
+    `longest` is the longer side of the largest image as loaded: above --max-image-size when a smaller fraction
+    would have shrunk a side below MIN_DOWNSCALED_SIDE."""
     if given.downscale is not None or chosen.downscale in (None, 1):
         return None
-    return (f"note: images loaded at 1/{chosen.downscale} of their size, their longer side at most "
-            f"{chosen.max_image_size} px (--max-image-size); --downscale 1 trains at full size, with slower steps")
+    limit = chosen.max_image_size
+    size = (f"their longer side at most {limit} px (--max-image-size)" if longest <= limit else
+            f"their longer side still above {limit} px (--max-image-size), as a smaller fraction would shrink a side "
+            f"below {MIN_DOWNSCALED_SIDE} px")
+    return (f"note: images loaded at 1/{chosen.downscale} of their size, {size}; --downscale 1 trains at full size, "
+            "with slower steps")
 
 
 def load_scene(cfg: DataConfig) -> Scene:

@@ -362,12 +362,12 @@ def test_without_downscale_train_takes_the_power_of_two_that_brings_the_longer_s
     given = config(tmp_path, tmp_path)
     chosen = with_chosen_downscale(given)
     assert chosen == dataclasses.replace(given, downscale=factor)
-    note = downscale_note(given, chosen)
+    note = downscale_note(given, chosen, max(max(size) for size in sizes) // factor)
     assert (note is None) == (factor == 1)
     assert note is None or note.startswith(f"note: images loaded at 1/{factor} of their size")
     for fixed in (1, 3):  # a given --downscale is kept, and nothing is said
         kept = dataclasses.replace(given, downscale=fixed)
-        assert with_chosen_downscale(kept) == kept and downscale_note(kept, kept) is None
+        assert with_chosen_downscale(kept) == kept and downscale_note(kept, kept, 1000) is None
 
 
 def test_max_image_size_sets_the_limit_and_is_checked(tmp_path, capsys):

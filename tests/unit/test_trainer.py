@@ -184,6 +184,20 @@ def test_a_trained_run_records_the_downscale_it_chose_and_says_so(tmp_path, caps
     assert "views at 20x15" in err and "note: images loaded at 1/2 of their size" in err
 
 
+def test_the_note_does_not_promise_the_size_a_side_of_8_px_held_it_above(tmp_path, capsys, monkeypatch):
+    """400x20 strips with --max-image-size 100: 1/4 would make them 100x5, so train stops at 1/2, 200x10, whose longer
+    side is still above 100 px; the note said "their longer side at most 100 px"."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=6, width=400, height=20)
+    monkeypatch.setattr(train_command, "train_locked_run", lambda *args, **kwargs: None)  # the note, not the training
+    data = DataConfig(data=str(root), cache_dir=tmp_path / "cache", max_image_size=100)
+    run_dir = train_command.train(tiny_config(tmp_path, data=data, steps=2, checkpoint_every=0))
+    assert run_dir.is_dir()
+    err = " ".join(capsys.readouterr().err.split())  # unwrapped
+    assert "views at 200x10" in err and "note: images loaded at 1/2 of their size" in err
+    assert "at most 100 px" not in err and "still above 100 px" in err
+
+
 def test_nonfinite_gradients_skip_the_step_and_leave_the_model_untouched(tmp_path, scene, monkeypatch):
     poisoned_steps = {3, 4}  # 0-based step indices whose colour gradient becomes NaN
     render = GaussianModel.render
