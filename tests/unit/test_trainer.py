@@ -198,6 +198,21 @@ def test_the_note_does_not_promise_the_size_a_side_of_8_px_held_it_above(tmp_pat
     assert "at most 100 px" not in err and "still above 100 px" in err
 
 
+def test_train_warns_of_off_centre_principal_points_once(tmp_path, capsys, monkeypatch):
+    """train reads the scene's files twice (the size, then the scene): the warning is said once, not twice."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=6, width=40, height=30)
+    transforms = json.loads((root / "transforms.json").read_text())
+    for frame in transforms["frames"]:
+        frame["cx"] *= 3  # off the image, as a tile of a larger photo
+    (root / "transforms.json").write_text(json.dumps(transforms))
+    monkeypatch.setattr(train_command, "train_locked_run", lambda *args, **kwargs: None)
+    data = DataConfig(data=str(root), cache_dir=tmp_path / "cache", max_image_size=30)  # 1/2: read twice
+    train_command.train(tiny_config(tmp_path, data=data, steps=2, checkpoint_every=0))
+    err = capsys.readouterr().err
+    assert err.count("principal point far from") == 1 and "note: images loaded at 1/2" in err
+
+
 def test_nonfinite_gradients_skip_the_step_and_leave_the_model_untouched(tmp_path, scene, monkeypatch):
     poisoned_steps = {3, 4}  # 0-based step indices whose colour gradient becomes NaN
     render = GaussianModel.render
