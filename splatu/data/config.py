@@ -21,9 +21,9 @@ class DataConfig:
     nerfstudio does, and records it in the run."""
     max_image_size: int = 1600
     """Without --downscale (which overrides it), images load at the smallest power-of-two fraction of their size
-    whose longer side is at most this many pixels, as nerfstudio loads them (at its 1600, the size of `quality` and
-    `--preset none`; `fast` takes 800): a phone's 12-megapixel photo would make each step on 2 CPU cores seconds
-    long."""
+    whose longer side is at most this many pixels, short of a side below 8 px (nerfstudio's rule; its 1600 px is
+    quality's and --preset none's, fast takes 800): a phone's 12-megapixel photo would make each step on 2 CPU cores
+    seconds long."""
     eval_split: Literal["auto", "contiguous", "every-n", "list"] = "auto"
     """auto: the scene file's own train/eval lists when present, else contiguous."""
     eval_block: int = 0
