@@ -386,6 +386,17 @@ def test_the_chosen_downscale_never_shrinks_a_side_below_the_smallest_usable(tmp
     assert with_chosen_downscale(config(tmp_path, tmp_path)).downscale == 4  # 2000x10: still 8 px or more a side
 
 
+def test_a_saved_config_without_a_downscale_loads_at_full_size_as_it_trained(tmp_path):
+    """Runs saved before train chose the factor record `downscale: null`, and trained at full size: their renders,
+    scores and resumes must load the scene at that size, whatever --max-image-size would choose now."""
+    root = tmp_path / "scene"
+    write_nerfstudio_scene(root, n=4, width=40, height=30)
+    saved = config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2)  # would choose 1/2
+    assert with_chosen_downscale(saved).downscale == 2
+    for scene in (load_scene(saved), load_camera_scene(saved)):
+        assert {(c.width, c.height) for c in scene.train.cameras} == {(40, 30)}
+
+
 def test_the_stand_in_keeps_its_size_without_being_built(tmp_path, monkeypatch):
     monkeypatch.setattr("splatu.data.resolve.build_poster_standin", lambda *a: pytest.fail("built the stand-in"))
     given = DataConfig(cache_dir=tmp_path)
