@@ -41,13 +41,13 @@ def worker(malloc: str, loss: str, steps: int, measured: int) -> dict:
     """Train in this process and measure the last `measured` steps."""
     from splatu import trainer, training_step
     from splatu.allocator import keep_freed_memory
-    from splatu.data.config import DataConfig
     from splatu.data.resolve import load_scene
     from splatu.rasterizer.kernels import set_compile
     from splatu.train_config import preset_config
 
     tuned = keep_freed_memory() if malloc == "fixed" else False
-    config = dataclasses.replace(preset_config("fast"), data=DataConfig(data="poster"), progress=False)
+    base = preset_config("fast")
+    config = dataclasses.replace(base, data=dataclasses.replace(base.data, data="poster"), progress=False)
     config = dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=loss == "off"))
     set_compile(config.compile_kernels)
     scene = load_scene(config.data)

@@ -25,7 +25,6 @@ import torch
 import tyro
 
 from splatu import trainer, training_step
-from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.densify import DensityController
 from splatu.losses import uncertainty_loss
@@ -50,7 +49,8 @@ class Args:
 
 
 def measure(args: Args) -> dict:
-    config = dataclasses.replace(preset_config(args.preset), data=DataConfig(data=args.data), progress=False)
+    base = preset_config(args.preset)  # its data options (--max-image-size) with the scene swapped in
+    config = dataclasses.replace(base, data=dataclasses.replace(base.data, data=args.data), progress=False)
     set_compile(config.compile_kernels and not args.eager)
     scene = load_scene(config.data)
     state = trainer.fresh_state(config, scene)

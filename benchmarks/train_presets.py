@@ -69,7 +69,9 @@ def data_config(scene: str, fox_downscale: int) -> DataConfig | None:
 
 def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: DataConfig, output_dir: Path,
             degree_choice: bool) -> dict:
-    config = dataclasses.replace(preset_config(preset), data=data, output_dir=output_dir, progress=False, seed=seed)
+    base = preset_config(preset)  # the scene's options, with the preset's image size where no --downscale is given
+    data = dataclasses.replace(data, max_image_size=base.data.max_image_size)
+    config = dataclasses.replace(base, data=data, output_dir=output_dir, progress=False, seed=seed)
     if sh_degree is not None:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, sh_degree=sh_degree))
     if degree_choice:

@@ -89,9 +89,9 @@ def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
         remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
                   f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
     flag = "--extend-to" if extension else "--steps"
-    return (f"note: {flag} {config.steps} ends at 1/{2 ** last} resolution, so no step trains on full-resolution "
-            f"images (the schedule starts at 1/{2 ** levels} and doubles every --resolution-interval "
-            f"{config.resolution_interval} steps); {remedy}")
+    return (f"note: {flag} {config.steps} ends at 1/{2 ** last} resolution, so no step trains on the images at the "
+            f"size they loaded at (the schedule starts at 1/{2 ** levels} of it and doubles every "
+            f"--resolution-interval {config.resolution_interval} steps); {remedy}")
 
 
 def _flag(config: TrainConfig, name: str) -> str:
