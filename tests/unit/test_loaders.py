@@ -355,8 +355,8 @@ def test_the_stored_background_moves_rgba_targets_by_rounding_only(tmp_path):
     ([(1000, 800), (3300, 2200)], 4),  # mixed sizes: the largest decides
 ])
 def test_without_downscale_train_takes_the_power_of_two_that_brings_the_longer_side_to_1600(tmp_path, sizes, factor):
-    """As nerfstudio's loaders choose when --downscale is not given: trained at full size, lund_door's 1296x1936
-    photos ran at 0.6 steps a second on 2 cores, so `fast` would have taken most of an hour."""
+    """As nerfstudio's loaders choose when --downscale is not given: at full size, lund_door's 1296x1936 photos took
+    2.3-2.6 s a step on 2 cores, so `fast` would have taken about 80 min (docs/results.md)."""
     cameras = [ring_cameras(len(sizes), width, height)[i] for i, (width, height) in enumerate(sizes)]
     write_transforms(tmp_path / "transforms.json", cameras, [f"images/{i}.png" for i in range(len(cameras))])
     given = config(tmp_path, tmp_path)
