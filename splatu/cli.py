@@ -29,7 +29,8 @@ from splatu.usage_errors import unknown_subcommand, usage_error
 class Command:
     description: str
     default_config: Callable[[Sequence[str]], Any]
-    run: Callable[[Any], None]
+    run: Callable[[Any, Sequence[str]], None]
+    """Runs the parsed config; it sees the subcommand's raw arguments too (train tells which flags were typed)."""
 
 
 def _commands() -> dict[str, Command]:
@@ -54,7 +55,7 @@ def main(argv: Sequence[str], debug: bool = False) -> None:
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
     config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", list(commands), debug)
     name = next(n for n, d in defaults.items() if type(d) is type(config))
-    commands[name].run(config)
+    commands[name].run(config, list(argv[1:]))
 
 
 def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands: Sequence[str], debug: bool) -> Any:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from splatu.cli import Command
 from splatu.data.process_images import ProcessImagesConfig
@@ -16,14 +18,21 @@ from splatu.render_uncertainty import run as run_render_uncertainty
 from splatu.train_command import run_command as run_train
 from splatu.train_config import default_config as train_default_config
 
+
+def _config_only(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], None]:
+    """A command that needs only its parsed config."""
+    return lambda config, argv: run(config)
+
+
 COMMANDS: dict[str, Command] = {
     "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),
     "render-uncertainty": Command("Render RGB, depth and uncertainty maps of a trained run.",
-                                  lambda argv: RenderUncertaintyConfig(), run_render_uncertainty),
+                                  lambda argv: RenderUncertaintyConfig(), _config_only(run_render_uncertainty)),
     "eval-ause": Command("Score uncertainty maps with sparsification curves and AUSE.",
-                         lambda argv: EvalAuseConfig(), run_eval_ause),
+                         lambda argv: EvalAuseConfig(), _config_only(run_eval_ause)),
     "export": Command("Write a run's model, or any checkpoint of it, as a standard 3DGS PLY.",
-                      lambda argv: ExportConfig(), run_export),
+                      lambda argv: ExportConfig(), _config_only(run_export)),
     "process-images": Command("Run structure from motion (pycolmap, CPU) on a folder of photos.",
-                              lambda argv: ProcessImagesConfig(images=Path("images")), run_process_images),
+                              lambda argv: ProcessImagesConfig(images=Path("images")),
+                              _config_only(run_process_images)),
 }

@@ -74,6 +74,18 @@ def flat_options(values: Any, prefix: str = "") -> dict[str, Any]:
     return {k: v for key, value in values.items() for k, v in flat_options(value, f"{prefix}{key}.").items()}
 
 
+def nested_options(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted option names as nested mappings, the form `apply_values` takes: the inverse of `flat_options`."""
+    nested: dict[str, Any] = {}
+    for name, value in flat.items():
+        *parents, last = name.split(".")
+        level = nested
+        for part in parents:
+            level = level.setdefault(part, {})
+        level[last] = value
+    return nested
+
+
 YAML11_BOOL_WORDS = {True: ("on", "yes", "true"), False: ("off", "no", "false")}
 """YAML 1.1 reads these unquoted keys as booleans, so a hand-written `off: true` arrives as the key False."""
 

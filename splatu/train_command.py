@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,20 @@ from splatu.losses import refuse_copies_of_the_own_head
 from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
-from splatu.train_config import DEFAULT_PRESET, TrainConfig, check_parts, from_dict, load_config, preset_config
+from splatu.train_config import (
+    DEFAULT_PRESET,
+    SCHEDULE,
+    SPLATFACTO_STEPS,
+    TrainConfig,
+    check_parts,
+    flags_given,
+    from_dict,
+    load_config,
+    option_flag,
+    option_value,
+    preset_config,
+    scaled_schedule,
+)
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_locked_run
 from splatu.training_step import StepHook, resolution_level
@@ -71,11 +84,34 @@ def budget_note(config: TrainConfig, scene: Scene) -> str | None:
             f"{fewer}")
 
 
+def schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
+    """What to say when a typed --steps rescaled the schedule (`scaled_schedule`): the factor and the values the run
+    trains with, each as the flag that would pin it, and which were kept; None when nothing was rescaled."""
+    if "--steps" not in typed:
+        return None
+    scaled = scaled_schedule(config.preset, config.steps, typed)
+    if not scaled:
+        return None
+
+    def told(name: str) -> str:
+        said = f"{option_flag(name)} {option_value(config, name)}"
+        if name == "densify.refine_every":  # the opacity reset is counted in refinements
+            said += f" (an opacity reset every {config.densify.reset_alpha_every * config.densify.refine_every})"
+        return said
+
+    kept = [name for name in SCHEDULE if name not in scaled]
+    return (f"note: --steps {config.steps} rescales the step-based schedule to splatfacto's × {config.steps}/"
+            f"{SPLATFACTO_STEPS} = {config.steps / SPLATFACTO_STEPS:.3g}, as the presets are made: "
+            f"{', '.join(told(name) for name in scaled)}"
+            + (f"; kept: {', '.join(told(name) for name in kept)}" if kept else "")
+            + "; type a flag to set its value")
+
+
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
-    """What to say when a run ends before its resolution schedule reaches full resolution: --steps alone shortens a
-    preset without scaling its schedule (each preset doubles the resolution every tenth of its steps), so such a run
-    trains only on downscaled images and is scored on full-resolution ones. An `extension` (--extend-to) keeps the
-    run's --resolution-interval, which --resume ignores: only a longer extension reaches full resolution."""
+    """What to say when a run ends before its resolution schedule reaches full resolution: with a schedule not scaled
+    to the run (flags typed beside --steps, a 1- or 2-step run, a preset file's own values) such a run trains only on
+    downscaled images and is scored on full-resolution ones. An `extension` (--extend-to) keeps the run's
+    --resolution-interval, which --resume ignores: only a longer extension reaches full resolution."""
     last = resolution_level(config.steps - 1, config.resolution_levels, config.resolution_interval)
     if last == 0:
         return None
@@ -151,8 +187,9 @@ def filed_as_trained(config: TrainConfig) -> TrainConfig:
     return dataclasses.replace(config, method=method)
 
 
-def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
-    """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory."""
+def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection[str] = ()) -> Path:
+    """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory. `typed`: the
+    flags of the command line (`flags_given`), whose --steps a new run says it rescaled the schedule with."""
     wall_start = time.perf_counter()
     if config.resume is not None:
         saved_ensemble = ensemble_config(config.resume)
@@ -179,7 +216,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = ()) -> Path:
     console.print(scene_line(scene), soft_wrap=True)
     longest = max(max(c.width, c.height) for views in (scene.train, scene.eval, *scene.extra_eval.values())
                   for c in views.cameras)
-    for note in (downscale_note(given, config.data, longest), resolution_note(config), budget_note(config, scene)):
+    notes = (schedule_note(config, typed), downscale_note(given, config.data, longest), resolution_note(config),
+             budget_note(config, scene))
+    for note in notes:
         if note is not None:  # after the scene line, which a run's output starts with
             console.print(note, soft_wrap=True)
     if config.degree_choice.on:
@@ -255,12 +294,12 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     return run_dir
 
 
-def run_command(config: TrainConfig) -> None:
-    """`splatu train`: train, print where the run went; Ctrl-C or SIGTERM prints how to resume and exits 130 or
-    143 (128 + the signal, as the shell reports a process the signal ended)."""
+def run_command(config: TrainConfig, argv: Sequence[str] = ()) -> None:
+    """`splatu train` with the options `argv` gave: train, print where the run went; Ctrl-C or SIGTERM prints how to
+    resume and exits 130 or 143 (128 + the signal, as the shell reports a process the signal ended)."""
     try:
         with sigterm_as_ctrl_c():
-            run_dir = train(config)
+            run_dir = train(config, typed=flags_given(argv))
     except TrainingInterrupted as stop:
         print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
         raise SystemExit(exit_code(stop)) from None

@@ -3,9 +3,10 @@
 `TrainConfig()` holds the full splatfacto recipe (30000 steps, REFERENCE §3). On 2 CPU cores
 that is far too long, so a *preset* (configs/<name>.yaml, or any YAML path) rescales it:
 its values replace the dataclass defaults, and command-line flags override them in turn.
-The presets scale every step-based setting by one factor s = steps / 30000 (tests/unit/test_trainer.py
-checks each preset against that rule), so iterations, the resolution schedule and densification move
-together instead of as scattered constants.
+The presets scale every step-based setting (`SCHEDULE`) by one factor s = steps / 30000, as
+`splatfacto_schedule` computes it (tests/unit/test_trainer.py checks each preset file against it), so
+iterations, the resolution schedule and densification move together instead of as scattered constants.
+`--steps N` typed for a new run applies the same rule at N (`scaled_schedule`), as gsplat's `steps_scaler` does.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import tyro
 import yaml
 
 from splatu.atomic import atomic_write_text
-from splatu.config_values import apply_values, flat_options, read_yaml, to_dict, without_options
+from splatu.config_values import apply_values, flat_options, nested_options, read_yaml, to_dict, without_options
 from splatu.data.config import DataConfig
 from splatu.degree_choice import DegreeChoiceConfig
 from splatu.densify import DensifyConfig
@@ -48,6 +49,12 @@ FULL_RECIPE = "none"
 MAX_SEED = 2**32
 """Seeds are below this, so every seed derived from one (per epoch, per member, per head) fits 64 bits."""
 SPLATFACTO_STEPS = 30000
+SCHEDULE = ("resolution_interval", "model.sh_degree_interval", "densify.warmup_length", "densify.refine_every",
+            "densify.stop_split_at", "densify.stop_screen_size_at")
+"""The recipe's step-based settings, which the presets scale with their length. The opacity reset, counted in
+refinements, follows refine_every; the means' decay (optim.means_lr_steps 0) and the degree choice (a fraction)
+follow the length by themselves. The contribution window (a view-count floor), the pause after a reset and the
+checkpoint, evaluation and log cadences (bookkeeping, which the model does not depend on) are not scaled."""
 
 
 @dataclass
@@ -71,9 +78,10 @@ class TrainConfig:
     """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none (FULL_RECIPE)
     = the full splatfacto recipe, these dataclass defaults."""
     steps: int = SPLATFACTO_STEPS
-    """Number of optimisation steps (one training image per step). It does not rescale the preset's step-based
-    schedule (resolution levels, SH degree, densification): a run that ends before --resolution-levels ×
-    --resolution-interval steps never trains at full resolution (train says so); scale --resolution-interval too."""
+    """Number of optimisation steps (one training image per step). Typed for a new run with another length than
+    the preset's, it rescales the step-based schedule (resolution levels, SH degree, densification) to the splatfacto
+    recipe's × steps / 30000, as the presets are made (train says so in a note); a schedule flag typed beside it, or
+    a preset file's own value off that rule, is kept. --resume keeps the run's saved schedule."""
     resolution_levels: int = 2
     """Start at 1/2^levels resolution; k = max(levels - step // resolution_interval, 0)."""
     resolution_interval: int = 3000
@@ -244,14 +252,47 @@ def _keys_named(keys: Collection[str], texts: Sequence[str]) -> list[str]:
     return []
 
 
-def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu",
-                  overridden: Collection[str] = ()) -> TrainConfig:
+def option_value(config: Any, name: str) -> Any:
+    """The value of dotted option `name` (`densify.refine_every`) in `config`."""
+    for part in name.split("."):
+        config = getattr(config, part)
+    return config
+
+
+def splatfacto_schedule(steps: int) -> dict[str, int]:
+    """The `SCHEDULE` settings of the splatfacto recipe scaled to a run of `steps`: each × steps / 30000, rounded,
+    never below one step (a refinement every 0 steps, or an SH degree a step, cannot run). Every preset follows it."""
+    scale = steps / SPLATFACTO_STEPS
+    recipe = TrainConfig()
+    return {name: max(1, round(option_value(recipe, name) * scale)) for name in SCHEDULE}
+
+
+def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict[str, int]:
+    """The settings `--steps steps` rescales in `preset`, with their values: none at the preset's own length; else
+    every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset value follows
+    `splatfacto_schedule` at the preset's length (a preset file's own choice off that rule stays, as a flag does)."""
+    values = {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
+    own = values.get("steps", SPLATFACTO_STEPS)
+    if type(own) is not int or own < 1 or steps < 1 or own == steps:  # a bad length: the option checks say so
+        return {}
+    rule, scaled = splatfacto_schedule(own), splatfacto_schedule(steps)
+    return {name: scaled[name] for name in SCHEDULE
+            if option_flag(name) not in kept and values.get(name, rule[name]) == rule[name]}
+
+
+def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu", overridden: Collection[str] = (),
+                  steps: int | None = None) -> TrainConfig:
     """The config a bare `splatu train --preset P --method M` starts from (the Python entry point); the preset's
-    values for the flags in `overridden` are left out, so that a flag can replace a value the preset has wrong."""
+    values for the flags in `overridden` are left out, so that a flag can replace a value the preset has wrong.
+    With `steps`, that of `--steps steps` for a new run: that length, and the schedule `scaled_schedule` rescales
+    (the settings whose flags are in `overridden` kept)."""
     config = TrainConfig()
     if preset != FULL_RECIPE:
         config = _with_preset(config, preset_path(preset), overridden)
     config = dataclasses.replace(config, preset=preset, method=method)
+    if steps is not None:
+        scaled = scaled_schedule(preset, steps, overridden)
+        config = apply_values(config, {"steps": steps, **nested_options(scaled)}, f"--steps {steps}")
     return get_method(method).configure(config)
 
 
@@ -266,7 +307,7 @@ def _scan_flag(argv: Sequence[str], flag: str) -> str | None:
     return found
 
 
-def _flags_given(argv: Sequence[str]) -> set[str]:
+def flags_given(argv: Sequence[str]) -> set[str]:
     """The flags in raw arguments, spelt as `option_flag` spells them (`--no-progress` and `--model.sh_degree` as
     --progress and --model.sh-degree)."""
     given = set()
@@ -277,9 +318,24 @@ def _flags_given(argv: Sequence[str]) -> set[str]:
     return given
 
 
+def _new_run_steps(argv: Sequence[str], typed: Collection[str]) -> int | None:
+    """The `--steps` typed for a new run, which rescales the schedule; None without it, beside --resume (which keeps
+    the run's saved options) or when it is no whole number of at least 1 (which tyro or the option checks refuse)."""
+    value = _scan_flag(argv, "--steps")
+    if value is None or "--resume" in typed:
+        return None
+    try:
+        steps = int(value)
+    except ValueError:
+        return None
+    return steps if steps >= 1 else None
+
+
 def default_config(argv: Sequence[str]) -> TrainConfig:
-    """Defaults for `splatu train`: the chosen preset and method, so `--help` shows the real values (all of the
-    preset's, also for the flags typed beside --help, which a run would leave out for the flags to replace)."""
+    """Defaults for `splatu train`: the chosen preset and method, and the schedule a typed --steps rescales, so
+    `--help` shows the real values (all of the preset's, also for the flags typed beside --help, which a run would
+    leave out for the flags to replace; the preset's schedule too, which the --steps help explains)."""
     shows_help = "-h" in argv or "--help" in argv
+    typed = flags_given(argv)
     return preset_config(_scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu",
-                         () if shows_help else _flags_given(argv))
+                         () if shows_help else typed, None if shows_help else _new_run_steps(argv, typed))

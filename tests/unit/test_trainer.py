@@ -7,7 +7,6 @@ import shutil
 import signal
 import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 import torch
@@ -29,7 +28,7 @@ from splatu.baselines.load import load_any_run
 from splatu.camera import Camera
 from splatu.checkpoint import list_checkpoints, load_run, read_checkpoint
 from splatu.cli import entrypoint
-from splatu.config_values import apply_values, read_yaml, to_dict
+from splatu.config_values import apply_values, flat_options, read_yaml, to_dict
 from splatu.data.config import DataConfig
 from splatu.data.resolve import load_scene
 from splatu.data.scene import Scene, Views
@@ -46,13 +45,17 @@ from splatu.render_uncertainty import RenderUncertaintyConfig
 from splatu.run_dir import new_timestamped_dir
 from splatu.train_config import (
     MAX_SEED,
+    SCHEDULE,
     SPLATFACTO_STEPS,
     TrainConfig,
+    check_parts,
     default_config,
     from_dict,
     load_config,
+    option_value,
     preset_config,
     preset_path,
+    splatfacto_schedule,
 )
 from splatu.world_frame import model_to_world
 from tests.synthetic_scenes import noise_image, write_nerfstudio_scene, write_rgb
@@ -411,8 +414,9 @@ def test_schedules_are_pure_functions_of_the_step():
 
 
 def test_a_run_too_short_to_reach_full_resolution_says_so_before_it_trains(tmp_path, scene, capsys):
-    """--steps 400 with the fast preset's schedule (1/4 resolution, doubling every 200 steps) ended at 1/2: no step
-    trained on full-resolution images, and nothing said so (lund_door at --downscale 8: 26.5 dB held out, against
+    """--steps 400 with the fast preset's schedule (1/4 resolution, doubling every 200 steps; --steps now rescales
+    it, a typed --resolution-interval 200 still keeps it) ended at 1/2: no step trained on full-resolution images,
+    and nothing said so (lund_door at --downscale 8: 26.5 dB held out, against
     31.0 dB with --resolution-interval 40)."""
     note = train_command.resolution_note(TrainConfig(steps=400, resolution_levels=2, resolution_interval=200))
     assert note is not None and "--steps 400" in note and "1/2" in note and "--resolution-interval 40" in note
@@ -435,40 +439,94 @@ def test_the_resolution_notes_remedy_reaches_full_resolution_within_the_run(step
     assert training_step.resolution_level(steps - 1, levels, interval) == 0, note
 
 
-def splatfacto_schedule(steps: int) -> dict[str, Any]:
-    """The splatfacto step-based settings scaled by s = steps / 30000, as nested preset keys.
+def schedule_of(config: TrainConfig) -> dict[str, int]:
+    return {name: option_value(config, name) for name in SCHEDULE}
 
-    Refinements keep their cadence in refinements (reset every 30 refinements), so scaling
-    `refine_every` also scales the opacity-reset period. Nothing goes below one step.
-    """
-    s = steps / SPLATFACTO_STEPS
 
-    def scaled(value: int) -> int:
-        return max(1, round(value * s))
-
-    base = DensifyConfig()
-    return {
-        "steps": steps,
-        "resolution_interval": scaled(3000),
-        "model": {"sh_degree_interval": scaled(ModelConfig().sh_degree_interval)},
-        "densify": {
-            "warmup_length": scaled(base.warmup_length),
-            "refine_every": scaled(base.refine_every),
-            "stop_split_at": scaled(base.stop_split_at),
-            "stop_screen_size_at": scaled(base.stop_screen_size_at),
-        },
-    }
+def test_the_schedule_rule_is_splatfactos_scaled_and_rounded():
+    """REFERENCE §3's values at 30000 steps; × s, rounded, never below one step (the opacity reset stays every 30
+    refinements, so it scales with refine_every)."""
+    assert list(splatfacto_schedule(SPLATFACTO_STEPS).values()) == [3000, 1000, 500, 100, 15000, 4000]
+    assert list(splatfacto_schedule(2000).values()) == [200, 67, 33, 7, 1000, 267]
+    assert list(splatfacto_schedule(10).values()) == [1, 1, 1, 1, 5, 1]
+    assert DensifyConfig().reset_alpha_every == 30
 
 
 def test_presets_scale_the_splatfacto_schedule_consistently():
     for name in ("fast", "quality"):
-        values = read_yaml(preset_path(name))
-        expected = splatfacto_schedule(values["steps"])
-        assert values["resolution_interval"] == expected["resolution_interval"], name
-        assert values["model"]["sh_degree_interval"] == expected["model"]["sh_degree_interval"], name
-        for key, value in expected["densify"].items():
-            assert values["densify"][key] == value, (name, key)
+        values = flat_options(read_yaml(preset_path(name)))
+        assert {key: values[key] for key in SCHEDULE} == splatfacto_schedule(values["steps"]), name
     assert preset_config("quality").densify.max_gaussians > preset_config("fast").densify.max_gaussians
+
+
+def parsed(argv: list[str]) -> TrainConfig:
+    """The config `splatu train ARGV` trains with (as the command line parses it)."""
+    return tyro.cli(TrainConfig, default=default_config(argv), args=argv)
+
+
+def test_steps_rescales_the_presets_schedule_as_the_presets_are_made():
+    """--steps 4000 kept fast's 2000-step schedule (densification stopped at 1000, resolution doubled every 200)."""
+    config = parsed(["--steps", "4000"])
+    assert config.steps == 4000 and schedule_of(config) == splatfacto_schedule(4000)
+    assert list(schedule_of(config).values()) == [400, 133, 67, 13, 2000, 533]
+    assert dataclasses.replace(config, steps=2000) == dataclasses.replace(preset_config("fast"), **{
+        "resolution_interval": 400, "model": config.model, "densify": config.densify})  # nothing else moved
+    assert config.densify.max_gaussians == 20000 and config.densify.reset_alpha_every == 30
+    assert parsed(["--preset", "quality", "--steps", "3000"]) == preset_config("quality")  # its own length
+    assert schedule_of(parsed(["--preset", "none", "--steps", "3000"])) == schedule_of(preset_config("quality"))
+    assert parsed(["--steps", "2000"]) == preset_config("fast")
+
+
+@pytest.mark.parametrize("flag", [["--densify.stop-split-at", "500"], ["--densify.stop_split_at=500"]])
+def test_a_schedule_flag_typed_beside_steps_keeps_its_value(flag):
+    config = parsed(["--steps", "4000", *flag])
+    assert config.densify.stop_split_at == 500
+    assert schedule_of(config) == {**splatfacto_schedule(4000), "densify.stop_split_at": 500}
+
+
+def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("steps: 2000\nresolution_interval: 100\ndensify:\n  refine_every: 7\n")
+    config = parsed(["--preset", str(custom), "--steps", "4000"])
+    assert config.resolution_interval == 100  # the file's own choice (the rule gives 200 at its 2000 steps)
+    assert schedule_of(config) == {**splatfacto_schedule(4000), "resolution_interval": 100}
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10, 30])
+def test_a_tiny_step_count_clamps_the_schedule_to_one_step(steps):
+    config = parsed(["--steps", str(steps)])
+    check_parts(config)  # refine_every and the intervals must be at least 1
+    assert all(value >= 1 for value in schedule_of(config).values()), schedule_of(config)
+    assert config.densify.stop_split_at == max(1, round(steps / 2))
+
+
+def test_steps_beside_resume_leaves_the_schedule_to_the_saved_run():
+    assert schedule_of(parsed(["--resume", "RUN", "--steps", "4000"])) == schedule_of(preset_config("fast"))
+    assert schedule_of(parsed(["--resume", "RUN", "--extend-to", "4000"])) == schedule_of(preset_config("fast"))
+
+
+def test_a_rescaled_run_says_so_saves_it_and_resumes_and_extends_with_it(tmp_path, scene, capsys):
+    """The note and config.yml carry the rescaled values; --resume (with another --steps) and --extend-to keep them."""
+    def train(*flags: str) -> tuple[Path, str]:
+        """The run folder and what stderr said."""
+        capsys.readouterr()
+        entrypoint(["train", "--no-compile-kernels", "--no-progress", "--checkpoint-every", "0",
+                    "--output-dir", str(tmp_path), *flags])
+        out, err = capsys.readouterr()
+        return Path(out.split("run saved to ")[1].strip()), err
+
+    run_dir, err = train("--steps", "10", "--densify.max-gaussians", "400")
+    assert ("note: --steps 10 rescales the step-based schedule to splatfacto's × 10/30000 = 0.000333, as the presets "
+            "are made: --resolution-interval 1, --model.sh-degree-interval 1, --densify.warmup-length 1, "
+            "--densify.refine-every 1 (an opacity reset every 30), --densify.stop-split-at 5, "
+            "--densify.stop-screen-size-at 1; type a flag to set its value") in err
+    saved = load_config(run_dir / "config.yml")
+    assert saved.steps == 10 and schedule_of(saved) == splatfacto_schedule(10)
+    _, err = train("--resume", str(run_dir), "--extend-to", "30", "--steps", "30")
+    assert "ignoring --steps" in err and "rescales" not in err
+    extended = from_dict(read_checkpoint(list_checkpoints(run_dir)[-1])["config"])
+    assert extended.steps == 30 and schedule_of(extended) == splatfacto_schedule(10)
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 30
 
 
 def test_the_presets_size_the_images_with_the_rest_of_their_cost():
