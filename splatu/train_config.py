@@ -275,9 +275,9 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
     own = values.get("steps", SPLATFACTO_STEPS)
     if type(own) is not int or own < 1 or steps < 1 or own == steps:  # a bad length: the option checks say so
         return {}
-    rule, scaled = splatfacto_schedule(own), splatfacto_schedule(steps)
-    return {name: scaled[name] for name in SCHEDULE
-            if option_flag(name) not in kept and values.get(name, rule[name]) == rule[name]}
+    rule, scaled, recipe = splatfacto_schedule(own), splatfacto_schedule(steps), splatfacto_schedule(SPLATFACTO_STEPS)
+    return {name: scaled[name] for name in SCHEDULE  # a setting the file leaves out has the recipe's value
+            if option_flag(name) not in kept and values.get(name, recipe[name]) == rule[name]}
 
 
 def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu", overridden: Collection[str] = (),
