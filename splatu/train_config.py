@@ -261,7 +261,7 @@ def option_value(config: Any, name: str) -> Any:
 
 def splatfacto_schedule(steps: int) -> dict[str, int]:
     """The `SCHEDULE` settings of the splatfacto recipe scaled to a run of `steps`: each × steps / 30000, rounded,
-    never below one step (a refinement every 0 steps, or an SH degree a step, cannot run). Every preset follows it."""
+    never below one step (an interval of 0 steps cannot run: the checks refuse it). Every preset follows it."""
     scale = steps / SPLATFACTO_STEPS
     recipe = TrainConfig()
     return {name: max(1, round(option_value(recipe, name) * scale)) for name in SCHEDULE}
