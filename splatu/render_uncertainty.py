@@ -62,7 +62,7 @@ from splatu.figures import (
 from splatu.interrupts import finish_first, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.nearest_view import nearest_training_views
-from splatu.orbit import DEFAULT_ELEVATION_DEGREES, DEFAULT_RADIUS_SCALE, orbit_cameras
+from splatu.orbit import DEFAULT_ELEVATION_DEGREES, OrbitShape, one_sided_note, orbit_cameras, plan_orbit
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
 from splatu.world_frame import normalised_world_to_camera, scene_frame
@@ -105,18 +105,23 @@ class RenderUncertaintyConfig:
     """Frames of the orbit (--views orbit)."""
     orbit_elevation: float = DEFAULT_ELEVATION_DEGREES
     """The orbit's elevation swings between +this and −this degrees around the capture's centre."""
-    orbit_radius_scale: float = DEFAULT_RADIUS_SCALE
-    """Orbit radius as a multiple of the median training-camera distance to the centre (the default half keeps
-    the from-below views above the floor of a capture walked around an object: see splatu.orbit). A capture taken
-    from one side of its subject (fox) wants 1: at half the radius the orbit's cameras sit among its surfaces."""
+    orbit_shape: OrbitShape = "auto"
+    """circle: once round the capture; arc: a loop over the side the capture was taken from, reaching 15° past it
+    either side; auto: the arc when every training camera is on one side of the capture's centre (a door from the
+    front, fox), which a note then says, the circle otherwise (a capture walked around an object)."""
+    orbit_radius_scale: float | None = None
+    """Orbit radius as a multiple of the median training-camera distance to the centre; default 0.5 for the circle
+    (the from-below views stay above the floor of a capture walked around an object: see splatu.orbit), 1 for the
+    arc (at half the radius the cameras of a one-sided capture sit among its surfaces)."""
     gif_fps: int = 6
     """Frames per second of the orbit GIF."""
 
     def __post_init__(self) -> None:
         for flag, value, minimum in (("--max-views", self.max_views, 0), ("--orbit-frames", self.orbit_frames, 1),
-                                     ("--gif-fps", self.gif_fps, 1),
-                                     ("--orbit-radius-scale", self.orbit_radius_scale, 1e-3)):
+                                     ("--gif-fps", self.gif_fps, 1)):
             require_at_least(value, minimum, flag)
+        if self.orbit_radius_scale is not None:
+            require_at_least(self.orbit_radius_scale, 1e-3, "--orbit-radius-scale")
 
 
 @dataclass
@@ -148,6 +153,8 @@ class ViewSpec:
     depth_unit: float = 1.0
     """Data units per model unit: depths are written in the data's units (the frame of the scene's poses, of
     --cameras and of splat.ply), as `splatu.query` gives them, not in the model's normalised ones."""
+    note: str | None = None
+    """What the command says about the views before rendering them (why the orbit is an arc)."""
 
 
 def _evenly(count: int, limit: int) -> list[int]:
@@ -170,10 +177,11 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
                         depth_unit=frame.scale)
     if which == "orbit":
         frames = orbit_cameras(scene.train.cameras, config.orbit_frames, config.orbit_elevation,
-                               config.orbit_radius_scale)
+                               config.orbit_radius_scale, config.orbit_shape)
         keep = _evenly(len(frames), config.max_views)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
-                        elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale)
+                        elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale,
+                        note=orbit_note(scene.train.cameras, config))
     assert isinstance(scene, Scene)  # `_setup` decodes the images of eval and train views, their ground truth
     views = {"eval": scene.eval, "train": scene.train}[which]
     if len(views) == 0:
@@ -181,6 +189,14 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
     keep = _evenly(len(views), config.max_views)
     return ViewSpec([views.cameras[i] for i in keep], file_stems([views.names[i] for i in keep]), views, keep,
                     depth_unit=frame.scale)
+
+
+def orbit_note(cameras: list[Camera], config: RenderUncertaintyConfig) -> str | None:
+    """The note saying why, when --orbit-shape auto chose the arc; None when the shape was given or is the circle."""
+    if config.orbit_shape != "auto":
+        return None
+    plan = plan_orbit(cameras, config.orbit_shape, config.orbit_radius_scale)
+    return None if plan.half_width is None else one_sided_note(plan, config.orbit_radius_scale is None)
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -413,7 +429,7 @@ def train_timing(run: LoadedRun) -> dict[str, float | None]:
     return {"train_step_seconds": run.train_seconds, "train_wall_seconds": run.wall_seconds}
 
 
-ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_radius_scale", "gif_fps")
+ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_shape", "orbit_radius_scale", "gif_fps")
 
 
 def run(config: RenderUncertaintyConfig) -> None:
@@ -447,6 +463,8 @@ def run(config: RenderUncertaintyConfig) -> None:
     refuse_foreign_output(out, config.output is None)
     scene, built = _setup(run_info, options, config.views)
     spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
+    if spec.note is not None:
+        Console(stderr=True).print(spec.note, soft_wrap=True)
     views, seconds = render_views(built.source, spec)
     nearest = nearest_training_views([c.world_to_camera for c in spec.cameras],
                                      [c.world_to_camera for c in scene.train.cameras], scene.train.names,

@@ -6,6 +6,8 @@ own 2D observations; fox checks nerfstudio intrinsics, OPENCV undistortion and O
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pycolmap
@@ -15,7 +17,8 @@ import torch
 from splatu.data.config import DataConfig
 from splatu.data.images import read_image
 from splatu.data.process_images import ProcessImagesConfig, process_images
-from splatu.data.resolve import load_scene
+from splatu.data.resolve import load_camera_scene, load_scene
+from splatu.orbit import orbit_cameras, plan_orbit
 from tests.conftest import shared_scene
 
 pytestmark = pytest.mark.shared_data
@@ -129,3 +132,25 @@ def test_process_images_reconstructs_lund_door_and_the_loader_reads_it(tmp_path,
     assert scene.points.shape[0] > 1000
     sizes = {(camera.height, camera.width) for camera in [*scene.train.cameras, *scene.eval.cameras]}
     assert sizes == {(484, 324), (404, 270)}
+
+
+def test_the_default_orbit_of_a_one_sided_capture_keeps_to_its_side_and_out_of_its_surfaces(tmp_path):
+    """lund_door (a door from the front, 40° of azimuth) and fox (93°) were orbited like a capture walked around:
+    a full circle at half the radius, which put lund_door's orbit cameras 0.59 from its SfM points (the training
+    cameras are at least 1.6 from them) and rendered walls and floaters in 15 of 24 frames."""
+    fox = load_camera_scene(DataConfig(data=str(shared_scene("fox")), downscale=DOWNSCALE, cache_dir=tmp_path))
+    assert plan_orbit(fox.train.cameras).half_width is not None
+    door = load_scene(DataConfig(data=str(shared_scene("lund_door")), downscale=DOWNSCALE, cache_dir=tmp_path))
+    plan = plan_orbit(door.train.cameras)
+    assert plan.half_width is not None and plan.radius_scale == 1.0
+    assert math.degrees(plan.cover.width) == pytest.approx(40.0, abs=1.0)
+
+    def nearest_point(cameras) -> torch.Tensor:
+        return torch.cdist(torch.stack([c.center().float() for c in cameras]), door.points).min(dim=1).values
+
+    clearance = float(nearest_point(door.train.cameras).min())
+    orbit = [f.camera for f in orbit_cameras(door.train.cameras, 24)]
+    assert float(nearest_point(orbit).min()) > 0.5 * clearance
+    frame = plan.frame
+    facing = torch.stack([c.center().double() - frame.center for c in orbit]) @ frame.forward_axis
+    assert bool((facing > 0.5 * frame.radius).all())  # every orbit camera in front of the door, none behind it

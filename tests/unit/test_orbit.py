@@ -1,13 +1,22 @@
-"""The orbit of `render-uncertainty --views orbit` (splatu.orbit) on a scene whose cameras are not centred."""
+"""The orbit of `render-uncertainty --views orbit` (splatu.orbit): off-centre cameras, and its circle or arc."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 import torch
 
 from splatu.errors import SplatuError
-from splatu.orbit import capture_frame, orbit_cameras
+from splatu.orbit import (
+    ARC_MARGIN_DEGREES,
+    ARC_RADIUS_SCALE,
+    CIRCLE_RADIUS_SCALE,
+    capture_frame,
+    orbit_cameras,
+    plan_orbit,
+)
+from splatu.render_uncertainty import RenderUncertaintyConfig, orbit_note
 from tests.synthetic_scenes import look_at_camera, ring_cameras
 
 
@@ -45,3 +54,87 @@ def test_an_orbit_of_cameras_turning_on_one_spot_is_refused_in_one_line(rounding
     with pytest.raises(SplatuError) as caught:
         orbit_cameras(cameras, 4)
     assert "share one position" in caught.value.what and "--views eval, train or cameras" in caught.value.fix
+
+
+def _one_sided(n: int = 9, spread_degrees: float = 40.0) -> list:
+    """A door photographed from the front: cameras 3 m from it over `spread_degrees` of azimuth about +y, +z up."""
+    K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+    door = np.array([5.0, -2.0, 1.2])
+    cameras = []
+    for a in np.radians(np.linspace(-0.5 * spread_degrees, 0.5 * spread_degrees, n)):
+        eye = door + 3.0 * np.array([np.sin(a), np.cos(a), -0.1])
+        cameras.append(look_at_camera(eye, door, K, 32, 24))
+    return cameras
+
+
+def _azimuths_and_distances(orbit, cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Each orbit camera's azimuth from the captured side's middle (degrees) and distance to the capture's centre."""
+    frame = capture_frame(cameras)
+    side = torch.linalg.cross(frame.up, frame.forward_axis)
+    offsets = torch.stack([f.camera.center().double() for f in orbit]) - frame.center
+    azimuths = torch.rad2deg(torch.atan2(offsets @ side, offsets @ frame.forward_axis))
+    return azimuths.numpy(), (offsets.norm(dim=1) / frame.radius).numpy()
+
+
+def test_a_capture_from_one_side_gets_an_arc_over_that_side_at_the_cameras_distance():
+    """The orbit circled every capture at half its radius: behind a door photographed from the front (nothing was
+    trained there) and, at half the distance, among the surfaces around it (lund_door, fox)."""
+    cameras = _one_sided()
+    plan = plan_orbit(cameras)
+    assert plan.half_width is not None and math.degrees(plan.cover.width) == pytest.approx(40.0, abs=1e-6)
+    orbit = orbit_cameras(cameras, 24)
+    azimuths, distances = _azimuths_and_distances(orbit, cameras)
+    assert np.allclose(distances, 1.0, atol=1e-9)
+    reach = 20.0 + ARC_MARGIN_DEGREES  # half the captured 40°, and the margin past each edge
+    assert np.abs(azimuths).max() == pytest.approx(reach, abs=1e-6)
+    assert azimuths.max() > 20.0 and azimuths.min() < -20.0  # past both edges of what the capture saw
+    elevations = [f.elevation_degrees for f in orbit]
+    assert max(elevations) == pytest.approx(50.0) and min(elevations) == pytest.approx(-50.0)
+
+
+def test_a_ring_and_the_poster_stand_in_keep_the_circle_at_half_the_radius():
+    """Captures walked around their subject keep the orbit they had: the poster stand-in's (the main job's output)
+    is pinned to the camera centres the orbit gave before the arc existed. (Those differ from run to run by 3e-17:
+    torch.linalg.lstsq, which finds the centre, does not round the same way every call.)"""
+    from splatu.data.poster import PosterConfig
+    from splatu.data.poster.path import camera_path
+
+    path = camera_path(PosterConfig())
+    for cameras in (ring_cameras(8, 32, 24), path):
+        plan = plan_orbit(cameras)
+        assert plan.half_width is None and plan.radius_scale == CIRCLE_RADIUS_SCALE
+    orbit = orbit_cameras(path, 24)
+    centres = torch.stack([orbit[k].camera.center().double() for k in (0, 6, 12, 18)])
+    before = torch.tensor([[0.018235523852307572, 0.4358039678923267, 1.2582120048652707],
+                           [-0.7428443389671099, -0.02776472258519342, 0.6839580748688778],
+                           [-0.005093001893284953, -0.5276261564106586, 0.10970414487248498],
+                           [0.7559868609261325, -0.06405746593313835, 0.6839580748688777]], dtype=torch.float64)
+    assert torch.allclose(centres, before, rtol=0.0, atol=1e-12)
+    explicit = orbit_cameras(path, 24, radius_scale=CIRCLE_RADIUS_SCALE, shape="circle")
+    for auto, given in zip(orbit, explicit, strict=True):
+        assert torch.allclose(auto.camera.world_to_camera, given.camera.world_to_camera, rtol=0.0, atol=1e-12)
+
+
+def test_the_flags_given_win_over_the_layout_s_choice():
+    """--orbit-radius-scale and --orbit-shape, when given, are kept whatever the capture's layout would choose."""
+    one_sided, ring = _one_sided(), ring_cameras(8, 32, 24)
+    azimuths, distances = _azimuths_and_distances(orbit_cameras(one_sided, 24, radius_scale=0.5), one_sided)
+    assert np.allclose(distances, 0.5, atol=1e-9) and np.abs(azimuths).max() < 90.0  # the arc, at the given radius
+    azimuths, distances = _azimuths_and_distances(orbit_cameras(one_sided, 24, shape="circle"), one_sided)
+    assert np.allclose(distances, CIRCLE_RADIUS_SCALE, atol=1e-9) and np.abs(azimuths).max() == pytest.approx(180.0)
+    azimuths, distances = _azimuths_and_distances(orbit_cameras(ring, 24, shape="arc"), ring)
+    assert np.allclose(distances, ARC_RADIUS_SCALE, atol=1e-9)
+    # around the side where most cameras are (any, on an even ring), 90° either side: never from behind it
+    assert np.abs(azimuths).max() == pytest.approx(90.0, abs=1e-6)
+
+
+def test_the_command_says_why_once_when_the_layout_chose_the_arc():
+    """The arc replaces the circle without a flag, so the command says why and how to get the circle back."""
+    one_sided = _one_sided()
+    note = orbit_note(one_sided, RenderUncertaintyConfig(views="orbit"))
+    assert note is not None and "cover 40° of azimuth" in note and "70° arc" in note
+    assert "--orbit-radius-scale 1" in note and "--orbit-shape circle" in note and "\n" not in note
+    given = orbit_note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_radius_scale=0.7))
+    assert given is not None and "--orbit-radius-scale" not in given  # the radius given is not explained
+    assert orbit_note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_shape="arc")) is None
+    assert orbit_note(ring_cameras(8, 32, 24), RenderUncertaintyConfig(views="orbit")) is None
