@@ -110,8 +110,9 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
 
 
 ARC_RADIUS_SCALE = 1.0
-"""The arc's default: the training cameras' own distance. Half of it put lund_door's and fox's orbit cameras inside
-the walls and the fox's fur around the centre (docs/results.md, one-sided captures)."""
+"""The arc's default: the training cameras' own distance. At half of it, 15 of lund_door's 24 orbit frames and 13 of
+fox's looked at surfaces well short of the centre, from among them (docs/results.md, the orbit of a capture taken
+from one side)."""
 
 ARC_MARGIN_DEGREES = 15.0
 """How far past the captured azimuths the arc reaches on each side, into directions no training camera saw. Not
