@@ -24,6 +24,7 @@ from splatu.checkpoint import (
 )
 from splatu.config_values import changed_options
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
+from splatu.data.config import DataConfig
 from splatu.data.resolve import (
     POSTER,
     downscale_note,
@@ -55,6 +56,7 @@ from splatu.train_config import (
     option_value,
     preset_config,
     scaled_schedule,
+    typed_options,
 )
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_locked_run
@@ -67,8 +69,18 @@ def check_options(config: TrainConfig) -> None:
     may build the stand-in) and before a run folder is made and `latest` pointed at it."""
     check_parts(config)
     config.data.refuse_unused_flags()
+    refuse_max_image_size_beside_downscale(config.data, typed_options(config))
     refuse_unused_poster_options(config.data)
     refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
+
+
+def refuse_max_image_size_beside_downscale(data: DataConfig, typed: Collection[str]) -> None:
+    """A typed --max-image-size only chooses the factor that --downscale gives: beside it, it would change nothing,
+    and the run would load at another size than the user asked for without a word."""
+    if data.downscale is not None and "data.max_image_size" in typed:
+        raise SplatuError(f"--max-image-size {data.max_image_size} is not used beside --downscale {data.downscale}, "
+                          "which sets the image size itself", "in the options",
+                          "drop --max-image-size, or drop --downscale to have train choose the factor from it")
 
 
 def budget_note(config: TrainConfig, scene: Scene) -> str | None:

@@ -296,6 +296,18 @@ def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu", overridd
     return get_method(method).configure(config)
 
 
+def preset_values(preset: str) -> dict[str, Any]:
+    """The options preset `preset`'s file sets, by dotted name, as the file writes them; none for the full recipe."""
+    return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
+
+
+def typed_options(config: TrainConfig) -> list[str]:
+    """Dotted names of the options `config` holds off its preset's values (the file's, else the defaults): those a
+    new run's command line set. A flag that repeats the preset's value cannot be told from it, and changes nothing."""
+    base = flat_options(to_dict(TrainConfig())) | preset_values(config.preset)
+    return [name for name, value in flat_options(to_dict(config)).items() if base.get(name) != value]
+
+
 def _scan_flag(argv: Sequence[str], flag: str) -> str | None:
     """The value of `--flag V` or `--flag=V` in raw arguments (last one wins), before tyro parses them."""
     found = None

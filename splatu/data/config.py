@@ -20,10 +20,10 @@ class DataConfig:
     picks the smallest power of two that brings every image's longer side to --max-image-size or less, as
     nerfstudio does, and records it in the run."""
     max_image_size: int = 1600
-    """Without --downscale (which overrides it), images load at the smallest power-of-two fraction of their size
-    whose longer side is at most this many pixels, short of a side below 8 px (nerfstudio's rule; its 1600 px is
-    quality's and --preset none's, fast takes 800): a phone's 12-megapixel photo would make each step on 2 CPU cores
-    seconds long."""
+    """Without --downscale (train refuses the two typed together), images load at the smallest power-of-two fraction
+    of their size whose longer side is at most this many pixels, short of a side below 8 px (nerfstudio's rule; its
+    1600 px is quality's and --preset none's, fast takes 800): a phone's 12-megapixel photo would make each step on 2
+    CPU cores seconds long."""
     eval_split: Literal["auto", "contiguous", "every-n", "list"] = "auto"
     """auto: the scene file's own train/eval lists when present, else contiguous."""
     eval_block: int = 0

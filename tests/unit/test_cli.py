@@ -206,6 +206,25 @@ def test_a_bad_flag_beside_a_preset_file_is_the_flags(capsys, tmp_path, preset):
         "error: --steps must be at least 1 (got -3), in the options, pass --steps of at least 1\n")
 
 
+@pytest.mark.parametrize("flags", [["--max-image-size", "400"], ["--max-image-size=400", "--preset", "quality"]])
+def test_a_typed_max_image_size_beside_downscale_is_refused(capsys, tmp_path, flags):
+    """--downscale sets the size, so a --max-image-size typed beside it was ignored without a word."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--downscale", "2", *flags, "--data", str(tmp_path / "absent")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == (
+        "error: --max-image-size 400 is not used beside --downscale 2, which sets the image size itself, in the "
+        "options, drop --max-image-size, or drop --downscale to have train choose the factor from it\n")
+
+
+@pytest.mark.parametrize("preset", ["fast", "quality"])
+def test_the_presets_max_image_size_beside_downscale_is_no_error(capsys, tmp_path, preset):
+    """fast's own 800 px is no typed --max-image-size: --downscale alone goes on to load the scene."""
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--preset", preset, "--downscale", "2", "--data", str(tmp_path / "absent")])
+    assert capsys.readouterr().err.startswith("error: scene not found, in ")
+
+
 def test_version(capsys):
     from splatu import __version__
 
