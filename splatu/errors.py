@@ -38,6 +38,15 @@ class OptionError(SplatuError):
         self.allowed = allowed
 
 
+class DownscaleError(SplatuError):
+    """A scene that cannot load at its downscale factor (a pre-downscaled images_N copy of the wrong size), told
+    without naming --downscale as typed: `train` may have chosen the factor itself, and then says so."""
+
+    def __init__(self, what: str, where: str, fix: str, *, factor: int) -> None:
+        super().__init__(what, where, fix)
+        self.factor = factor
+
+
 def require_file(path: Path, what: str, fix: str) -> Path:
     """Return `path` if it is an existing file; otherwise raise a one-line SplatuError."""
     if not path.is_file():

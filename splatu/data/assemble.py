@@ -74,7 +74,8 @@ def choose_split(raw: RawScene, cfg: DataConfig) -> tuple[list[int], list[int], 
 
 
 def check_downscaled_size(frames: list[Frame], downscale: int) -> None:
-    """Refuse a --downscale that leaves images too small to train on, naming the largest usable one."""
+    """Refuse a --downscale that leaves images too small to train on, naming the largest usable one. The factor
+    was typed or saved: the one `train` chooses itself never shrinks a side below MIN_DOWNSCALED_SIDE."""
     for frame in frames:
         width, height = frame.camera.width, frame.camera.height
         if downscale > 1 and min(width, height) < MIN_DOWNSCALED_SIDE:

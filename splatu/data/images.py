@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from splatu.atomic import atomic_write
-from splatu.errors import SplatuError, load_number_array, unwritable
+from splatu.errors import DownscaleError, SplatuError, load_number_array, unwritable
 
 PixelKind = Literal["color", "mask", "depth"]
 CACHE_VERSION = 2
@@ -271,20 +271,22 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
         if recipe.source_downscale == 1:
             raise SplatuError(f"{noun} is {width}x{height} but its camera says {expected}", f"in {recipe.path}",
                               _size_fix(recipe.kind, noun, turned))
-        # a pre-downscaled copy (images_N): the size the user wrote is the camera's, which --downscale divides
-        raise SplatuError(f"{noun} is {width}x{height}, but the camera's {recipe.width}x{recipe.height} at "
-                          f"--downscale {recipe.source_downscale} is {expected}", f"in {recipe.path}",
-                          _size_fix(recipe.kind, noun, turned) if turned else _copy_fix(recipe, expected))
+        # a pre-downscaled copy (images_N): the size the user wrote is the camera's, which the factor divides
+        raise DownscaleError(f"{noun} is {width}x{height}, but the camera's {recipe.width}x{recipe.height} at "
+                             f"1/{recipe.source_downscale} of its size is {expected}", f"in {recipe.path}",
+                             _size_fix(recipe.kind, noun, turned) if turned else _copy_fix(recipe, expected),
+                             factor=recipe.source_downscale)
 
 
 def _copy_fix(recipe: PixelRecipe, expected: str) -> str:
     """What to do about a pre-downscaled copy (in images_N) of the wrong size: make it again, or do without it (the
     loader then shrinks the full-size image itself). The camera is not at fault when the full-size images fit it.
-    Full size is --downscale 1: without the flag, `train` picks a factor itself, which may be this one again."""
+    Full size is --downscale 1: without the flag, `train` picks a factor itself, which may be this one again; the
+    factor is named as a fraction, since the user may not have typed it."""
     n = recipe.source_downscale
     folder = next((p.name for p in recipe.path.parents if p.name.endswith(f"_{n}")), recipe.path.parent.name)
-    return (f"regenerate {folder} at {expected} (1/{n} of the camera's size), or remove {folder} to have "
-            f"--downscale {n} shrink the full-size images as they load (or train at full size with --downscale 1)")
+    return (f"regenerate {folder} at {expected} (1/{n} of the camera's size), or remove {folder} to have the "
+            "full-size images shrunk as they load (or train at full size with --downscale 1)")
 
 
 def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:

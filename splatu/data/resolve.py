@@ -24,7 +24,7 @@ from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.poster import build_poster_standin
 from splatu.data.poster.config import PosterConfig
 from splatu.data.scene import CameraScene, Scene
-from splatu.errors import SplatuError
+from splatu.errors import DownscaleError, SplatuError
 
 POSTER = "poster"
 
@@ -132,6 +132,15 @@ def downscale_note(given: DataConfig, chosen: DataConfig, longest: int) -> str |
             f"below {MIN_DOWNSCALED_SIDE} px")
     return (f"note: images loaded at 1/{chosen.downscale} of their size, {size}; --downscale 1 trains at full size, "
             "with slower steps")
+
+
+def chosen_factor_error(err: DownscaleError, given: DataConfig, chosen: DataConfig) -> SplatuError:
+    """`err`, raised loading the scene at a factor `train` chose itself (`given` has no --downscale), saying where
+    the factor came from and how to set another: the user typed none."""
+    if given.downscale is not None:
+        return err
+    return SplatuError(f"{err.what} (1/{err.factor} is the factor train chose to bring the images within "
+                       f"--max-image-size {chosen.max_image_size}; --downscale N sets another)", err.where, err.fix)
 
 
 def load_scene(cfg: DataConfig) -> Scene:

@@ -246,8 +246,8 @@ def test_images_n_folder_is_used_for_downscale(tmp_path):
 
 
 @pytest.mark.parametrize(("size", "fix"), [
-    ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 "
-               "shrink the full-size images as they load (or train at full size with --downscale 1)"),
+    ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have the "
+               "full-size images shrunk as they load (or train at full size with --downscale 1)"),
     ((15, 20), "swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
                "stored on its side (an EXIF orientation, which is not applied), save it upright"),
 ])
@@ -261,7 +261,7 @@ def test_a_downscaled_copy_of_the_wrong_size_is_told_against_the_cameras_size_in
         write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, width, height))
     with pytest.raises(SplatuError) as caught:
         load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=2))
-    assert caught.value.what == f"image is {size[0]}x{size[1]}, but the camera's 40x30 at --downscale 2 is 20x15"
+    assert caught.value.what == f"image is {size[0]}x{size[1]}, but the camera's 40x30 at 1/2 of its size is 20x15"
     assert caught.value.where == f"in {root / 'images_2' / Path(cameras[2].name).name}"
     assert caught.value.fix == fix
 
@@ -294,9 +294,9 @@ def test_a_colmap_downscaled_copy_of_the_wrong_size_names_its_folder(tmp_path):
     with pytest.raises(SplatuError) as caught:
         load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=3))
     assert str(caught.value) == (
-        f"image is 20x16, but the camera's 40x30 at --downscale 2 is 20x15, in {root / 'images_2/cam1/img_1.png'}, "
-        "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have --downscale 2 shrink "
-        "the full-size images as they load (or train at full size with --downscale 1)")
+        f"image is 20x16, but the camera's 40x30 at 1/2 of its size is 20x15, in "
+        f"{root / 'images_2/cam1/img_1.png'}, regenerate images_2 at 20x15 (1/2 of the camera's size), or remove "
+        "images_2 to have the full-size images shrunk as they load (or train at full size with --downscale 1)")
 
 
 def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):

@@ -187,6 +187,23 @@ def test_a_trained_run_records_the_downscale_it_chose_and_says_so(tmp_path, caps
     assert "views at 20x15" in err and "note: images loaded at 1/2 of their size" in err
 
 
+def test_a_wrong_downscaled_copy_at_the_factor_train_chose_says_train_chose_it(tmp_path):
+    """No --downscale was typed, yet the error told of "--downscale 2" and to have "--downscale 2 shrink" the
+    images: the factor is named as train's choice, with the flag that sets another."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=6, width=40, height=30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 21 if i == 2 else 20, 15))
+    data = DataConfig(data=str(root), cache_dir=tmp_path / "cache", max_image_size=30)  # 40x30 images: 1/2
+    with pytest.raises(SplatuError) as caught:
+        train_command.train(tiny_config(tmp_path, data=data, steps=2, checkpoint_every=0))
+    assert "--downscale 2" not in str(caught.value)
+    assert caught.value.what == ("image is 21x15, but the camera's 40x30 at 1/2 of its size is 20x15 (1/2 is the "
+                                 "factor train chose to bring the images within --max-image-size 30; --downscale N "
+                                 "sets another)")
+    assert not (tmp_path / "outputs").exists()  # refused before the run folder is made
+
+
 def test_the_note_does_not_promise_the_size_a_side_of_8_px_held_it_above(tmp_path, capsys, monkeypatch):
     """400x20 strips with --max-image-size 100: 1/4 would make them 100x5, so train stops at 1/2, 200x10, whose longer
     side is still above 100 px; the note said "their longer side at most 100 px"."""
