@@ -40,7 +40,7 @@ from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished
 from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, refuse_implausible_focal
+from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, downscaled, refuse_implausible_focal
 from splatu.data.principal_point import misplaced_principal_point
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
@@ -220,7 +220,7 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
     if config.data != POSTER and not path.exists():
         raise SplatuError(f"the run's scene is not at {path}", where, "pass data= with the scene's location")
     # quietly: the run warned of principal points far off-centre as it trained, and a query may run in a loop
-    raw = read_scene_files(path, config.downscale or 1, config.background, warn_off_centre=False)
+    raw = downscaled(read_scene_files(path, config.background, warn_off_centre=False), config.downscale or 1)
     center, scale = scene_normalization(raw)
     require_same_frame(frame, WorldTransform.from_normalization(center, scale), f"in {path}",
                        "pass data= with the scene this run was trained on")

@@ -27,17 +27,16 @@ from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.config import DataConfig
 from splatu.data.resolve import (
     POSTER,
-    chosen_factor_error,
     downscale_note,
+    load_new_scene,
     load_scene,
     refuse_unused_poster_options,
-    with_chosen_downscale,
 )
 from splatu.data.scene import Scene
 from splatu.degree_choice import held_out_block, with_choice_heads
 from splatu.ensemble_dirs import ensemble_config, ensemble_members
 from splatu.ensemble_training import counted_in_ensemble, enclosing_ensemble_lock, train_locked_ensemble
-from splatu.errors import DownscaleError, SplatuError, creatable_dir
+from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import refuse_copies_of_the_own_head
@@ -222,11 +221,8 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
     check_options(config)
     creatable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     given = config.data
-    config = dataclasses.replace(config, data=with_chosen_downscale(given))
-    try:
-        scene = load_scene(config.data)
-    except DownscaleError as err:
-        raise chosen_factor_error(err, given, config.data) from None
+    data, scene = load_new_scene(given)
+    config = dataclasses.replace(config, data=data)
     refuse_split_flags_the_scene_overrides(config.data, scene)
     refuse_unscorable_sets(scene)
     console.print(scene_line(scene), soft_wrap=True)

@@ -41,7 +41,7 @@ def _image_path(root: Path, file_path: str) -> Path:
     return path if path.suffix else path.with_suffix(".png")
 
 
-def load_blender(root: Path, downscale: int, background: tuple[float, float, float]) -> RawScene:
+def load_blender(root: Path, background: tuple[float, float, float]) -> RawScene:
     """All frames of the split files, in the order train, val, test. A training image listed again is refused, as
     in a nerfstudio file: one in train and test was scored on a view the model trained on."""
     frames: list[Frame] = []
@@ -79,7 +79,7 @@ def load_blender(root: Path, downscale: int, background: tuple[float, float, flo
                 K=torch.tensor(K, dtype=torch.float64),
                 world_to_camera=torch.tensor(world_to_camera_from_opengl(c2w), dtype=torch.float64),
                 width=width, height=height, name=name,
-            ).scaled(1.0 / downscale)
+            )
             frames.append(Frame(name=name, camera=camera, image=PixelRecipe(
                 path=path, kind="color", width=width, height=height,
                 target_width=camera.width, target_height=camera.height, background=background,

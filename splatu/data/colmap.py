@@ -138,13 +138,6 @@ def _principal_point_fix(kind: PrincipalPointFault) -> str:
     return "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction"
 
 
-def _source_path(images_dir: Path, name: str, downscale: int) -> tuple[Path, int]:
-    copy = images_dir.parent / f"{images_dir.name}_{downscale}" / name
-    if downscale > 1 and copy.is_file():
-        return copy, downscale
-    return images_dir / name, 1
-
-
 def _is_number(token: str, kind: type = float) -> bool:
     """Whether COLMAP's C++ reader would parse `token` as a finite `kind` (it rejects nan and inf)."""
     try:
@@ -389,9 +382,10 @@ def refuse_unusable_point(points: np.ndarray, ids: list[int], points_file: Path)
                           "delete that point from the model or re-run the reconstruction")
 
 
-def load_colmap(root: Path, sparse_dir: Path, downscale: int, warn_off_centre: bool = True) -> RawScene:
-    """Registered images (sorted by name) with undistorted cameras, and points3D with colours, with one warning line
-    for principal points far off-centre unless not `warn_off_centre`."""
+def load_colmap(root: Path, sparse_dir: Path, warn_off_centre: bool = True) -> RawScene:
+    """Registered images (sorted by name) with undistorted cameras at full size (images_N beside images/ holds copies
+    at 1/N), and points3D with colours, with one warning line for principal points far off-centre unless not
+    `warn_off_centre`."""
     reconstruction = read_reconstruction(sparse_dir)
     images_dir = root / "images"
     files = model_files(sparse_dir)
@@ -417,14 +411,13 @@ def load_colmap(root: Path, sparse_dir: Path, downscale: int, warn_off_centre: b
             K=torch.tensor(K_new, dtype=torch.float64),
             world_to_camera=torch.tensor(world_to_camera, dtype=torch.float64),
             width=colmap_camera.width, height=colmap_camera.height, name=image.name,
-        ).scaled(1.0 / downscale)
-        source, source_downscale = _source_path(images_dir, image.name, downscale)
+        )
         frames.append(Frame(name=image.name, camera=camera, image=PixelRecipe(
-            path=source, kind="color", width=colmap_camera.width, height=colmap_camera.height,
+            path=images_dir / image.name, kind="color", width=colmap_camera.width, height=colmap_camera.height,
             target_width=camera.width, target_height=camera.height,
             K=tuple(K.ravel()) if distortion else (), distortion=distortion,
-            K_undistorted=tuple(K_new.ravel()) if distortion else (), source_downscale=source_downscale,
-        )))
+            K_undistorted=tuple(K_new.ravel()) if distortion else (),
+        ), copies=images_dir))
     points3d = [point for _, point in sorted(reconstruction.points3D.items())]  # by id: a stable order
     points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
     refuse_unusable_point(points, sorted(reconstruction.points3D), files["points3D"])

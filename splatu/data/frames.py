@@ -1,13 +1,14 @@
 """What a loader returns before splitting: every frame's camera and pixel recipes, plus points.
 
-Loaders only parse their format; splitting, normalisation and decoding are shared
+Loaders only parse their format, at full size; downscaling, splitting, normalisation and decoding are shared
 (splatu/data/assemble.py), so every format behaves the same way.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -47,6 +48,9 @@ class Frame:
     mask: PixelRecipe | None = None
     depth: PixelRecipe | None = None
     observed: PixelRecipe | None = None
+    copies: Path | None = None
+    """The folder holding the image whose sibling `<its name>_N` may hold it pre-downscaled to 1/N (nerfstudio's and
+    COLMAP's images_N), for formats that keep such copies."""
 
 
 @dataclass
@@ -62,6 +66,30 @@ class RawScene:
     """Frame indices the file itself assigns: "train", "eval", and extra eval sets by name."""
     stand_in: bool = False
     """Whether this is the built-in poster stand-in (see `Scene.stand_in`)."""
+
+
+def downscaled(raw: RawScene, factor: int) -> RawScene:
+    """`raw`, parsed at full size, at 1/`factor`: every camera scaled, and every file decoded to its size (the image
+    from its images_N copy where there is one). One place for every format, so that `train` can choose the factor
+    from the sizes of the scene it has parsed, without parsing it again."""
+    if factor == 1:
+        return raw
+    return replace(raw, frames=[_downscaled_frame(frame, factor) for frame in raw.frames])
+
+
+def _downscaled_frame(frame: Frame, factor: int) -> Frame:
+    camera = frame.camera.scaled(1.0 / factor)
+    size = {"target_width": camera.width, "target_height": camera.height}
+
+    def resized(recipe: PixelRecipe | None) -> PixelRecipe | None:  # masks and depths are never pre-downscaled
+        return None if recipe is None else replace(recipe, **size)
+
+    copy = None if frame.copies is None else (frame.copies.parent / f"{frame.copies.name}_{factor}" /
+                                              frame.image.path.relative_to(frame.copies))
+    image = (replace(frame.image, path=copy, source_downscale=factor, **size) if copy is not None and copy.is_file()
+             else replace(frame.image, **size))
+    return replace(frame, camera=camera, image=image, mask=resized(frame.mask), depth=resized(frame.depth),
+                   observed=resized(frame.observed))
 
 
 STANDIN_KEY = "splatu_standin"

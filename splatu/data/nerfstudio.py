@@ -247,16 +247,11 @@ def _distortion(frame: Mapping[str, Any], top: Mapping[str, Any], where: str) ->
     return None if distortion.is_identity() else distortion
 
 
-def _source_path(root: Path, file_path: str, downscale: int) -> tuple[Path, int]:
-    """The pre-downscaled copy (images_N/...) when it exists, else the original file."""
-    original = root / file_path
+def _copies(root: Path, file_path: str) -> Path | None:
+    """The folder whose sibling `<name>_N` may hold the image at 1/N (images_N/...): the image's own folder, if it
+    has one under the scene's."""
     relative = PurePosixPath(frame_name(file_path))
-    if downscale > 1 and len(relative.parts) >= 2:
-        folder = relative.parent
-        copy = root / folder.parent / f"{folder.name}_{downscale}" / relative.name
-        if copy.is_file():
-            return copy, downscale
-    return original, 1
+    return root / relative.parent if len(relative.parts) >= 2 else None
 
 
 def _extra(color: PixelRecipe, root: Path, frame: Mapping[str, Any], key: str, kind: PixelKind, name: str,
@@ -274,7 +269,7 @@ def _extra(color: PixelRecipe, root: Path, frame: Mapping[str, Any], key: str, k
         raise SplatuError(f"{noun} not found (the {key} of frame {name!r})", f"in {path}",
                           f"fix the frame's {key} or remove it")
     depth_scale = 1.0 if kind != "depth" or path.suffix == ".npy" else depth_unit
-    return replace(color, path=path, kind=kind, source_downscale=1, depth_scale=depth_scale)
+    return replace(color, path=path, kind=kind, depth_scale=depth_scale)
 
 
 def _by_file_path(frames_json: list[Any]) -> list[tuple[int, Any]]:
@@ -340,10 +335,9 @@ def read_cameras(path: Path, downscale: int = 1, off_centre_ok: bool = False) ->
     return cameras
 
 
-def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, float],
-                    warn_off_centre: bool = True) -> RawScene:
-    """Parse a transforms.json (or the folder holding it) into frames at 1/downscale resolution, with one warning
-    line for principal points far off-centre unless not `warn_off_centre`."""
+def load_nerfstudio(path: Path, background: tuple[float, float, float], warn_off_centre: bool = True) -> RawScene:
+    """Parse a transforms.json (or the folder holding it) into frames at full size, with one warning line for
+    principal points far off-centre unless not `warn_off_centre`."""
     json_path = transforms_file(path)
     root = json_path.parent
     top = read_json(json_path)
@@ -362,19 +356,15 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
             raise SplatuError(f"frames {seen[name]} and {index} both have file_path {name!r}", f"in {json_path}",
                               "remove the duplicate frame")
         seen[name] = index
-        full, K, distortion = _frame_camera(frame, top, where, name, c2w, undistorted_cache)
-        fault = misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), full.width, full.height)
+        camera, K, distortion = _frame_camera(frame, top, where, name, c2w, undistorted_cache)
+        fault = misplaced_principal_point(float(K[0, 2]), float(K[1, 2]), camera.width, camera.height)
         if fault is not None:
             misplaced.append((f"frame {name!r}", *fault))
-        camera = full.scaled(1.0 / downscale)
-        source, source_downscale = _source_path(root, frame["file_path"], downscale)
-
         color = PixelRecipe(
-            path=source, kind="color", width=full.width, height=full.height,
+            path=root / frame["file_path"], kind="color", width=camera.width, height=camera.height,
             target_width=camera.width, target_height=camera.height,
             K=tuple(K.ravel()) if distortion else (), distortion=distortion,
-            K_undistorted=tuple(full.K.numpy().ravel()) if distortion else (),
-            source_downscale=source_downscale, background=background,
+            K_undistorted=tuple(camera.K.numpy().ravel()) if distortion else (), background=background,
         )
         frames.append(Frame(
             name=name,
@@ -383,6 +373,7 @@ def load_nerfstudio(path: Path, downscale: int, background: tuple[float, float, 
             mask=_extra(color, root, frame, "mask_path", "mask", name),
             depth=_extra(color, root, frame, "depth_file_path", "depth", name, depth_unit),
             observed=_extra(color, root, frame, "observed_mask_path", "mask", name),
+            copies=_copies(root, frame["file_path"]),
         ))
     points, colors = np.zeros((0, 3), np.float32), None
     if top.get("ply_file_path"):

@@ -18,7 +18,7 @@ from splatu.data.assemble import MIN_DOWNSCALED_SIDE, assemble, assemble_cameras
 from splatu.data.blender import is_blender, load_blender
 from splatu.data.colmap import empty_sparse_dir, find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
-from splatu.data.frames import RawScene
+from splatu.data.frames import RawScene, downscaled
 from splatu.data.images import ImageCache, default_cache_dir
 from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.poster import build_poster_standin
@@ -37,26 +37,26 @@ def real_poster_candidates() -> list[Path]:
     return places
 
 
-def read_scene_files(path: Path, downscale: int, background: tuple[float, float, float],
-                     warn_off_centre: bool = True) -> RawScene:
-    """Parse a scene folder or file by its format, without decoding any image; `warn_off_centre` False leaves out
-    the loaders' warning about principal points far off-centre, for a query of a scene its run already warned of."""
+def read_scene_files(path: Path, background: tuple[float, float, float], warn_off_centre: bool = True) -> RawScene:
+    """Parse a scene folder or file by its format, at full size (`downscaled` gives it another), without decoding any
+    image; `warn_off_centre` False leaves out the loaders' warning about principal points far off-centre, for a
+    query of a scene its run already warned of."""
     if not path.exists():
         raise SplatuError("scene not found", f"in {path}",
                           "pass --data poster or the path of a nerfstudio, COLMAP or NeRF-synthetic scene")
     if path.is_file():
         if path.name.startswith("transforms_") and is_blender(path.parent):
-            return load_blender(path.parent, downscale, background)
+            return load_blender(path.parent, background)
         if path.suffix == ".json":
-            return load_nerfstudio(path, downscale, background, warn_off_centre)
+            return load_nerfstudio(path, background, warn_off_centre)
     elif (path / "transforms.json").is_file():
-        return load_nerfstudio(path, downscale, background, warn_off_centre)
+        return load_nerfstudio(path, background, warn_off_centre)
     elif is_blender(path):
-        return load_blender(path, downscale, background)
+        return load_blender(path, background)
     elif (sparse := find_sparse_dir(path)) is not None:
-        return load_colmap(path, sparse, downscale, warn_off_centre)
+        return load_colmap(path, sparse, warn_off_centre)
     elif (root := scene_root_of(path)) is not None:
-        return load_colmap(root, path, downscale, warn_off_centre)
+        return load_colmap(root, path, warn_off_centre)
     elif (empty := empty_sparse_dir(path)) is not None:
         raise SplatuError("the COLMAP model folder is empty (no cameras, images or points3D file)", f"in {empty}",
                           "run the reconstruction again (splatu process-images) or export the model into it")
@@ -100,19 +100,14 @@ def refuse_unused_poster_options(cfg: DataConfig) -> None:
                           f"in {real}", f"drop {flags}, or move the capture away to train on the stand-in")
 
 
-def with_chosen_downscale(cfg: DataConfig) -> DataConfig:
-    """`cfg` with --downscale chosen when it is not given: the smallest power of two that brings every image's
-    longer side to --max-image-size or less (nerfstudio's rule), short of shrinking a side below
-    MIN_DOWNSCALED_SIDE. A new run records the factor in its config, so its renders and resumes load the same
-    sizes; a saved config without one (older runs) loads at full size, as it trained."""
+def with_chosen_downscale(cfg: DataConfig, raw: RawScene) -> DataConfig:
+    """`cfg` with --downscale chosen, from the sizes of its scene `raw` as parsed, when it is not given: the smallest
+    power of two that brings every image's longer side to --max-image-size or less (nerfstudio's rule), short of
+    shrinking a side below MIN_DOWNSCALED_SIDE. A new run records the factor in its config, so its renders and
+    resumes load the same sizes; a saved config without one (older runs) loads at full size, as it trained."""
     if cfg.downscale is not None:
         return cfg
-    cfg.validate()
-    if cfg.data == POSTER and real_poster_capture() is None:  # the stand-in's size is an option: no need to build it
-        sizes = [(cfg.poster.width, cfg.poster.height)]
-    else:
-        sizes = [(f.camera.width, f.camera.height) for f in read_scene_files(scene_path(cfg), 1, cfg.background,
-                                                                             False).frames]
+    sizes = [(f.camera.width, f.camera.height) for f in raw.frames]
     longest, shortest = max(max(size) for size in sizes), min(min(size) for size in sizes)
     factor = 1
     while longest / factor > cfg.max_image_size and shortest // (2 * factor) >= MIN_DOWNSCALED_SIDE:
@@ -134,28 +129,50 @@ def downscale_note(given: DataConfig, chosen: DataConfig, longest: int) -> str |
             "with slower steps")
 
 
-def chosen_factor_error(err: DownscaleError, given: DataConfig, chosen: DataConfig) -> SplatuError:
+def chosen_factor_error(err: DownscaleError, given: DataConfig) -> SplatuError:
     """`err`, raised loading the scene at a factor `train` chose itself (`given` has no --downscale), saying where
     the factor came from and how to set another: the user typed none."""
     if given.downscale is not None:
         return err
     return SplatuError(f"{err.what} (1/{err.factor} is the factor train chose to bring the images within "
-                       f"--max-image-size {chosen.max_image_size}; --downscale N sets another)", err.where, err.fix)
+                       f"--max-image-size {given.max_image_size}; --downscale N sets another)", err.where, err.fix)
+
+
+def read_scene(cfg: DataConfig) -> RawScene:
+    """The scene `cfg` names, parsed at full size; the real poster capture or the stand-in, named or given by its
+    path, is filed under "poster"."""
+    cfg.validate()
+    raw = read_scene_files(scene_path(cfg), cfg.background)
+    if cfg.data == POSTER or raw.stand_in:
+        raw.name = POSTER
+    return raw
+
+
+def assemble_scene(raw: RawScene, cfg: DataConfig) -> Scene:
+    """Parsed scene `raw` at `cfg`'s downscale (full size without one: a run saved before train chose it), split,
+    normalised and decoded (through the on-disk image cache)."""
+    return assemble(downscaled(raw, cfg.downscale or 1), cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
 
 
 def load_scene(cfg: DataConfig) -> Scene:
-    """The scene `cfg` names, split, normalised and decoded (through the on-disk image cache)."""
-    cfg.validate()
-    downscale = 1 if cfg.downscale is None else cfg.downscale
-    raw = read_scene_files(scene_path(cfg), downscale, cfg.background)
-    if cfg.data == POSTER or raw.stand_in:
-        raw.name = POSTER  # the real capture or the stand-in, named or given by its path: runs are filed under "poster"
-    return assemble(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()))
+    """The scene `cfg` names, split, normalised and decoded."""
+    return assemble_scene(read_scene(cfg), cfg)
+
+
+def load_new_scene(given: DataConfig) -> tuple[DataConfig, Scene]:
+    """A new run's options, with the downscale chosen when not `given` (`with_chosen_downscale`), and its scene: the
+    scene's files are parsed once, for the factor and the scene both."""
+    raw = read_scene(given)
+    cfg = with_chosen_downscale(given, raw)
+    try:
+        return cfg, assemble_scene(raw, cfg)
+    except DownscaleError as err:
+        raise chosen_factor_error(err, given) from None
 
 
 def load_camera_scene(cfg: DataConfig, masks: bool = False) -> CameraScene:
     """The scene `cfg` names as `load_scene` splits and normalises it, without decoding its images (with its training
     mask files when `masks` asks for them): for renders that need no ground truth (`CameraScene`)."""
     cfg.validate()
-    raw = read_scene_files(scene_path(cfg), 1 if cfg.downscale is None else cfg.downscale, cfg.background)
+    raw = downscaled(read_scene_files(scene_path(cfg), cfg.background), cfg.downscale or 1)
     return assemble_cameras(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()), masks)

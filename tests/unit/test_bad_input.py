@@ -380,7 +380,7 @@ def test_cameras_turning_on_one_spot_load_at_any_coordinates(tmp_path, place):
                 row[3] = value
 
     edit_transforms(root, on_one_spot)
-    raw = read_scene_files(root, 1, (1.0, 1.0, 1.0))
+    raw = read_scene_files(root, (1.0, 1.0, 1.0))
     center, scale = scene_normalization(raw)
     assert scale == 1.0 and np.allclose(center.numpy(), [place, place / 3, 7.0], rtol=1e-12, atol=1e-9)
 
@@ -401,7 +401,7 @@ def test_one_broken_pose_among_cameras_on_one_spot_names_the_frame(tmp_path, pla
 
     edit_transforms(root, one_pushed_away)
     if not refused:
-        scene_normalization(read_scene_files(root, 1, (1.0, 1.0, 1.0)))
+        scene_normalization(read_scene_files(root, (1.0, 1.0, 1.0)))
         return
     error = load_error(root, tmp_path)
     assert error.what.startswith(f"the camera of {cameras[2].name!r} is 1e+20 from the position most cameras share")
@@ -475,7 +475,7 @@ def test_eval_block_with_the_scene_s_own_split_is_refused(tmp_path, name, stand_
     root = tmp_path / "scene"
     names = [c.name for c in write_nerfstudio_scene(root, n=6)]
     edit_transforms(root, lambda c: c.update(train_filenames=names[:4], val_filenames=names[4:]))
-    raw = read_scene_files(root, 1, (1.0, 1.0, 1.0))
+    raw = read_scene_files(root, (1.0, 1.0, 1.0))
     raw.name = name  # load_scene names every `--data poster` scene "poster"
     scene = assemble(raw, DataConfig(eval_block=2), ImageCache(tmp_path / "cache"))  # a saved config still loads
     assert scene.own_split and scene.eval.names == names[4:]
@@ -627,7 +627,7 @@ def test_a_nerf_synthetic_held_out_image_in_val_and_test_is_no_leak(tmp_path):
     root = tmp_path / "lego"
     write_blender(root, ["./train/r_0", "./train/r_1"], ["./test/r_0"])
     (root / "transforms_val.json").write_text((root / "transforms_test.json").read_text())
-    assert [frame.name for frame in read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames] == [
+    assert [frame.name for frame in read_scene_files(root, (1.0, 1.0, 1.0)).frames] == [
         "train/r_0", "train/r_1", "test/r_0", "test/r_0"]
 
 
@@ -990,7 +990,7 @@ def test_a_nerfstudio_image_size_that_is_not_a_whole_number_is_refused_and_a_who
     error = load_error(root, tmp_path)
     assert error.what == "image size w = 40.5 is not a whole number of pixels" and cameras[0].name in error.where
     edit_transforms(root, lambda c: [frame.update(w=40.0) for frame in c["frames"]])
-    assert read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.width == 40
+    assert read_scene_files(root, (1.0, 1.0, 1.0)).frames[0].camera.width == 40
 
 
 @pytest.mark.parametrize(("w", "h", "plausible"), [(2**16, 30, True), (40, 2**16 + 1, False)])
@@ -999,10 +999,10 @@ def test_a_nerfstudio_image_side_may_reach_the_limit_and_not_pass_it(tmp_path, w
     write_nerfstudio_scene(root, n=4)
     edit_transforms(root, lambda c: [frame.update(w=w, h=h, fl_x=3e4, fl_y=3e4) for frame in c["frames"]])
     if plausible:
-        assert read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.width == w
+        assert read_scene_files(root, (1.0, 1.0, 1.0)).frames[0].camera.width == w
         return
     with pytest.raises(SplatuError) as caught:
-        read_scene_files(root, 1, (1.0, 1.0, 1.0))
+        read_scene_files(root, (1.0, 1.0, 1.0))
     assert caught.value.what == f"image size {w}x{h} is not a plausible image size"
 
 
@@ -1377,7 +1377,7 @@ def test_a_rational_model_coefficient_is_refused_not_dropped(tmp_path, key, plac
     dropped without a word, and the images undistorted without them. A zero one changes nothing and loads."""
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=4, k1=0.01, k5=0.0, k6=0.0)
-    assert len(read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames) == 4
+    assert len(read_scene_files(root, (1.0, 1.0, 1.0)).frames) == 4
     edit_transforms(root, lambda c: (c if place == "file" else c["frames"][0]).update({key: 0.02}))
     error = load_error(root, tmp_path)
     assert (error.what, error.fix) == (
@@ -1415,7 +1415,7 @@ def test_a_transforms_json_k_that_does_not_fit_its_size_is_one_warning_line_and_
     cameras = write_nerfstudio_scene(root, n=4, width=64, height=36)
     edit_transforms(root, lambda c: [edit(frame) for frame in c["frames"]])
     first = sorted(c.name for c in cameras)[0]
-    assert len(read_scene_files(root, 1, (1.0, 1.0, 1.0)).frames) == 4
+    assert len(read_scene_files(root, (1.0, 1.0, 1.0)).frames) == 4
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith(
         f"warning: 4 of 4 frames in {root / 'transforms.json'} have a principal point far from the image's centre "
@@ -1440,7 +1440,7 @@ def test_a_transforms_json_k_that_does_not_fit_its_size_is_one_warning_line_and_
 def test_a_colmap_camera_whose_k_does_not_fit_its_size_is_one_warning_line(tmp_path, capsys, camera, what, fix):
     """As for a transforms.json: counted by camera, the first named, and the model loads."""
     write_colmap(tmp_path / "scene", camera=camera)
-    assert len(read_scene_files(tmp_path / "scene", 1, (1.0, 1.0, 1.0)).frames) == 2
+    assert len(read_scene_files(tmp_path / "scene", (1.0, 1.0, 1.0)).frames) == 2
     out, err = capsys.readouterr()
     cameras_file = tmp_path / "scene" / "sparse" / "0" / "cameras.txt"
     assert out == "" and err == (f"warning: 1 of 1 cameras in {cameras_file} has a principal point far from the "
@@ -1464,7 +1464,7 @@ def test_querying_a_scene_s_cameras_in_a_loop_prints_nothing(tmp_path, capfd, wr
     from splatu.world_frame import WorldTransform
 
     write(tmp_path / "scene")
-    raw = read_scene_files(tmp_path / "scene", 1, (1.0, 1.0, 1.0))
+    raw = read_scene_files(tmp_path / "scene", (1.0, 1.0, 1.0))
     out, err = capfd.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith("warning: ")
     frame = WorldTransform.from_normalization(*scene_normalization(raw))

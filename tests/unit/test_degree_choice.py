@@ -30,7 +30,14 @@ from splatu.losses import UncertaintyLossConfig, uncertainty_heads
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.sh import C0, safe_normalize, sh_basis
-from tests.unit.test_trainer import ctrl_c_on_the_first_call, logged_events, losses_of, tiny_config, tiny_scene
+from tests.unit.test_trainer import (
+    ctrl_c_on_the_first_call,
+    logged_events,
+    losses_of,
+    serve_scene,
+    tiny_config,
+    tiny_scene,
+)
 
 
 def choice_config(tmp_path, **changes):
@@ -44,7 +51,7 @@ def choice_config(tmp_path, **changes):
 @pytest.fixture
 def scene(monkeypatch):
     scene = tiny_scene(n_train=8)
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: scene)
+    serve_scene(monkeypatch, lambda data_config: scene)
     return scene
 
 
@@ -69,7 +76,7 @@ def test_choice_settings_are_validated_before_the_scene_loads(tmp_path, monkeypa
     def no_scene(data_config):
         raise AssertionError("the scene was loaded before the settings were checked")
 
-    monkeypatch.setattr(train_command, "load_scene", no_scene)
+    serve_scene(monkeypatch, no_scene)
     for changes, message in (({"ensemble": 2}, "members must differ only in seed"),
                              ({"steps": 8}, "before colour SH reaches degree 2")):
         with pytest.raises(SplatuError, match=message):

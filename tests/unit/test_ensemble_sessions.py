@@ -14,13 +14,13 @@ from splatu.errors import SplatuError
 from splatu.interrupts import TrainingInterrupted
 from splatu.methods import get_method
 from splatu.train_config import TrainConfig, from_dict, save_config
-from tests.unit.test_trainer import tiny_config, tiny_scene
+from tests.unit.test_trainer import serve_scene, tiny_config, tiny_scene
 
 
 @pytest.fixture
 def scene(monkeypatch):
     scene = tiny_scene()
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: scene)
+    serve_scene(monkeypatch, lambda data_config: scene)
     return scene
 
 
@@ -144,7 +144,7 @@ def test_a_members_resume_refused_before_it_trains_adds_no_session(tmp_path, sce
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=member))  # its lock is held
     assert sessions_in_record(run_dir) == sessions
     moved = dataclasses.replace(scene, center=torch.tensor([0.0, 0.0, 1.0]))  # normalised unlike the trained one
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: moved)
+    serve_scene(monkeypatch, lambda data_config: moved)
     with pytest.raises(SplatuError, match="normalis"):
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=list_checkpoints(member)[0]))
     assert sessions_in_record(run_dir) == sessions

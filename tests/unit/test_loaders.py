@@ -19,6 +19,7 @@ import torch
 from splatu.cli import entrypoint
 from splatu.data import colmap, images
 from splatu.data.config import DataConfig
+from splatu.data.frames import downscaled
 from splatu.data.images import (
     Distortion,
     ImageCache,
@@ -37,6 +38,7 @@ from splatu.data.resolve import (
     downscale_note,
     load_camera_scene,
     load_scene,
+    read_scene,
     read_scene_files,
     refuse_unused_poster_options,
     with_chosen_downscale,
@@ -273,7 +275,7 @@ def test_a_wrong_downscaled_copy_under_the_chosen_downscale_is_not_told_to_drop_
     cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
     for i, camera in enumerate(cameras):
         write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 21 if i == 2 else 20, 15))
-    chosen = with_chosen_downscale(config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2))
+    chosen = chosen_for(config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2))
     assert chosen.downscale == 2
     with pytest.raises(SplatuError) as caught:
         load_scene(chosen)
@@ -346,6 +348,11 @@ def test_the_stored_background_moves_rgba_targets_by_rounding_only(tmp_path):
                 assert (on_white - on_black).abs().max() <= 1.0 / 255 + 1e-6
 
 
+def chosen_for(given: DataConfig) -> DataConfig:
+    """`given` with the downscale train would choose for its scene."""
+    return with_chosen_downscale(given, read_scene(given))
+
+
 @pytest.mark.parametrize(("sizes", "factor"), [
     ([(1600, 1200)], 1),  # at the limit: full size
     ([(1601, 900)], 2),
@@ -360,20 +367,20 @@ def test_without_downscale_train_takes_the_power_of_two_that_brings_the_longer_s
     cameras = [ring_cameras(len(sizes), width, height)[i] for i, (width, height) in enumerate(sizes)]
     write_transforms(tmp_path / "transforms.json", cameras, [f"images/{i}.png" for i in range(len(cameras))])
     given = config(tmp_path, tmp_path)
-    chosen = with_chosen_downscale(given)
+    chosen = chosen_for(given)
     assert chosen == dataclasses.replace(given, downscale=factor)
     note = downscale_note(given, chosen, max(max(size) for size in sizes) // factor)
     assert (note is None) == (factor == 1)
     assert note is None or note.startswith(f"note: images loaded at 1/{factor} of their size")
     for fixed in (1, 3):  # a given --downscale is kept, and nothing is said
         kept = dataclasses.replace(given, downscale=fixed)
-        assert with_chosen_downscale(kept) == kept and downscale_note(kept, kept, 1000) is None
+        assert chosen_for(kept) == kept and downscale_note(kept, kept, 1000) is None
 
 
 def test_max_image_size_sets_the_limit_and_is_checked(tmp_path, capsys):
     write_transforms(tmp_path / "transforms.json", ring_cameras(3, 1296, 1936), ["a.png", "b.png", "c.png"])
     for size, factor in ((2000, 1), (1936, 1), (1935, 2), (968, 2), (500, 4), (100, 32)):
-        assert with_chosen_downscale(config(tmp_path, tmp_path, max_image_size=size)).downscale == factor
+        assert chosen_for(config(tmp_path, tmp_path, max_image_size=size)).downscale == factor
     with pytest.raises(SystemExit):
         entrypoint(["train", "--data", str(tmp_path), "--max-image-size", "0"])
     assert capsys.readouterr().err.strip().splitlines() == [
@@ -383,7 +390,7 @@ def test_max_image_size_sets_the_limit_and_is_checked(tmp_path, capsys):
 def test_the_chosen_downscale_never_shrinks_a_side_below_the_smallest_usable(tmp_path):
     """A panorama strip 8,000 px long and 40 px high: 1/8 would bring it to 1000 px, but its short side to 5."""
     write_transforms(tmp_path / "transforms.json", ring_cameras(3, 8000, 40), ["a.png", "b.png", "c.png"])
-    assert with_chosen_downscale(config(tmp_path, tmp_path)).downscale == 4  # 2000x10: still 8 px or more a side
+    assert chosen_for(config(tmp_path, tmp_path)).downscale == 4  # 2000x10: still 8 px or more a side
 
 
 def test_a_saved_config_without_a_downscale_loads_at_full_size_as_it_trained(tmp_path):
@@ -392,15 +399,9 @@ def test_a_saved_config_without_a_downscale_loads_at_full_size_as_it_trained(tmp
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=4, width=40, height=30)
     saved = config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2)  # would choose 1/2
-    assert with_chosen_downscale(saved).downscale == 2
+    assert chosen_for(saved).downscale == 2
     for scene in (load_scene(saved), load_camera_scene(saved)):
         assert {(c.width, c.height) for c in scene.train.cameras} == {(40, 30)}
-
-
-def test_the_stand_in_keeps_its_size_without_being_built(tmp_path, monkeypatch):
-    monkeypatch.setattr("splatu.data.resolve.build_poster_standin", lambda *a: pytest.fail("built the stand-in"))
-    given = DataConfig(cache_dir=tmp_path)
-    assert with_chosen_downscale(given).downscale == 1
 
 
 def _write_colmap_text(root: Path, model: str, params: list[float], cameras) -> None:
@@ -764,7 +765,7 @@ def test_a_bad_depth_unit_scale_factor_is_a_user_error(tmp_path):
             "fl_x": 10, "fl_y": 10, "cx": 4, "cy": 3, "w": 8, "h": 6, "depth_unit_scale_factor": bad,
             "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
         with pytest.raises(SplatuError, match="depth_unit_scale_factor must be a positive number"):
-            load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+            load_nerfstudio(root, (1.0, 1.0, 1.0))
 
 
 def _distorted_photo(K: np.ndarray, coeffs: tuple[float, ...], width: int, height: int) -> np.ndarray:
@@ -887,7 +888,7 @@ def test_principal_point_defaults_to_the_image_centre(tmp_path):
     (root / "transforms.json").write_text(json.dumps({
         "camera_model": "PINHOLE", "fl_x": 40.0, "w": 41, "h": 31,
         "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
-    K = load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.K
+    K = load_nerfstudio(root, (1.0, 1.0, 1.0)).frames[0].camera.K
     assert (float(K[0, 2]), float(K[1, 2])) == (20.5, 15.5)
     assert float(K[1, 1]) == 40.0  # fl_y defaults to fl_x
 
@@ -922,8 +923,9 @@ def test_tiles_cut_from_larger_photos_load_with_one_warning_line(tmp_path, capsy
 def test_the_real_scenes_load_without_a_word_at_every_downscale(scene, capsys):
     """Their principal points sit within 1.4% of the centre: no warning, at any --downscale."""
     path = shared_scene(scene)
+    raw = read_scene_files(path, (1.0, 1.0, 1.0))
     for downscale in (1, 2, 4, 8):
-        assert read_scene_files(path, downscale, (1.0, 1.0, 1.0)).frames
+        assert downscaled(raw, downscale).frames
     assert capsys.readouterr() == ("", "")
 
 
@@ -994,7 +996,7 @@ def test_colmap_images_are_ordered_by_name_not_by_id(tmp_path):
     rows = [line.split() for line in images_txt.read_text().splitlines()]
     images_txt.write_text("\n".join(" ".join([str(6 - int(row[0])), *row[1:]]) if row else "" for row in rows) + "\n")
     (root / "sparse" / "0" / "points3D.txt").write_text("")  # their tracks name no image, so ids are free
-    frames = colmap.load_colmap(root, root / "sparse" / "0", 1).frames
+    frames = colmap.load_colmap(root, root / "sparse" / "0").frames
     assert [f.name for f in frames] == [f"img_{i}.png" for i in range(5)]
     for frame, camera in zip(frames, cameras, strict=True):  # each name keeps its own pose
         assert torch.allclose(frame.camera.world_to_camera, camera.world_to_camera, atol=1e-6)
@@ -1007,7 +1009,7 @@ def test_a_colmap_image_the_reconstruction_did_not_register_is_left_out(tmp_path
     reconstruction = pycolmap.Reconstruction(str(root / "sparse" / "0"))
     reconstruction.deregister_frame(reconstruction.images[3].frame_id)  # img_2.png
     monkeypatch.setattr(colmap, "read_reconstruction", lambda sparse_dir: reconstruction)
-    frames = colmap.load_colmap(root, root / "sparse" / "0", 1).frames
+    frames = colmap.load_colmap(root, root / "sparse" / "0").frames
     assert [f.name for f in frames] == ["img_0.png", "img_1.png", "img_3.png", "img_4.png"]
 
 
@@ -1082,7 +1084,7 @@ def test_a_frames_own_focal_length_wins_and_fl_x_wins_over_camera_angle_x(tmp_pa
         for frame in content["frames"]:
             frame["camera_angle_x"] = wide
     (root / "transforms.json").write_text(json.dumps(content))
-    assert {float(frame.camera.K[0, 0]) for frame in load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames} == {36.0}
+    assert {float(frame.camera.K[0, 0]) for frame in load_nerfstudio(root, (1.0, 1.0, 1.0)).frames} == {36.0}
 
 
 @pytest.mark.parametrize("where", ["per frame, x and y", "top level, x only"])
@@ -1097,7 +1099,7 @@ def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path,
         for frame in content["frames"]:
             frame["fl_y"] = frame["fl_x"]
     (root / "transforms.json").write_text(json.dumps(content))
-    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    given = load_nerfstudio(root, (1.0, 1.0, 1.0))
     for frame in content["frames"]:
         fl_x, fl_y = frame.pop("fl_x"), frame.pop("fl_y")
         if where == "top level, x only":
@@ -1106,7 +1108,7 @@ def test_instant_ngp_camera_angles_give_the_cameras_fl_x_and_fl_y_give(tmp_path,
             frame.update(camera_angle_x=2 * math.atan(frame["w"] / 2 / fl_x),
                          camera_angle_y=2 * math.atan(frame["h"] / 2 / fl_y))
     (root / "transforms.json").write_text(json.dumps(content))
-    angled = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    angled = load_nerfstudio(root, (1.0, 1.0, 1.0))
     assert [f.name for f in angled.frames] == [f.name for f in given.frames]
     for a, b in zip(angled.frames, given.frames, strict=True):
         torch.testing.assert_close(a.camera.K, b.camera.K, rtol=1e-12, atol=0)
@@ -1126,17 +1128,17 @@ def test_instant_ngp_fields_of_view_in_degrees_give_the_cameras_fl_x_and_fl_y_gi
     beside a matching fl_x they change nothing."""
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=3)
-    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    given = load_nerfstudio(root, (1.0, 1.0, 1.0))
 
     def to_degrees(frame: dict) -> None:
         fl_x, fl_y = frame.pop("fl_x"), frame.pop("fl_y")
         frame.update(x_fov=math.degrees(2 * math.atan(frame["w"] / 2 / fl_x)),
                      y_fov=math.degrees(2 * math.atan(frame["h"] / 2 / fl_y)))
     _rewrite_frames(root, to_degrees)
-    for a, b in zip(load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames, given.frames, strict=True):
+    for a, b in zip(load_nerfstudio(root, (1.0, 1.0, 1.0)).frames, given.frames, strict=True):
         torch.testing.assert_close(a.camera.K, b.camera.K, rtol=1e-12, atol=0)
     _rewrite_frames(root, lambda frame: frame.update(fl_x=float(given.frames[0].camera.K[0, 0])))
-    assert float(load_nerfstudio(root, 1, (1.0, 1.0, 1.0)).frames[0].camera.K[0, 0]) == pytest.approx(36.0, rel=1e-12)
+    assert float(load_nerfstudio(root, (1.0, 1.0, 1.0)).frames[0].camera.K[0, 0]) == pytest.approx(36.0, rel=1e-12)
 
 
 @pytest.mark.parametrize(("fields", "message"), [
@@ -1152,7 +1154,7 @@ def test_an_instant_ngp_field_of_view_that_is_out_of_range_or_disagrees_with_fl_
     write_nerfstudio_scene(root, n=3)  # fl_x = 36 across 40 px
     _rewrite_frames(root, lambda frame: frame.update(fields))
     with pytest.raises(SplatuError) as caught:
-        load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+        load_nerfstudio(root, (1.0, 1.0, 1.0))
     assert caught.value.what == message and "of " in caught.value.where
 
 
@@ -1162,11 +1164,11 @@ def test_an_instant_ngp_still_camera_given_as_transform_matrix_start_loads_and_a
     since splatu would train it as still."""
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=3)
-    given = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    given = load_nerfstudio(root, (1.0, 1.0, 1.0))
     _rewrite_frames(root, lambda frame: frame.update(transform_matrix_start=frame.pop("transform_matrix")))
-    started = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    started = load_nerfstudio(root, (1.0, 1.0, 1.0))
     _rewrite_frames(root, lambda frame: frame.update(transform_matrix_end=frame["transform_matrix_start"]))
-    still = load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+    still = load_nerfstudio(root, (1.0, 1.0, 1.0))
     for loaded in (started, still):
         for a, b in zip(loaded.frames, given.frames, strict=True):
             assert torch.equal(a.camera.world_to_camera, b.camera.world_to_camera)
@@ -1175,7 +1177,7 @@ def test_an_instant_ngp_still_camera_given_as_transform_matrix_start_loads_and_a
         frame["transform_matrix_end"] = [[*row[:3], row[3] + 0.01] for row in frame["transform_matrix_start"][:3]]
     _rewrite_frames(root, move)
     with pytest.raises(SplatuError) as caught:
-        load_nerfstudio(root, 1, (1.0, 1.0, 1.0))
+        load_nerfstudio(root, (1.0, 1.0, 1.0))
     assert "the camera moved during the exposure" in caught.value.what and "transform_matrix" in caught.value.fix
 
 

@@ -27,7 +27,7 @@ from splatu.model import GaussianModel, ModelConfig
 from splatu.render_uncertainty import RenderedView, ViewSpec, render_views, write_outputs
 from splatu.train_config import preset_config
 from tests.small_models import noise_views, overlapping_gaussians
-from tests.unit.test_trainer import tiny_config, tiny_scene
+from tests.unit.test_trainer import serve_scene, tiny_config, tiny_scene
 
 VIEW_BAR = re.compile(r"(\w+) +(\d+)/(\d+) views ")
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
@@ -113,7 +113,7 @@ def test_without_progress_an_evaluation_draws_nothing_on_a_terminal(monkeypatch)
 def test_a_periodic_evaluation_draws_under_the_training_bar(tmp_path, monkeypatch):
     """Both bars in one live display: the eval bar below the training bar, and the eval line printed whole above
     them, not cut into by a redraw."""
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
     with on_a_terminal(monkeypatch) as screen:
         train_command.train(tiny_config(tmp_path, steps=12, checkpoint_every=0, progress=True, eval_every_steps=6))
     drawn = screen.getvalue()
@@ -206,7 +206,7 @@ def test_off_a_terminal_the_setup_the_writing_and_the_stand_in_draw_nothing(caps
 
 def test_the_training_bar_shows_the_time_elapsed_while_the_first_step_compiles(tmp_path, monkeypatch):
     """Step 0 with a rate of 0 and no ETA stayed still for the ~10 s (a minute cold) of the kernels' compile."""
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
     with on_a_terminal(monkeypatch) as screen:  # 80 columns, which cut the bar's end
         train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
     drawn = frames(screen.getvalue())
@@ -215,7 +215,7 @@ def test_the_training_bar_shows_the_time_elapsed_while_the_first_step_compiles(t
 
 def test_the_training_bar_keeps_every_figure_on_an_80_column_terminal(tmp_path, monkeypatch):
     """The issue's figures (step, loss, PSNR, Gaussians, it/s, ETA) all on the line: the bar, last, takes the rest."""
-    monkeypatch.setattr(train_command, "load_scene", lambda data_config: tiny_scene())
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
     with on_a_terminal(monkeypatch) as screen:
         assert train_progress.console.width == 80
         train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
