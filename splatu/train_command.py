@@ -48,6 +48,7 @@ from splatu.train_config import (
     SCHEDULE,
     SPLATFACTO_STEPS,
     TrainConfig,
+    blamed_on_preset,
     check_parts,
     flags_given,
     from_dict,
@@ -66,12 +67,16 @@ from splatu.world_frame import require_same_frame, scene_frame
 
 def check_options(config: TrainConfig) -> None:
     """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
-    may build the stand-in) and before a run folder is made and `latest` pointed at it."""
-    check_parts(config)
-    config.data.refuse_unused_flags()
-    refuse_max_image_size_beside_downscale(config.data, typed_options(config))
-    refuse_unused_poster_options(config.data)
-    refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
+    may build the stand-in) and before a run folder is made and `latest` pointed at it. An option whose value came
+    from the preset file is named as the file's."""
+    try:
+        check_parts(config)
+        config.data.refuse_unused_flags()
+        refuse_max_image_size_beside_downscale(config.data, typed_options(config))
+        refuse_unused_poster_options(config.data)
+        refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
+    except SplatuError as err:
+        raise blamed_on_preset(err, config) from None
 
 
 def refuse_max_image_size_beside_downscale(data: DataConfig, typed: Collection[str]) -> None:

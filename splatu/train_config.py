@@ -240,6 +240,19 @@ def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> 
                        f"fix {' or '.join(keys)} in that file, or override it with {' or '.join(flags)}")
 
 
+def blamed_on_preset(err: SplatuError, config: TrainConfig) -> SplatuError:
+    """`err`, from a check of a new run's options together (flags and preset), told as the preset file's where it
+    names an option whose value came from the file, not from a flag: a check of two options (every-n's eval_every,
+    with --eval-split typed) named the flag of the file's option, which was never typed."""
+    if config.preset == FULL_RECIPE:
+        return err
+    mine = flat_options(to_dict(config))
+    kept = {name: value for name, value in preset_values(config.preset).items() if mine.get(name) == value}
+    if not _keys_named(kept, (err.what, err.where, err.fix)):
+        return err
+    return _blamed_on_file(err, preset_path(config.preset), kept)
+
+
 def _keys_named(keys: Collection[str], texts: Sequence[str]) -> list[str]:
     """The keys whose flags an error names, in the order it names them, from the first of `texts` (what, where, fix)
     that names any: a fix may mention another option in passing (the means' decay "over the run's --steps"), and a

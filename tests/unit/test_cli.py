@@ -200,6 +200,23 @@ def test_a_flag_replaces_a_bad_value_of_the_preset_file(capsys, tmp_path, flag):
     assert _train_error(capsys, tmp_path, preset, *flags).startswith("error: scene not found, in ")
 
 
+@pytest.mark.parametrize(("preset", "flags", "line"), [
+    ("data:\n  eval_every: 1\n", ["--eval-split", "every-n"],
+     "data.eval_every: 1 must be at least 2, in {}, set data.eval_every to at least 2 in that file, or override it "
+     "with --eval-every"),
+    ("data:\n  eval_split: every-n\n  eval_every: 4\n", ["--eval-split", "contiguous"],
+     "data.eval_every is not used by --eval-split contiguous, in {}, fix data.eval_every in that file, or override it "
+     "with --eval-every"),
+    ("data:\n  downscale: 2\n", ["--max-image-size", "400"],
+     "--max-image-size 400 is not used beside data.downscale 2, which sets the image size itself, in {}, fix "
+     "data.downscale in that file, or override it with --downscale"),
+])
+def test_a_preset_value_refused_beside_a_flag_is_blamed_on_the_file(capsys, tmp_path, preset, flags, line):
+    """A check of two options, one from the file and one typed, named the file's option by a flag never typed
+    ("--eval-every must be at least 2 (got 1), in the options")."""
+    assert _train_error(capsys, tmp_path, preset, *flags) == f"error: {line.format(tmp_path / 'p.yaml')}\n"
+
+
 @pytest.mark.parametrize("preset", ["steps: -5\n", "steps: 20\n", "seed: 3\n"])
 def test_a_bad_flag_beside_a_preset_file_is_the_flags(capsys, tmp_path, preset):
     assert _train_error(capsys, tmp_path, preset, "--steps", "-3") == (
