@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shlex
 import shutil
+import socket
 import tempfile
 import time
 from collections.abc import Callable
@@ -235,6 +237,48 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], mode: pycolmap.Came
     return best
 
 
+STAGING_PREFIX = ".process-images-"
+_STAGING_NAME = re.compile(re.escape(STAGING_PREFIX) + r"(\d+)@(.+)-[^-]+")
+"""A staging folder's name: the prefix, the id of the process that made it @ its host, then mkdtemp's random part."""
+
+
+def _staging_prefix() -> str:
+    """The start of this run's staging folder name: it names the process and host, so that a later run can tell a
+    killed run's folder (its process gone) from a live one's."""
+    return f"{STAGING_PREFIX}{os.getpid()}@{socket.gethostname()}-"
+
+
+def _running(pid: int) -> bool:
+    """Whether process `pid` exists on this host (another user's included): signal 0 checks without sending."""
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _stale_staging(output: Path) -> list[Path]:
+    """The staging folders in `output` that a run killed outright (kill -9, a power cut) left: made on this host by
+    a process that no longer runs. A live run's stays, and so does one made on another host sharing the folder, or
+    by an older splatu whose names held no process id, which cannot be told from a live one."""
+    host = socket.gethostname()
+    return [entry for entry in sorted(output.iterdir())
+            if (found := _STAGING_NAME.fullmatch(entry.name)) is not None and found.group(2) == host
+            and entry.is_dir() and not entry.is_symlink() and not _running(int(found.group(1)))]
+
+
+def _remove_stale_staging(output: Path, console: Console) -> None:
+    """Delete the staging folders killed runs left in `output` (each may hold a database of hundreds of MB)."""
+    stale = _stale_staging(output)
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    if stale:
+        console.print(f"  removed {len(stale)} staging folder{'s' if len(stale) > 1 else ''} that a killed run left in "
+                      f"{output}", highlight=False, soft_wrap=True)
+
+
 def _swap_in(staging: Path, output: Path) -> None:
     """Put the complete new model, then its database, in place of any earlier ones: until here an interrupted or
     failed run left the earlier model as it was, and a stop now waits for both, so the model and the database
@@ -265,7 +309,8 @@ def process_images(cfg: ProcessImagesConfig) -> Path:
     mode = _camera_mode(cfg.single_camera, sizes, cfg.images)
     created = [path for path in (output, output / "sparse") if not path.exists()] + ([link] if link else [])
     output.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".process-images-", dir=output))  # never a folder the user had
+    _remove_stale_staging(output, console)
+    staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(), dir=output))  # never a folder the user had
     # COLMAP's warnings and errors are raw log lines beside splatu's own for the same thing (an unreadable photo,
     # no model); a failure COLMAP cannot go on from is its FATAL line and an exception
     pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.FATAL

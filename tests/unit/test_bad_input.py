@@ -10,6 +10,8 @@ import os
 import re
 import shlex
 import signal
+import socket
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -738,10 +740,34 @@ def stop_at_the_sfm(monkeypatch, seen: list) -> None:
     from splatu.data import process_images as P
 
     def reconstruct(cfg, names, mode, staging, console):
-        seen.append((names, mode, staging.parent))
+        seen.append((names, mode, staging.parent, staging.name))
         raise SplatuError("stopped", "in the test", "none")
 
     monkeypatch.setattr(P, "_reconstruct", reconstruct)
+
+
+def test_process_images_removes_the_staging_folders_killed_runs_left(tmp_path, monkeypatch, capfd):
+    """A kill -9 left a hidden .process-images-* folder (with its database) in the output for good. The next run
+    removes those whose process is gone, and keeps a live run's, another host's and an older splatu's (no pid)."""
+    photos, out = tmp_path / "photos", tmp_path / "out"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    ended = subprocess.Popen(["true"])  # its process id no longer runs once it is waited for
+    ended.wait()
+    host = socket.gethostname()
+    names = {"stale": f".process-images-{ended.pid}@{host}-k1lled00",
+             "live": f".process-images-{os.getpid()}@{host}-running0",
+             "elsewhere": f".process-images-{ended.pid}@not-{host}-another", "older": ".process-images-x1y2z3w4"}
+    for name in names.values():
+        (out / name).mkdir(parents=True)
+        (out / name / "database.db").write_text("staged")
+    seen: list = []
+    stop_at_the_sfm(monkeypatch, seen)
+    with pytest.raises(SplatuError, match="stopped"):
+        process_images(ProcessImagesConfig(images=photos, output=out))
+    assert sorted(p.name for p in out.iterdir()) == sorted(names[k] for k in ("live", "elsewhere", "older"))
+    assert seen[0][3].startswith(f".process-images-{os.getpid()}@{host}-")  # this run's own: gone, as it failed
+    assert f"removed 1 staging folder that a killed run left in {out}" in capfd.readouterr().err
 
 
 @pytest.mark.parametrize(("folder", "output"), [("shots", "shots-colmap"), ("images", ".")])
