@@ -102,26 +102,21 @@ def budget_note(config: TrainConfig, scene: Scene) -> str | None:
 
 
 def schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
-    """What to say when a typed --steps rescaled the schedule (`scaled_schedule`): the factor and the values the run
-    trains with, each as the flag that would pin it, and which were kept; None when nothing was rescaled."""
+    """What to say when a typed --steps rescaled the schedule (`scaled_schedule`): one line of the values trained with,
+    spelt as the flags that would repeat them, and those kept; None when nothing was rescaled."""
     if "--steps" not in typed:
         return None
     scaled = scaled_schedule(config.preset, config.steps, typed)
     if not scaled:
         return None
 
-    def told(name: str) -> str:
-        said = f"{option_flag(name)} {option_value(config, name)}"
-        if name == "densify.refine_every":  # the opacity reset is counted in refinements
-            said += f" (an opacity reset every {config.densify.reset_alpha_every * config.densify.refine_every})"
-        return said
+    def flags(names: Sequence[str]) -> str:
+        return " ".join(f"{option_flag(name)} {option_value(config, name)}" for name in names)
 
     kept = [name for name in SCHEDULE if name not in scaled]
-    return (f"note: --steps {config.steps} rescales the step-based schedule to splatfacto's × {config.steps}/"
-            f"{SPLATFACTO_STEPS} = {config.steps / SPLATFACTO_STEPS:.3g}, as the presets are made: "
-            f"{', '.join(told(name) for name in scaled)}"
-            + (f"; kept: {', '.join(told(name) for name in kept)}" if kept else "")
-            + "; type a flag to set its value")
+    return (f"note: --steps {config.steps} rescales the schedule to splatfacto's × {config.steps}/{SPLATFACTO_STEPS}: "
+            f"{flags(list(scaled))}{f'; kept: {flags(kept)}' if kept else ''} (a flag typed beside --steps keeps its "
+            "value)")
 
 
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
