@@ -546,6 +546,19 @@ def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
     assert config.densify.stop_split_at == 15000 and config.model.sh_degree_interval == 1000
 
 
+@pytest.mark.parametrize("length", ["0", "2000.0", "true", "long"])
+def test_steps_refuses_to_rescale_from_a_preset_file_without_a_length(tmp_path, length):
+    """The flag replaces the file's steps, so it was never checked; the file's length is what the rule scales from,
+    and with a bad one --steps silently kept the full recipe's 30000-step schedule."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text(f"steps: {length}\n")
+    for build in (lambda: parsed(["--preset", str(custom), "--steps", "400"]),
+                  lambda: preset_config(str(custom), overridden={"--steps"}, steps=400)):
+        with pytest.raises(SplatuError, match="steps:") as err:
+            build()
+        assert err.value.where == f"in {custom}" and "set steps" in err.value.fix
+
+
 @pytest.mark.parametrize("steps", [1, 2, 10, 30])
 def test_a_tiny_step_count_clamps_the_schedule_to_one_step(steps):
     config = parsed(["--steps", str(steps)])
