@@ -12,7 +12,6 @@ import sys
 import time
 from collections.abc import Collection, Sequence
 from pathlib import Path
-from typing import Any
 
 from splatu.checkpoint import (
     RESUME_KEYS,
@@ -144,9 +143,7 @@ def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
 
 def _flag(config: TrainConfig, name: str) -> str:
     """How dotted option `name` was spelt on the command line: `--no-progress` for a boolean turned off."""
-    value: Any = config
-    for part in name.split("."):
-        value = getattr(value, part)
+    value = option_value(config, name)
     *parents, last = name.removeprefix("data.").split(".")
     return "--" + ".".join([*parents, ("no-" if value is False else "") + last]).replace("_", "-")
 
