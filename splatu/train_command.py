@@ -101,21 +101,25 @@ def budget_note(config: TrainConfig, scene: Scene) -> str | None:
 
 
 def schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
-    """What to say when a typed --steps rescaled the schedule (`scaled_schedule`): one line of the values trained with,
-    spelt as the flags that would repeat them, and those kept; None when nothing was rescaled."""
-    if "--steps" not in typed:
+    """What to say when a typed --steps set another length than the preset's (`scaled_schedule`): one line of the
+    values it rescaled and of the preset's own values off the rule that it kept, spelt as the flags that would repeat
+    them; the flags typed beside it are the user's own, so not told. None when there is nothing to tell."""
+    scaled = scaled_schedule(config.preset, config.steps, typed) if "--steps" in typed else None
+    if scaled is None:
         return None
-    scaled = scaled_schedule(config.preset, config.steps, typed)
-    if not scaled:
-        return None
+    kept = [name for name in SCHEDULE if name not in scaled and option_flag(name) not in typed]
 
     def flags(names: Sequence[str]) -> str:
         return " ".join(f"{option_flag(name)} {option_value(config, name)}" for name in names)
 
-    kept = [name for name in SCHEDULE if name not in scaled]
-    return (f"note: --steps {config.steps} rescales the schedule to splatfacto's × {config.steps}/{SPLATFACTO_STEPS}: "
-            f"{flags(list(scaled))}{f'; kept: {flags(kept)}' if kept else ''} (a flag typed beside --steps keeps its "
-            "value)")
+    told = []
+    if scaled:
+        told.append(f"rescales the schedule to splatfacto's × {config.steps}/{SPLATFACTO_STEPS}: {flags(list(scaled))}")
+    if kept:
+        told.append(f"keeps the preset's {flags(kept)}, not splatfacto's × its own length/{SPLATFACTO_STEPS}")
+    if not told:  # every schedule flag typed
+        return None
+    return f"note: --steps {config.steps} {'; '.join(told)} (a flag typed beside --steps sets that value instead)"
 
 
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:

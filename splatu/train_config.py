@@ -280,13 +280,14 @@ def splatfacto_schedule(steps: int) -> dict[str, int]:
     return {name: max(1, round(option_value(recipe, name) * scale)) for name in SCHEDULE}
 
 
-def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict[str, int]:
-    """The settings `--steps steps` rescales in `preset`, with their values: none at the preset's own length; else
-    every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset value follows
-    `splatfacto_schedule` at the preset's length (a preset file's own choice off that rule stays, as a flag does).
-    A preset file whose own steps is no length is refused: nothing else checks it once the typed --steps replaces it."""
+def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict[str, int] | None:
+    """The settings `--steps steps` rescales in `preset`, with their values: None at the preset's own length (no
+    rescale applies); else every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset
+    value follows `splatfacto_schedule` at the preset's length (a preset file's own choice off that rule stays, as a
+    flag does). A preset file whose own steps is no length is refused: nothing else checks it once the typed --steps
+    replaces it."""
     if steps < 1:  # the option checks refuse it
-        return {}
+        return None
     values = {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
     own = values.get("steps", SPLATFACTO_STEPS)
     if type(own) is not int or own < 1:  # the flag replaced it unchecked, but it is what the rule scales from
@@ -294,7 +295,7 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
                           f"in {preset_path(preset)}", "set steps in that file to the whole number of steps (at "
                           "least 1) its schedule was made for")
     if own == steps:
-        return {}
+        return None
     rule, scaled, recipe = splatfacto_schedule(own), splatfacto_schedule(steps), splatfacto_schedule(SPLATFACTO_STEPS)
     return {name: scaled[name] for name in SCHEDULE  # a setting the file leaves out has the recipe's value
             if option_flag(name) not in kept and values.get(name, recipe[name]) == rule[name]}
@@ -311,7 +312,7 @@ def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu", overridd
         config = _with_preset(config, preset_path(preset), overridden)
     config = dataclasses.replace(config, preset=preset, method=method)
     if steps is not None:
-        scaled = scaled_schedule(preset, steps, overridden)
+        scaled = scaled_schedule(preset, steps, overridden) or {}
         config = apply_values(config, {"steps": steps, **nested_options(scaled)}, f"--steps {steps}")
     return get_method(method).configure(config)
 

@@ -55,6 +55,7 @@ from splatu.train_config import (
     flags_given,
     from_dict,
     load_config,
+    option_flag,
     option_value,
     preset_config,
     preset_path,
@@ -526,14 +527,41 @@ def test_a_schedule_flag_typed_beside_steps_keeps_its_value(flag):
     assert schedule_of(config) == {**splatfacto_schedule(4000), "densify.stop_split_at": 500}
 
 
-def test_the_schedule_note_names_what_a_typed_flag_kept():
-    argv = ["--steps", "4000", "--densify.stop_split_at=500"]
-    note = train_command.schedule_note(parsed(argv), flags_given(argv))
-    assert note == ("note: --steps 4000 rescales the schedule to splatfacto's × 4000/30000: --resolution-interval 400 "
-                    "--model.sh-degree-interval 133 --densify.warmup-length 67 --densify.refine-every 13 "
-                    "--densify.stop-screen-size-at 533; kept: --densify.stop-split-at 500 (a flag typed beside "
-                    "--steps keeps its value)")
-    assert train_command.schedule_note(parsed(["--steps", "2000"]), {"--steps"}) is None  # fast's own length
+def note_of(argv: list[str]) -> str | None:
+    """The schedule note `splatu train ARGV` prints."""
+    return train_command.schedule_note(parsed(argv), flags_given(argv))
+
+
+def test_the_schedule_note_says_what_the_preset_kept_and_leaves_out_what_was_typed(tmp_path):
+    """A preset value off the rule was kept without a word (listed beside the typed flags, as if typed); a typed flag
+    is the user's own and needs no telling."""
+    assert note_of(["--steps", "4000", "--densify.stop_split_at=500"]) == (
+        "note: --steps 4000 rescales the schedule to splatfacto's × 4000/30000: --resolution-interval 400 "
+        "--model.sh-degree-interval 133 --densify.warmup-length 67 --densify.refine-every 13 "
+        "--densify.stop-screen-size-at 533 (a flag typed beside --steps sets that value instead)")
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("steps: 2000\nresolution_interval: 100\nmodel:\n  sh_degree_interval: 67\ndensify:\n"
+                      "  warmup_length: 33\n  refine_every: 7\n  stop_split_at: 1000\n  stop_screen_size_at: 267\n")
+    assert note_of(["--preset", str(custom), "--steps", "4000", "--densify.refine-every", "5"]) == (
+        "note: --steps 4000 rescales the schedule to splatfacto's × 4000/30000: --model.sh-degree-interval 133 "
+        "--densify.warmup-length 67 --densify.stop-split-at 2000 --densify.stop-screen-size-at 533; keeps the "
+        "preset's --resolution-interval 100, not splatfacto's × its own length/30000 (a flag typed beside --steps "
+        "sets that value instead)")
+    assert note_of(["--steps", "2000"]) is None  # fast's own length
+    assert note_of(["--steps", "2000", "--preset", str(custom), "--resolution-interval", "7"]) is None
+
+
+def test_steps_says_so_when_it_rescales_none_of_a_preset_files_schedule(tmp_path):
+    """A file that sets only its length keeps the full recipe's schedule (densifying to step 15000) and said nothing
+    of it: --steps, which rescales the presets, silently did not."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("steps: 2000\ndensify:\n  max_gaussians: 5000\n")
+    assert note_of(["--preset", str(custom), "--steps", "4000", "--resolution-interval", "400"]) == (
+        "note: --steps 4000 keeps the preset's --model.sh-degree-interval 1000 --densify.warmup-length 500 "
+        "--densify.refine-every 100 --densify.stop-split-at 15000 --densify.stop-screen-size-at 4000, not splatfacto's "
+        "× its own length/30000 (a flag typed beside --steps sets that value instead)")
+    every_flag = [option_flag(name) + "=1" for name in SCHEDULE]
+    assert note_of(["--preset", str(custom), "--steps", "4000", *every_flag]) is None  # all typed: nothing to tell
 
 
 def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
@@ -586,8 +614,8 @@ def test_a_rescaled_run_says_so_saves_it_and_resumes_and_extends_with_it(tmp_pat
     note = next(line for line in err.splitlines() if "rescales" in line)
     assert note == ("note: --steps 10 rescales the schedule to splatfacto's × 10/30000: --resolution-interval 1 "
                     "--model.sh-degree-interval 1 --densify.warmup-length 1 --densify.refine-every 1 "
-                    "--densify.stop-split-at 5 --densify.stop-screen-size-at 1 (a flag typed beside --steps keeps "
-                    "its value)")  # one line that reads as the flags that would repeat the run
+                    "--densify.stop-split-at 5 --densify.stop-screen-size-at 1 (a flag typed beside --steps sets "
+                    "that value instead)")  # one line that reads as the flags that would repeat the run
     saved = load_config(run_dir / "config.yml")
     assert saved.steps == 10 and schedule_of(saved) == splatfacto_schedule(10)
     _, err = train("--resume", str(run_dir), "--extend-to", "30", "--steps", "30")
