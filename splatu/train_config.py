@@ -284,16 +284,13 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
     """The settings `--steps steps` rescales in `preset`, with their values: None at the preset's own length (no
     rescale applies); else every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset
     value follows `splatfacto_schedule` at the preset's length (a preset file's own choice off that rule stays, as a
-    flag does). A preset file whose own steps is no length is refused: nothing else checks it once the typed --steps
-    replaces it."""
+    flag does); none for a preset file whose own steps is no length (which the typed --steps replaces)."""
     if steps < 1:  # the option checks refuse it
         return None
     values = {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
     own = values.get("steps", SPLATFACTO_STEPS)
-    if type(own) is not int or own < 1:  # the flag replaced it unchecked, but it is what the rule scales from
-        raise SplatuError(f"steps: {own!r} is no length for --steps {steps} to rescale the schedule from",
-                          f"in {preset_path(preset)}", "set steps in that file to the whole number of steps (at "
-                          "least 1) its schedule was made for")
+    if type(own) is not int or own < 1:  # replaced by the flag unchecked: no length for the rule to scale from
+        return {}
     if own == steps:
         return None
     rule, scaled, recipe = splatfacto_schedule(own), splatfacto_schedule(steps), splatfacto_schedule(SPLATFACTO_STEPS)

@@ -516,6 +516,8 @@ def test_steps_rescales_the_presets_schedule_as_the_presets_are_made():
         "resolution_interval": 400, "model": config.model, "densify": config.densify})  # nothing else moved
     assert config.densify.max_gaussians == 20000 and config.densify.reset_alpha_every == 30
     assert parsed(["--preset", "quality", "--steps", "3000"]) == preset_config("quality")  # its own length
+    shortened = parsed(["--steps", "2000", "--preset", "quality"])  # fast's length, quality's own schedule rescaled
+    assert schedule_of(shortened) == schedule_of(preset_config("fast")) and shortened.densify.max_gaussians == 50000
     assert schedule_of(parsed(["--preset", "none", "--steps", "3000"])) == schedule_of(preset_config("quality"))
     assert parsed(["--steps", "2000"]) == preset_config("fast")
 
@@ -575,16 +577,19 @@ def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
 
 
 @pytest.mark.parametrize("length", ["0", "2000.0", "true", "long"])
-def test_steps_refuses_to_rescale_from_a_preset_file_without_a_length(tmp_path, length):
-    """The flag replaces the file's steps, so it was never checked; the file's length is what the rule scales from,
-    and with a bad one --steps silently kept the full recipe's 30000-step schedule."""
+def test_steps_beside_a_preset_file_without_a_length_keeps_its_schedule_and_says_so(tmp_path, length):
+    """The flag replaces a bad value of the file (test_cli), but the file's length is what the rule scales from:
+    without one, --steps rescaled nothing and said nothing."""
     custom = tmp_path / "mine.yaml"
-    custom.write_text(f"steps: {length}\n")
-    for build in (lambda: parsed(["--preset", str(custom), "--steps", "400"]),
-                  lambda: preset_config(str(custom), overridden={"--steps"}, steps=400)):
-        with pytest.raises(SplatuError, match="steps:") as err:
-            build()
-        assert err.value.where == f"in {custom}" and "set steps" in err.value.fix
+    custom.write_text(f"steps: {length}\nresolution_interval: 100\n")
+    config = parsed(["--preset", str(custom), "--steps", "400"])
+    assert config.steps == 400 and schedule_of(config) == {**splatfacto_schedule(SPLATFACTO_STEPS),
+                                                           "resolution_interval": 100}
+    assert note_of(["--preset", str(custom), "--steps", "400"]) == (
+        "note: --steps 400 keeps the preset's --resolution-interval 100 --model.sh-degree-interval 1000 "
+        "--densify.warmup-length 500 --densify.refine-every 100 --densify.stop-split-at 15000 "
+        "--densify.stop-screen-size-at 4000, not splatfacto's × its own length/30000 (a flag typed beside --steps "
+        "sets that value instead)")
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 30])
