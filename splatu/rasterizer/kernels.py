@@ -193,6 +193,15 @@ _EAGER: dict[str, Callable] = {
                row_block_spans)
 }
 _compiled: dict[Callable, Callable] = {}
+
+RECOMPILE_LIMIT = 16
+"""Graphs dynamo may compile for one kernel and one set of input dtypes (its default is 8 per function, shared by all
+dtypes). A kernel specialises on what dynamic shapes cannot cover: a size of 0 or 1, and the channel count of
+`upstream_per_weight` and `entry_gradients`, whose loop over the C+2 channels is unrolled. A process that renders
+five channel widths in float32 and float64 (training, then the baselines' extra features, or the tests) needed 10
+graphs of each, and past the eighth dynamo ran the kernel eager, saying so only in its log: that float64 render took
+1.7-1.8x the time of the other float64 ones in the same process, against 1.03-1.07x with a limit per dtype
+(`python benchmarks/mixed_dtypes.py --rounds 21`, docs/results.md)."""
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
 
 
@@ -229,19 +238,31 @@ def compiled(fn: Callable) -> Callable:
     if not _use_compile:
         return fn
     if fn not in _compiled:
-        _compiled[fn] = _with_eager_fallback(fn, torch.compile(fn, dynamic=True))
+        _compiled[fn] = _with_eager_fallback(fn)
     return _compiled[fn]
 
 
-def _with_eager_fallback(fn: Callable, compiled_fn: Callable) -> Callable:
-    """Use `compiled_fn`, but if compiling fails (no C++ compiler, unsupported backend) warn once and run `fn`."""
+def _dtypes(args: tuple) -> tuple[torch.dtype, ...]:
+    """The dtypes of the tensor arguments: the key of a kernel's compiled versions."""
+    return tuple(arg.dtype for arg in args if isinstance(arg, Tensor))
+
+
+def _with_eager_fallback(fn: Callable) -> Callable:
+    """Run `fn` through one torch.compile per set of input dtypes, each with its own recompile limit (dynamo's cache
+    is per code object otherwise, so float32 training and float64 renders shared one limit). If compiling fails (no
+    C++ compiler, an unsupported backend, or RECOMPILE_LIMIT graphs not enough) warn once and run eager torch from
+    then on: dynamo itself would run a function past its limit eager with only a log line."""
+    by_dtypes: dict[tuple[torch.dtype, ...], Callable] = {}
 
     def run(*args):
         global _use_compile
+        key = _dtypes(args)
+        if key not in by_dtypes:
+            by_dtypes[key] = torch.compile(fn, dynamic=True, isolate_recompiles=True, recompile_limit=RECOMPILE_LIMIT)
         try:
             # a model's parameters change length as it densifies: without this, each new length recompiles
-            with torch._dynamo.config.patch(force_parameter_static_shapes=False):
-                return compiled_fn(*args)
+            with torch._dynamo.config.patch(force_parameter_static_shapes=False, fail_on_recompile_limit_hit=True):
+                return by_dtypes[key](*args)
         except Exception as error:  # torch.compile raises many exception types; eager gives the same results
             # (a backward that compiles lazily, at its first call, fails in loss.backward() instead, outside this)
             warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager torch",

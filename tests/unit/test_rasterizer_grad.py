@@ -18,7 +18,7 @@ from torch._dynamo.utils import counters
 from splatu.rasterizer import RasterInputError, rasterize
 from splatu.rasterizer.footprint import block_entries
 from splatu.rasterizer.function import CompositeFunction
-from splatu.rasterizer.kernels import ALPHA_MIN, set_compile
+from splatu.rasterizer.kernels import ALPHA_MIN, kernels_compiled, set_compile
 from splatu.rasterizer.projection import project_gaussians
 
 WIDTH, HEIGHT = 12, 10
@@ -288,3 +288,29 @@ def test_compiled_projection_takes_parameters_of_any_length_without_recompiling(
         for eager, compiled in zip(*results, strict=True):
             torch.testing.assert_close(compiled, eager, atol=1e-12, rtol=1e-10)
     assert counters["stats"]["unique_graphs"] == 1
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not any(shutil.which(c) for c in ("c++", "g++", "clang++")),
+                    reason="torch.compile's CPU backend needs a C++ compiler (without one splatu runs eager)")
+def test_compiled_kernels_stay_compiled_across_dtypes_and_channel_widths():
+    """One process renders float32 (training) and float64, with several channel widths (colour, uncertainty heads,
+    the baselines' extra features). The backward kernels compile one graph per width and dtype: ten here, past
+    dynamo's limit of 8 per function, beyond which it ran the kernel eager and said so only in a log line."""
+    torch._dynamo.reset()
+    counters.clear()
+    previous = set_compile(True)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("error", message="torch.compile of rasterizer kernel")  # a fallback must be said
+            for channels in (1, 2, 3, 4, 5):
+                for dtype in (torch.float32, F64):
+                    scene = tiny_scene(30 + channels, n=6)
+                    scene["features"] = scene["features"].detach()[:, :1].repeat(1, channels)
+                    scene["background"] = scene["background"].detach()[:1].repeat(channels)
+                    leaves = [v.detach().to(dtype).requires_grad_(True) for v in scene.values()]
+                    sum(o.sum() for o in render_all(*leaves)).backward()
+        assert kernels_compiled()
+    finally:
+        set_compile(previous)
+    assert not [reason for reason in counters["unimplemented"] if "recompile limit" in reason]
