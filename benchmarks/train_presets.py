@@ -84,7 +84,8 @@ def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: Dat
     row = {"scene": scene, "preset": preset, "sh_degree": summary["sh_degree"], "seed": seed,
            "degree_choice": degree_choice, "uncertainty": uncertainty,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
-           "wall_seconds": wall, "train_seconds": summary["train_seconds"], "run_dir": str(run_dir),
+           "wall_seconds": wall, "train_seconds": summary["train_seconds"],
+           "train_compile_seconds": summary["train_compile_seconds"], "run_dir": str(run_dir),
            **{k: v for k, v in measured_on().items() if k in ("date", "cpu")}}
     for set_name, metrics in summary["eval"].items():
         for key, value in metrics.items():

@@ -223,6 +223,7 @@ def train_with(args: Args) -> dict:
     evals = summary["eval"]
     return {"lever": args.lever, "weight": args.weight, "preset": args.preset, "seed": args.seed,
             "gaussians": summary["num_gaussians"], "train_seconds": round(summary["train_seconds"], 1),
+            "train_compile_seconds": round(summary["train_compile_seconds"], 1),
             "unseen_observed_psnr": evals["eval"]["psnr_observed"], "unseen_psnr": evals["eval"]["psnr"],
             "every_8th_psnr": evals["interp"]["psnr"], "run_dir": str(run_dir),
             **{k: v for k, v in measured_on().items() if k in ("date", "cpu")}}

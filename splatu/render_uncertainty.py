@@ -424,9 +424,14 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
 def train_timing(run: LoadedRun) -> dict[str, float | None]:
     """What the run's training cost, as render.json and eval-ause's timing.json name it: `train_step_seconds`, the
     time inside training steps (summary.json's train_seconds; an ensemble's, its members' summed), is the one measure
-    every method reports, so ours and the ensemble compare on it; `train_wall_seconds` (scene loading, evaluations,
-    every session of an ensemble) is beside it. Both None for a run or ensemble not finished."""
-    return {"train_step_seconds": run.train_seconds, "train_wall_seconds": run.wall_seconds}
+    every method reports, so ours and the ensemble compare on it; `train_compile_seconds`, the time the steps spent
+    compiling the rasterizer's kernels (each session's first step, ~10 s to a minute), is left out of it, so that a
+    resumed run or one ensemble member compiling for all does not skew the comparison; `train_wall_seconds` (scene
+    loading, evaluations, every session of an ensemble) is beside them. All None for a run or ensemble not
+    finished; `train_compile_seconds` also for one saved before compiles were timed apart, whose
+    `train_step_seconds` includes them."""
+    return {"train_step_seconds": run.train_seconds, "train_compile_seconds": run.train_compile_seconds,
+            "train_wall_seconds": run.wall_seconds}
 
 
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_shape", "orbit_radius_scale", "gif_fps")

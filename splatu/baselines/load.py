@@ -46,7 +46,9 @@ class LoadedRun:
     models: list[GaussianModel]
     train_seconds: float | None
     """Time inside training steps, summary.json's train_seconds (an ensemble: the sum of its members'), the one
-    measure of cost that ours and the ensemble are compared on; None for a run or ensemble not finished."""
+    measure of cost that ours and the ensemble are compared on; None for a run or ensemble not finished. Without
+    the kernels' compiles, unless `train_compile_seconds` is None for a finished run (saved before they were timed
+    apart, its train_seconds includes them)."""
     frames: list[WorldTransform | None]
     """Per model, the frame (scene normalisation) it was trained in; None in older checkpoints."""
     member_steps: tuple[int, ...] | None = None
@@ -55,6 +57,9 @@ class LoadedRun:
     wall_seconds: float | None = None
     """Wall time of the training, scene loading and evaluations included: summary.json's wall_seconds (an ensemble:
     ensemble.json's, every session that trained a member); None when `train_seconds` is."""
+    train_compile_seconds: float | None = None
+    """The part of the steps' time spent compiling the rasterizer's kernels, summary.json's train_compile_seconds
+    (an ensemble: its members' summed); None when `train_seconds` is, or a run (a member) recorded none."""
 
 
 @dataclass
@@ -64,24 +69,33 @@ class BuiltMethod:
     """Post-training cost of the method (visibility counting, Fisher accumulation); 0 for the others."""
 
 
-def _summary_seconds(run_dir: Path) -> tuple[float | None, float | None]:
-    """summary.json's train_seconds and wall_seconds; (None, None) for a run not finished (it has none)."""
+SUMMARY_SECONDS = ("train_seconds", "train_compile_seconds", "wall_seconds")
+"""summary.json's times, in the order `_summary_seconds` returns them."""
+
+
+def _summary_seconds(run_dir: Path) -> tuple[float | None, float | None, float | None]:
+    """summary.json's SUMMARY_SECONDS, None for each it lacks: all for a run not finished, the compile time for one
+    saved before it was recorded."""
     path = run_dir / "summary.json"
     if not path.is_file():
-        return None, None
+        return None, None, None
     summary = read_json(path)
-    for key in ("train_seconds", "wall_seconds"):
+    for key in SUMMARY_SECONDS:
         if summary.get(key) is not None and not is_finite_number(summary[key]):
             raise SplatuError(f"{key} is {summary[key]!r}, not a number", f"in {path}", "fix or regenerate the file")
-    return summary.get("train_seconds"), summary.get("wall_seconds")
+    return summary.get("train_seconds"), summary.get("train_compile_seconds"), summary.get("wall_seconds")
 
 
-def _ensemble_seconds(record_wall: float | None, members: list[Path]) -> tuple[float | None, float | None]:
-    """An ensemble's time in steps, the sum of its members' (each summary.json's, as a single run reports its own),
-    and its wall time from ensemble.json; (None, None) unless every member has its time in steps."""
-    seconds = [_summary_seconds(member)[0] for member in members]
-    known = [s for s in seconds if s is not None]
-    return (sum(known), record_wall) if len(known) == len(seconds) else (None, None)
+def _ensemble_seconds(record_wall: float | None,
+                      members: list[Path]) -> tuple[float | None, float | None, float | None]:
+    """An ensemble's time in steps and its compile time, each the sum of its members' (each summary.json's, as a
+    single run reports its own), and its wall time from ensemble.json; all None unless every member has its time
+    in steps, the compile time None unless every member has one."""
+    seconds = [_summary_seconds(member)[:2] for member in members]
+    if any(train is None for train, _ in seconds):
+        return None, None, None
+    compiles = [compiling for _, compiling in seconds]
+    return (sum(train for train, _ in seconds), None if None in compiles else sum(compiles), record_wall)
 
 
 def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
@@ -102,16 +116,16 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
         steps = tuple(map(checkpoint_step, checkpoints)) if unfinished else None
         # an ensemble not whole now is made of partly intermediate models: no finished ensemble's cost, as a single
         # run's checkpoint pinned before its end reports none
-        train_seconds, wall_seconds = (None, None) if unfinished else _ensemble_seconds(record.wall_seconds,
-                                                                                        record.members)
-        return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], train_seconds,
-                         [m.frame for m in loaded], steps, wall_seconds)
+        train, compiling, wall = ((None, None, None) if unfinished
+                                  else _ensemble_seconds(record.wall_seconds, record.members))
+        return LoadedRun(run_dir, loaded[0].config, [m.model for m in loaded], train, [m.frame for m in loaded],
+                         steps, wall, compiling)
     if (run_dir / "members").is_dir() and not (run_dir / "checkpoints").is_dir():
         raise SplatuError("this ensemble is unfinished (it has members but no ensemble.json yet)", f"in {run_dir}",
                           f"finish it with `splatu train --resume {run_dir}`")
     config, model, frame = load_run(run_dir, head)
-    train_seconds, wall_seconds = _summary_seconds(run_dir)
-    return LoadedRun(run_dir, config, [model], train_seconds, [frame], wall_seconds=wall_seconds)
+    train, compiling, wall = _summary_seconds(run_dir)
+    return LoadedRun(run_dir, config, [model], train, [frame], wall_seconds=wall, train_compile_seconds=compiling)
 
 
 def run_data(run: LoadedRun, data: str | None = None) -> DataConfig:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 import warnings
 from collections.abc import Callable
 
@@ -203,6 +204,9 @@ graphs of each, and past the eighth dynamo ran the kernel eager, saying so only 
 1.7-1.8x the time of the other float64 ones in the same process, against 1.03-1.07x with a limit per dtype
 (`python benchmarks/mixed_dtypes.py --rounds 21`, docs/results.md)."""
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
+_compile_seconds = 0.0
+_compile_began: float | None = None
+_clock_started = False
 
 
 def set_compile(enabled: bool) -> bool:
@@ -226,6 +230,43 @@ def compile_pending() -> bool:
     return _use_compile and not _compiled
 
 
+def compile_seconds() -> float:
+    """Seconds this process has spent compiling: loading torch's compiler for the first compiled kernel, then every
+    compile dynamo ran (first calls, recompiles, a backward compiled at its first call), as its own start and end
+    callbacks time them. The trainer takes it out of the time of its steps, which it would otherwise dominate."""
+    return _compile_seconds
+
+
+def start_compile_clock() -> None:
+    """Load torch's compiler, counting its ~2 s (dynamo times its compiles only once loaded), and time dynamo's
+    compiles from here on. Once per process; the first compiled kernel calls it."""
+    global _clock_started, _compile_seconds
+    if _clock_started:
+        return
+    _clock_started = True
+    started = time.perf_counter()
+    import torch._inductor.compile_fx  # noqa: F401 (loaded here to be counted, not inside the first compile)
+    from torch._dynamo.callback import callback_handler
+
+    callback_handler.register_start_callback(_compile_started)
+    callback_handler.register_end_callback(_compile_ended)
+    _compile_seconds += time.perf_counter() - started
+
+
+def _compile_started(_args: object) -> None:
+    """dynamo calls its callbacks around the outermost compile only, so one start is open at a time."""
+    global _compile_began
+    _compile_began = time.perf_counter()
+
+
+def _compile_ended(_args: object) -> None:
+    """Count the compile that `_compile_started` opened (none if the clock started while one was running)."""
+    global _compile_seconds, _compile_began
+    if _compile_began is not None:
+        _compile_seconds += time.perf_counter() - _compile_began
+        _compile_began = None
+
+
 def kernel(name: str) -> Callable:
     """The eager or compiled version of kernel `name`, as chosen by `set_compile`."""
     return compiled(_EAGER[name])
@@ -238,6 +279,7 @@ def compiled(fn: Callable) -> Callable:
     if not _use_compile:
         return fn
     if fn not in _compiled:
+        start_compile_clock()
         _compiled[fn] = _with_eager_fallback(fn)
     return _compiled[fn]
 

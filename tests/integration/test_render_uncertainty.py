@@ -514,7 +514,8 @@ def test_unwritable_outputs_are_one_line_errors(tiny_run, tmp_path, capsys):
 def test_a_damaged_summary_is_a_one_line_error(tiny_run, tmp_path, capsys):
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
-    for damaged in ('{"train_sec', '{"train_seconds": "slow"}', '{"train_seconds": 1.0, "wall_seconds": [1]}'):
+    for damaged in ('{"train_sec', '{"train_seconds": "slow"}', '{"train_seconds": 1.0, "wall_seconds": [1]}',
+                    '{"train_seconds": 1.0, "train_compile_seconds": NaN}'):
         (copy / "summary.json").write_text(damaged)
         for command in ("render-uncertainty", "eval-ause"):
             line = _one_line(capsys, [command, "--load", str(copy)])
@@ -554,23 +555,32 @@ def test_ours_and_the_ensemble_report_their_cost_in_the_same_measure(tiny_run, t
     """render.json and eval-ause's timing.json gave a single run's time inside training steps (summary.json's
     train_seconds) but an ensemble's wall time (ensemble.json's), both as train_seconds, so comparing their costs
     mixed two measures. Each now gives the time in steps (an ensemble: its members' summed) as train_step_seconds,
-    and the wall time beside it as train_wall_seconds."""
+    and the wall time beside it as train_wall_seconds; the kernels' compile time, which the steps leave out, is
+    train_compile_seconds, null for a run saved before it was recorded (whose steps' time includes it)."""
     ensemble = tmp_path / "ensemble"
     for k in range(2):
         shutil.copytree(tiny_run, ensemble / "members" / str(k), ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
     summary = json.loads((tiny_run / "summary.json").read_text())
-    (ensemble / "members" / "1" / "summary.json").write_text(json.dumps({**summary, "train_seconds": 40.0}))
+    (ensemble / "members" / "1" / "summary.json").write_text(json.dumps({**summary, "train_seconds": 40.0,
+                                                                         "train_compile_seconds": 9.0}))
     (ensemble / "ensemble.json").write_text(json.dumps({"members": ["members/0", "members/1"],
                                                         "wall_seconds": 1000.0}))
-    for run, method, steps, wall in ((tiny_run, "ours", summary["train_seconds"], summary["wall_seconds"]),
-                                     (ensemble, "ensemble", summary["train_seconds"] + 40.0, 1000.0)):
-        _render(run, "--method", method, "--max-views", "1", "--output", str(tmp_path / method))
-        entrypoint(["eval-ause", "--load", str(run), "--method", method, "--output", str(tmp_path / f"{method}.json")])
-        rendered = json.loads((tmp_path / method / "render.json").read_text())
-        timing = json.loads((tmp_path / f"{method}-maps" / "timing.json").read_text())
+    old = tmp_path / "old"
+    shutil.copytree(tiny_run, old, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    (old / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "train_compile_seconds"}))
+    compiling = summary["train_compile_seconds"]
+    for run, method, name, steps, compiled, wall in (
+            (tiny_run, "ours", "ours", summary["train_seconds"], compiling, summary["wall_seconds"]),
+            (ensemble, "ensemble", "ensemble", summary["train_seconds"] + 40.0, compiling + 9.0, 1000.0),
+            (old, "ours", "old", summary["train_seconds"], None, summary["wall_seconds"])):
+        _render(run, "--method", method, "--max-views", "1", "--output", str(tmp_path / name))
+        entrypoint(["eval-ause", "--load", str(run), "--method", method, "--output", str(tmp_path / f"{name}.json")])
+        rendered = json.loads((tmp_path / name / "render.json").read_text())
+        timing = json.loads((tmp_path / f"{name}-maps" / "timing.json").read_text())
         for record in (rendered, timing):
             assert "train_seconds" not in record
-            assert (record["train_step_seconds"], record["train_wall_seconds"]) == (steps, wall)
+            assert (record["train_step_seconds"], record["train_compile_seconds"], record["train_wall_seconds"]) == (
+                steps, compiled, wall)
 
 
 def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty_space(tiny_run, tmp_path):

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 import tyro
+from torch._dynamo.callback import CallbackTrigger, callback_handler
 
 from splatu import (
     evaluation,
@@ -1666,6 +1667,46 @@ def test_a_restored_checkpoint_keeps_the_step_the_nonfinite_streak_and_the_train
     summary = trainer.train_run(config, scene, run_dir, checkpoint=checkpoint)
     assert summary["steps"] == 12
     assert 12.5 < summary["train_seconds"] <= 12.5 + time.perf_counter() - started  # the earlier session's time too
+
+
+def test_the_kernel_compile_is_timed_apart_from_the_steps(tmp_path, scene, monkeypatch):
+    """A session's first step compiles the kernels (~10 s to a minute), and a resumed run compiles once more:
+    counted in train_seconds, it made a run's cost in steps, which the ensemble's is compared with, depend on how
+    often it was resumed. A compile timed by dynamo's own callbacks goes to train_compile_seconds instead."""
+    compile_seconds = 0.4
+    real_step = trainer.train_step
+
+    def compiling_first_step(state, config, images):
+        if state.step in (0, 6):  # the first step of each session
+            with callback_handler.install_callbacks(CallbackTrigger.DYNAMO, "0/0"):  # as dynamo wraps a compile
+                time.sleep(compile_seconds)
+        return real_step(state, config, images)
+
+    monkeypatch.setattr(trainer, "train_step", compiling_first_step)
+    kernels.start_compile_clock()  # what the first compiled kernel does
+    config = tiny_config(tmp_path)
+    run_dir = tmp_path / "run"
+    first = trainer.train_run(dataclasses.replace(config, steps=6), scene, run_dir)
+    resumed = trainer.train_run(config, scene, run_dir, checkpoint=read_checkpoint(list_checkpoints(run_dir)[-1]))
+    for summary, sessions in ((first, 1), (resumed, 2)):
+        assert sessions * compile_seconds <= summary["train_compile_seconds"] < sessions * compile_seconds + 0.1
+        assert summary["train_seconds"] < compile_seconds  # the tiny steps alone
+    assert load_any_run(run_dir).train_compile_seconds == resumed["train_compile_seconds"]
+
+
+def test_a_checkpoint_without_a_compile_time_keeps_counting_compiles_in_the_steps(tmp_path, scene):
+    """A run checkpointed before compiles were timed apart has them inside its train_seconds: its resume goes on
+    measuring that way, and reports no compile time, rather than a part of it."""
+    config = tiny_config(tmp_path)
+    state = dataclasses.replace(trainer.fresh_state(config, scene), step=6, train_seconds=12.5)
+    saved = trainer._checkpoint_state(state, config)
+    del saved["train_compile_seconds"]
+    restored = trainer.restored_state(read_checkpoint(trainer.save_checkpoint(tmp_path / "run", 6, saved)), config,
+                                      scene)
+    trainer.count_training_time(restored, 3.0, 2.0)
+    assert (restored.train_seconds, restored.train_compile_seconds) == (15.5, None)
+    trainer.count_training_time(state, 3.0, 2.0)
+    assert (state.train_seconds, state.train_compile_seconds) == (13.5, 2.0)
 
 
 def test_an_infinite_screen_space_gradient_skips_the_step_and_leaves_the_model_untouched(tmp_path, monkeypatch):
