@@ -121,7 +121,8 @@ class UncertaintyLossConfig:
     only where w > λ/(1−λ) (0.43 at λ = 0.3): seen from opposite sides (or at u-SH degree 0, where u has no
     direction), a Gaussian that never gives any pixel more than that ends up uncertain from both."""
     threshold: float = 0.05
-    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean)."""
+    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean); in (0, 1],
+    though a run saved with 0 still loads (see `validate`)."""
     num_dirs: int = 16
     """Number of random unit directions that estimate ū (kind = mean)."""
     weight: float = 1.0
@@ -134,14 +135,25 @@ class UncertaintyLossConfig:
     The logged uncertainty loss is then the sum over the heads."""
 
     def __post_init__(self) -> None:
-        self.validate()
+        self.check_loadable()
 
     def validate(self) -> None:
-        """Raise a one-line SplatuError for settings the loss cannot use."""
+        """`check_loadable`, and what a new run may not use (a saved run that used it still loads and resumes)."""
+        self.check_loadable()
+        heads = [("", self), *((f" in uncertainty head {spec!r}", parse_head(spec, self, MAX_SH_DEGREE).loss)
+                               for spec in self.extra_heads)]
+        for named, loss in heads:
+            if loss.threshold == 0.0:  # it would supervise Gaussians this view never drew as seen (19c6c8f)
+                raise SplatuError(f"uncertainty threshold = {loss.threshold} is not a blend weight in (0, 1]{named}",
+                                  IN_HEADS if named else "in --uncertainty.threshold", "use e.g. 0.05")
+
+    def check_loadable(self) -> None:
+        """Raise a one-line SplatuError for settings the loss cannot use. Threshold 0 passes: runs trained with it
+        before it was refused (it supervises every Gaussian, finitely) must load for render, eval and resume."""
         if not 0.0 <= self.lam < 0.5:
             raise SplatuError(f"uncertainty λ = {self.lam} is not in [0, 0.5)", "in --uncertainty.lam",
                               "use λ < 0.5 (the paper's condition), e.g. 0.3")
-        if not 0.0 < self.threshold <= 1.0:  # 0 would supervise Gaussians this view never drew as seen
+        if not 0.0 <= self.threshold <= 1.0:
             raise SplatuError(f"uncertainty threshold = {self.threshold} is not a blend weight in (0, 1]",
                               "in --uncertainty.threshold", "use e.g. 0.05")
         if self.num_dirs < 1:
@@ -253,7 +265,7 @@ def uncertainty_loss(model: GaussianModel, camera_center: Tensor, raster: Raster
     channel h, so the heads never mix. With nothing supervised the result is 0 but still connected to `u_sh`,
     so callers can add it unconditionally.
     """
-    cfg.validate()
+    cfg.check_loadable()
     heads = uncertainty_heads(cfg, model.cfg.u_sh_degree)
     if model.u_sh.shape[-1] != len(heads) or (generators is not None and len(generators) != len(heads)):
         raise ValueError(f"{len(heads)} uncertainty heads, but u_sh has {model.u_sh.shape[-1]} channels"

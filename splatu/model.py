@@ -61,6 +61,14 @@ class ModelConfig:
     unscaled opacities, so a viewer without this filter shows Gaussians smaller than a pixel too opaque."""
 
     def validate(self) -> None:
+        """`check_loadable`, and the initial values a new model is made of (`from_points`), which a loaded model
+        never reads: a saved run with a u_init_logit refused since (36d6409) still loads."""
+        self.check_loadable()
+        if not (math.isfinite(self.u_init_logit) and abs(self.u_init_logit) <= MAX_U_INIT_LOGIT):
+            raise SplatuError(f"--model.u-init-logit {self.u_init_logit} is not a number within ±{MAX_U_INIT_LOGIT:g}",
+                              "in the model options", "use e.g. 2.0 (u starts at sigmoid(2) ≈ 0.88)")
+
+    def check_loadable(self) -> None:
         """Raise a one-line SplatuError for options no model can be built from."""
         for name in ("sh_degree", "u_sh_degree"):
             value = getattr(self, name)
@@ -74,9 +82,6 @@ class ModelConfig:
         if not (math.isfinite(self.screen_blur) and self.screen_blur >= MIN_BLUR):
             raise SplatuError(f"--model.screen-blur {self.screen_blur} is below {MIN_BLUR} px² or not a number",
                               "in the model options", "use 0.3 (3DGS) or 0.1 (the presets)")
-        if not (math.isfinite(self.u_init_logit) and abs(self.u_init_logit) <= MAX_U_INIT_LOGIT):
-            raise SplatuError(f"--model.u-init-logit {self.u_init_logit} is not a number within ±{MAX_U_INIT_LOGIT:g}",
-                              "in the model options", "use e.g. 2.0 (u starts at sigmoid(2) ≈ 0.88)")
         if self.random_init_points < 1 or not 0 < self.random_init_extent < math.inf:
             raise SplatuError("random initialisation needs at least one point in a cube of positive side",
                               "in --model.random-init-points / --model.random-init-extent", "use e.g. 50000 and 10")
@@ -104,7 +109,7 @@ class GaussianModel(torch.nn.Module):
     def __init__(self, means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor, sh_dc: Tensor,
                  sh_rest: Tensor, u_sh: Tensor, cfg: ModelConfig) -> None:
         super().__init__()
-        cfg.validate()
+        cfg.check_loadable()
         n = means.shape[0]
         heads = u_sh.shape[-1]  # any number of uncertainty heads; none for a model without a trained uncertainty
         expected = {
@@ -156,7 +161,7 @@ class GaussianModel(torch.nn.Module):
     @classmethod
     def empty_like_config(cls, n: int, cfg: ModelConfig, u_heads: int = 1) -> GaussianModel:
         """A model of `n` zero rows with the shapes `cfg` and `u_heads` imply, to load a checkpoint into."""
-        cfg.validate()
+        cfg.check_loadable()
         return cls(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3), torch.zeros(n), torch.zeros(n, 1, 3),
                    torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3),
                    torch.zeros(n, num_sh_bases(cfg.u_sh_degree), u_heads), cfg)

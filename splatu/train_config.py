@@ -197,9 +197,10 @@ def load_config(path: Path) -> TrainConfig:
 
 
 def check_parts(config: TrainConfig) -> None:
-    """The range checks of `config`'s parts that do not run as they are made (a saved config that carried a value
-    they refuse still loads for render and eval)."""
-    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice):
+    """The range checks of `config`'s parts that do not run as they are made, for a new run: a saved config that
+    carried a value they refuse (one allowed when it trained: the uncertainty threshold 0, a u_init_logit beyond
+    ±30) still loads for render, eval, export and resume."""
+    for part in (config.data, config.model, config.optim, config.densify, config.degree_choice, config.uncertainty):
         part.validate()
 
 

@@ -29,6 +29,7 @@ from splatu.render_uncertainty import (
     swap_in,
 )
 from splatu.uncertainty_options import UncertaintyOptions
+from tests.older_runs import OLDER_VALUES, saved_with
 
 
 def _ring(n: int = 12, radius: float = 2.0, height: float = 1.0) -> list[Camera]:
@@ -581,6 +582,19 @@ def test_ours_and_the_ensemble_report_their_cost_in_the_same_measure(tiny_run, t
             assert "train_seconds" not in record
             assert (record["train_step_seconds"], record["train_compile_seconds"], record["train_wall_seconds"]) == (
                 steps, compiled, wall)
+
+
+def test_a_run_saved_with_values_refused_since_still_renders_and_scores(tiny_run, tmp_path):
+    """Uncertainty threshold 0 and a u_init_logit beyond ±30, which older splatu trained with, are refused for new
+    runs only: a saved run with them renders and is scored, with finite maps (a loaded model reads neither)."""
+    old = tmp_path / "old"
+    shutil.copytree(tiny_run, old, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
+    saved_with(old, **OLDER_VALUES)
+    _render(old, "--max-views", "1", "--output", str(tmp_path / "render"))
+    view = json.loads((tmp_path / "render" / "render.json").read_text())["per_view"][0]["name"]
+    assert np.isfinite(np.load(tmp_path / "render" / "npy" / f"{view}_uncertainty.npy")).all()
+    entrypoint(["eval-ause", "--load", str(old), "--output", str(tmp_path / "ause.json")])
+    assert math.isfinite(json.loads((tmp_path / "ause.json").read_text())["mean"]["ause_mae"])
 
 
 def test_ensemble_of_identical_members_has_zero_std_and_density_aware_adds_empty_space(tiny_run, tmp_path):

@@ -94,11 +94,19 @@ def test_lambda_outside_range_is_a_user_error(lam):
         UncertaintyLossConfig(lam=lam)
 
 
-@pytest.mark.parametrize("threshold", [0.0, -0.1, 1.5, float("nan")])
-def test_a_threshold_that_is_no_positive_blend_weight_is_a_user_error(threshold):
-    """0 supervised every Gaussian, the ones this view never drew too, as seen from this camera."""
+@pytest.mark.parametrize("threshold", [-0.1, 1.5, float("nan")])
+def test_a_threshold_that_is_no_blend_weight_is_a_user_error(threshold):
     with pytest.raises(SplatuError, match="is not a blend weight in"):
         UncertaintyLossConfig(threshold=threshold)
+
+
+def test_a_new_run_may_not_use_threshold_0_which_a_saved_run_may_have():
+    """0 supervised every Gaussian, the ones this view never drew too, as seen from this camera: a new run is refused
+    it (`validate`, run as a new run's options are checked), but a config saved before still loads."""
+    for config, where in ((UncertaintyLossConfig(threshold=0.0), "--uncertainty.threshold"),
+                          (UncertaintyLossConfig(extra_heads=("threshold=0",)), "uncertainty head 'threshold=0'")):
+        with pytest.raises(SplatuError, match=f"threshold = 0.0 is not a blend weight in.*{where}"):
+            config.validate()
 
 
 def _single_gaussian(u_degree: int) -> tuple[GaussianModel, Camera]:

@@ -63,6 +63,7 @@ from splatu.train_config import (
     splatfacto_schedule,
 )
 from splatu.world_frame import model_to_world
+from tests.older_runs import OLDER_VALUES, saved_with
 from tests.synthetic_scenes import noise_image, write_nerfstudio_scene, write_rgb
 
 W, H = 32, 24
@@ -1707,6 +1708,25 @@ def test_a_checkpoint_without_a_compile_time_keeps_counting_compiles_in_the_step
     assert (restored.train_seconds, restored.train_compile_seconds) == (15.5, None)
     trainer.count_training_time(state, 3.0, 2.0)
     assert (state.train_seconds, state.train_compile_seconds) == (13.5, 2.0)
+
+
+def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(tmp_path, scene, capsys):
+    """Uncertainty threshold 0 (refused for new runs since 19c6c8f: it supervises Gaussians the view never drew) and
+    a u_init_logit beyond ±30 (since 36d6409: it only slows the loss's start) were allowed when older runs trained,
+    and such a run no longer loaded. Neither can make a loaded model non-finite: no loaded model reads u_init_logit
+    (only a new one is made of it), and threshold 0 selects every Gaussian, each with a finite loss."""
+    config = tiny_config(tmp_path, steps=12, checkpoint_every=6)
+    run_dir = train_command.train(dataclasses.replace(config, steps=6))
+    saved_with(run_dir, **OLDER_VALUES)
+    loaded = load_any_run(run_dir)
+    assert (loaded.config.uncertainty.threshold, loaded.config.model.u_init_logit) == (0.0, 45.0)
+    entrypoint(["export", "--load", str(run_dir), "--output", str(tmp_path / "old.ply")])
+    assert len(load_ply(tmp_path / "old.ply", loaded.config.model)) == len(loaded.models[0])
+    resumed = train_command.train(dataclasses.replace(config, resume=run_dir, extend_to=12))
+    summary = json.loads((resumed / "summary.json").read_text())
+    model = load_any_run(resumed).models[0]
+    assert summary["steps"] == 12 and all(torch.isfinite(p).all() for p in model.parameters())
+    assert math.isfinite(summary["eval"]["eval"]["psnr"])
 
 
 def test_an_infinite_screen_space_gradient_skips_the_step_and_leaves_the_model_untouched(tmp_path, monkeypatch):
