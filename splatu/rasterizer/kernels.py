@@ -206,7 +206,6 @@ graphs of each, and past the eighth dynamo ran the kernel eager, saying so only 
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
 _compile_seconds = 0.0
 _compile_began: float | None = None
-_clock_started = False
 
 
 def set_compile(enabled: bool) -> bool:
@@ -239,18 +238,17 @@ def compile_seconds() -> float:
 
 def start_compile_clock() -> None:
     """Load torch's compiler, counting its ~2 s (dynamo times its compiles only once loaded), and time dynamo's
-    compiles from here on. Once per process; the first compiled kernel calls it."""
-    global _clock_started, _compile_seconds
-    if _clock_started:
-        return
-    _clock_started = True
+    compiles from here on. The first compiled kernel calls it; again after torch._dynamo.reset() (tests), which
+    drops every callback."""
+    global _compile_seconds
     started = time.perf_counter()
     import torch._inductor.compile_fx  # noqa: F401 (loaded here to be counted, not inside the first compile)
     from torch._dynamo.callback import callback_handler
 
-    callback_handler.register_start_callback(_compile_started)
-    callback_handler.register_end_callback(_compile_ended)
-    _compile_seconds += time.perf_counter() - started
+    if _compile_started not in callback_handler.start_callbacks:
+        callback_handler.register_start_callback(_compile_started)
+        callback_handler.register_end_callback(_compile_ended)
+        _compile_seconds += time.perf_counter() - started
 
 
 def _compile_started(_args: object) -> None:
