@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
@@ -138,6 +138,14 @@ class OrbitPlan:
     cover: AzimuthCover
     middle: float  # radians: the arc's middle azimuth, from frame.forward_axis
     half_width: float | None  # radians: how far the arc swings either side of its middle; None for the circle
+
+    def record(self, max_elevation_degrees: float) -> dict[str, Any]:
+        """The orbit as render.json gives it: a render's frames are read against the path they were taken on, and an
+        automatic shape must be visible after the run, not only in the note printed while it rendered."""
+        return {"shape": "circle" if self.half_width is None else "arc", "radius_scale": self.radius_scale,
+                "covered_azimuth_degrees": math.degrees(self.cover.width),
+                "arc_degrees": None if self.half_width is None else math.degrees(2.0 * self.half_width),
+                "max_elevation_degrees": max_elevation_degrees}
 
 
 def azimuth_cover(cameras: list[Camera], frame: CaptureFrame) -> AzimuthCover:

@@ -13,7 +13,7 @@ written in full, see `swap_in`):
     panels/NAME.png                              render | uncertainty | error (error when GT exists)
     maps/                                        the layout `eval-ause --maps` scores (when GT exists)
     orbit.gif                                    for --views orbit
-    render.json                                  per-view mean uncertainty, elevations, timings, the --cameras file
+    render.json                                  per-view mean uncertainty, elevations, the orbit's shape, timings, the --cameras file
 """
 
 from __future__ import annotations
@@ -62,7 +62,14 @@ from splatu.figures import (
 from splatu.interrupts import finish_first, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.nearest_view import nearest_training_views
-from splatu.orbit import DEFAULT_ELEVATION_DEGREES, OrbitShape, one_sided_note, orbit_cameras, plan_orbit
+from splatu.orbit import (
+    DEFAULT_ELEVATION_DEGREES,
+    OrbitPlan,
+    OrbitShape,
+    one_sided_note,
+    orbit_cameras,
+    plan_orbit,
+)
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
 from splatu.world_frame import normalised_world_to_camera, scene_frame
@@ -155,6 +162,8 @@ class ViewSpec:
     --cameras and of splat.ply), as `splatu.query` gives them, not in the model's normalised ones."""
     note: str | None = None
     """What the command says about the views before rendering them (why the orbit is an arc)."""
+    orbit: dict[str, Any] | None = None
+    """The orbit's shape and size (`OrbitPlan.record`), for render.json; None for other views."""
 
 
 def _evenly(count: int, limit: int) -> list[int]:
@@ -179,9 +188,10 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
         frames = orbit_cameras(scene.train.cameras, config.orbit_frames, config.orbit_elevation,
                                config.orbit_radius_scale, config.orbit_shape)
         keep = _evenly(len(frames), config.max_views)
+        plan = plan_orbit(scene.train.cameras, config.orbit_shape, config.orbit_radius_scale)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
                         elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale,
-                        note=orbit_note(scene.train.cameras, config))
+                        note=orbit_note(plan, config), orbit=plan.record(config.orbit_elevation))
     assert isinstance(scene, Scene)  # `_setup` decodes the images of eval and train views, their ground truth
     views = {"eval": scene.eval, "train": scene.train}[which]
     if len(views) == 0:
@@ -191,12 +201,11 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
                     depth_unit=frame.scale)
 
 
-def orbit_note(cameras: list[Camera], config: RenderUncertaintyConfig) -> str | None:
+def orbit_note(plan: OrbitPlan, config: RenderUncertaintyConfig) -> str | None:
     """The note saying why, when --orbit-shape auto chose the arc; None when the shape was given or is the circle."""
-    if config.orbit_shape != "auto":
+    if config.orbit_shape != "auto" or plan.half_width is None:
         return None
-    plan = plan_orbit(cameras, config.orbit_shape, config.orbit_radius_scale)
-    return None if plan.half_width is None else one_sided_note(plan, config.orbit_radius_scale is None)
+    return one_sided_note(plan, config.orbit_radius_scale is None)
 
 
 def _numpy(render: UncertaintyRender, name: str) -> dict[str, np.ndarray]:
@@ -478,7 +487,7 @@ def run(config: RenderUncertaintyConfig) -> None:
         view.nearest_training_view = closest._asdict()
         view.source_name = camera.name or view.name
     with no_empty_folders_left(out):
-        record = write_in_place(out, views, config, train_timing(run_info), built.setup_seconds, seconds)
+        record = write_in_place(out, views, config, train_timing(run_info), built.setup_seconds, seconds, spec.orbit)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
     which = "candidate" if config.views == "cameras" else config.views
     Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
@@ -488,14 +497,15 @@ def run(config: RenderUncertaintyConfig) -> None:
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
-                   training: dict[str, float | None], setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
+                   training: dict[str, float | None], setup_seconds: float, seconds: list[float],
+                   orbit: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write the render into a staging folder inside `out`, then swap it in whole (see `swap_in`); the staging
     folder is removed whatever happens. Returns what render.json holds."""
     remove(leftover_temporaries(out, STAGING))  # a render killed outright (SIGKILL, OOM) left its staging
     staging = temporary_sibling(out / STAGING)
     try:
         with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
-            record = write_render(staging, views, config, training, setup_seconds, seconds)
+            record = write_render(staging, views, config, training, setup_seconds, seconds, orbit)
             swap_in(staging, out)
     except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
         if os_error_behind(err) is None:
@@ -507,13 +517,16 @@ def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertain
 
 
 def write_render(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,
-                 training: dict[str, float | None], setup_seconds: float, seconds: list[float]) -> dict[str, Any]:
-    """Every file of a render, render.json last (`training`: `train_timing`); returns what render.json holds."""
+                 training: dict[str, float | None], setup_seconds: float, seconds: list[float],
+                 orbit: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Every file of a render, render.json last (`training`: `train_timing`; `orbit`: `OrbitPlan.record` for
+    --views orbit); returns what render.json holds."""
     scales = write_outputs(out, views, config.views == "orbit", config.gif_fps)
     record = {
         **config.uncertainty.record(), "views": config.views,
         # the file --views cameras ranked: every candidate file renders into the same default folder
         "cameras": None if config.cameras is None else str(transforms_file(config.cameras).resolve()),
+        "orbit": orbit,
         **training, "setup_seconds": setup_seconds,
         "render_seconds_per_view": float(np.median(seconds)),
         "uncertainty_scale": [scales["uncertainty"].vmin, scales["uncertainty"].vmax],

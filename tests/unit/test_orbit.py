@@ -131,10 +131,24 @@ def test_the_flags_given_win_over_the_layout_s_choice():
 def test_the_command_says_why_once_when_the_layout_chose_the_arc():
     """The arc replaces the circle without a flag, so the command says why and how to get the circle back."""
     one_sided = _one_sided()
-    note = orbit_note(one_sided, RenderUncertaintyConfig(views="orbit"))
-    assert note is not None and "cover 40° of azimuth" in note and "70° arc" in note
-    assert "--orbit-radius-scale 1" in note and "--orbit-shape circle" in note and "\n" not in note
-    given = orbit_note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_radius_scale=0.7))
+
+    def note(cameras: list, config: RenderUncertaintyConfig) -> str | None:
+        return orbit_note(plan_orbit(cameras, config.orbit_shape, config.orbit_radius_scale), config)
+
+    said = note(one_sided, RenderUncertaintyConfig(views="orbit"))
+    assert said is not None and "cover 40° of azimuth" in said and "70° arc" in said
+    assert "--orbit-radius-scale 1" in said and "--orbit-shape circle" in said and "\n" not in said
+    given = note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_radius_scale=0.7))
     assert given is not None and "--orbit-radius-scale" not in given  # the radius given is not explained
-    assert orbit_note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_shape="arc")) is None
-    assert orbit_note(ring_cameras(8, 32, 24), RenderUncertaintyConfig(views="orbit")) is None
+    assert note(one_sided, RenderUncertaintyConfig(views="orbit", orbit_shape="arc")) is None
+    assert note(ring_cameras(8, 32, 24), RenderUncertaintyConfig(views="orbit")) is None
+
+
+def test_the_orbit_record_says_which_path_the_frames_were_taken_on():
+    """render.json's record of the orbit: the shape auto chose, its radius and its arc, read after the run."""
+    arc = plan_orbit(_one_sided()).record(50.0)
+    assert arc["shape"] == "arc" and arc["radius_scale"] == ARC_RADIUS_SCALE and arc["max_elevation_degrees"] == 50.0
+    assert arc["covered_azimuth_degrees"] == pytest.approx(40.0) and arc["arc_degrees"] == pytest.approx(70.0)
+    circle = plan_orbit(ring_cameras(8, 32, 24)).record(60.0)
+    assert circle["shape"] == "circle" and circle["radius_scale"] == CIRCLE_RADIUS_SCALE
+    assert circle["arc_degrees"] is None and circle["covered_azimuth_degrees"] > 180.0
