@@ -50,13 +50,13 @@ from splatu.train_config import (
     blamed_on_preset,
     check_parts,
     flags_given,
+    flags_off_preset,
     from_dict,
     load_config,
     option_flag,
     option_value,
     preset_config,
     scaled_schedule,
-    typed_options,
 )
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_locked_run
@@ -64,24 +64,24 @@ from splatu.training_step import StepHook, resolution_level
 from splatu.world_frame import require_same_frame, scene_frame
 
 
-def check_options(config: TrainConfig) -> None:
+def check_options(config: TrainConfig, typed: Collection[str]) -> None:
     """Every option check that needs no scene: a bad option fails in one line before the scene loads (which
     may build the stand-in) and before a run folder is made and `latest` pointed at it. An option whose value came
-    from the preset file is named as the file's."""
+    from the preset file, its flag not among those `typed`, is named as the file's."""
     try:
         check_parts(config)
         config.data.refuse_unused_flags()
-        refuse_max_image_size_beside_downscale(config.data, typed_options(config))
+        refuse_max_image_size_beside_downscale(config.data, typed)
         refuse_unused_poster_options(config.data)
         refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
     except SplatuError as err:
-        raise blamed_on_preset(err, config) from None
+        raise blamed_on_preset(err, config, typed) from None
 
 
 def refuse_max_image_size_beside_downscale(data: DataConfig, typed: Collection[str]) -> None:
     """A typed --max-image-size only chooses the factor that --downscale gives: beside it, it would change nothing,
-    and the run would load at another size than the user asked for without a word."""
-    if data.downscale is not None and "data.max_image_size" in typed:
+    and the run would load at another size than the user asked for without a word. `typed`: the flags typed."""
+    if data.downscale is not None and "--max-image-size" in typed:
         raise SplatuError(f"--max-image-size {data.max_image_size} is not used beside --downscale {data.downscale}, "
                           "which sets the image size itself", "in the options",
                           "drop --max-image-size, or drop --downscale to have train choose the factor from it")
@@ -200,9 +200,11 @@ def filed_as_trained(config: TrainConfig) -> TrainConfig:
     return dataclasses.replace(config, method=method)
 
 
-def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection[str] = ()) -> Path:
+def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection[str] | None = None) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory. `typed`: the
-    flags of the command line (`flags_given`), whose --steps a new run says it rescaled the schedule with."""
+    flags of the command line (`flags_given`), which a new run's checks and notes tell from the preset's values (a
+    --max-image-size typed beside --downscale, a file's value blamed on the file, the schedule a --steps rescaled);
+    None for a caller without one, whose flags are told by value (`flags_off_preset`)."""
     wall_start = time.perf_counter()
     if config.resume is not None:
         saved_ensemble = ensemble_config(config.resume)
@@ -216,10 +218,11 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
         # pruned the checkpoint or saved a newer one
         with enclosing_ensemble_lock(run_dir) as ensemble, training_lock(run_dir):
             return _resume_run(config, _resume_point(config.resume), run_dir, ensemble, wall_start, hooks)
+    typed = flags_off_preset(config) if typed is None else typed  # as the caller gave it, before the method's own
     config = filed_as_trained(config)
     if config.degree_choice.on:
         config = with_choice_heads(config)
-    check_options(config)
+    check_options(config, typed)
     creatable_dir(config.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
     given = config.data
     data, scene = load_new_scene(given)
@@ -307,12 +310,13 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     return run_dir
 
 
-def run_command(config: TrainConfig, argv: Sequence[str] = ()) -> None:
-    """`splatu train` with the options `argv` gave: train, print where the run went; Ctrl-C or SIGTERM prints how to
-    resume and exits 130 or 143 (128 + the signal, as the shell reports a process the signal ended)."""
+def run_command(config: TrainConfig, argv: Sequence[str] | None = None) -> None:
+    """`splatu train` with the options `argv` gave (None: no command line, as `train`'s `typed`): train, print where
+    the run went; Ctrl-C or SIGTERM prints how to resume and exits 130 or 143 (128 + the signal, as the shell
+    reports a process the signal ended)."""
     try:
         with sigterm_as_ctrl_c():
-            run_dir = train(config, typed=flags_given(argv))
+            run_dir = train(config, typed=None if argv is None else flags_given(argv))
     except TrainingInterrupted as stop:
         print(stop.message, file=sys.stderr)  # plain print: one line, never wrapped
         raise SystemExit(exit_code(stop)) from None

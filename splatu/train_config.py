@@ -232,26 +232,39 @@ def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> 
     if isinstance(err, OptionError) and [err.flag] == flags:
         return SplatuError(f"{keys[0]}: {err.value} {err.problem}", f"in {path}",
                            f"set {keys[0]} to {err.allowed} in that file, or override it with {flags[0]}")
-    what = err.what
-    for key, flag in zip(keys, flags, strict=True):
-        what = re.sub(re.escape(flag) + r"(?![\w-])", key, what)
+    what = _as_keys(err.what, keys)
     named = what != err.what or all(str(given[key]) in what for key in keys)  # the keys or their values are said
     held = ", ".join(f"{key}: {given[key]!r}" for key in keys)
     return SplatuError(what if named else f"{what} (the file's {held})", f"in {path}",
                        f"fix {' or '.join(keys)} in that file, or override it with {' or '.join(flags)}")
 
 
-def blamed_on_preset(err: SplatuError, config: TrainConfig) -> SplatuError:
+def _as_keys(text: str, keys: Collection[str]) -> str:
+    """`text` with the flags of options `keys` spelt as the preset file's keys."""
+    for key in keys:
+        text = re.sub(re.escape(option_flag(key)) + r"(?![\w-])", key, text)
+    return text
+
+
+def blamed_on_preset(err: SplatuError, config: TrainConfig, typed: Collection[str]) -> SplatuError:
     """`err`, from a check of a new run's options together (flags and preset), told as the preset file's where it
-    names an option whose value came from the file, not from a flag: a check of two options (every-n's eval_every,
-    with --eval-split typed) named the flag of the file's option, which was never typed."""
+    names an option whose value came from the file (its flag not among those `typed`, its value the file's): a check
+    of two options (every-n's eval_every, with --eval-split typed) named the flag of the file's option, which was
+    never typed. A range error is worded as the file's own are; any other keeps the check's own fix, with the file's
+    keys for their flags: a flag replacing the file's value need not help (a file's eval_every beside a typed
+    --eval-split contiguous is refused at any value, as a typed --eval-every would be)."""
     if config.preset == FULL_RECIPE:
         return err
     mine = flat_options(to_dict(config))
-    kept = {name: value for name, value in preset_values(config.preset).items() if mine.get(name) == value}
-    if not _keys_named(kept, (err.what, err.where, err.fix)):
+    kept = {name: value for name, value in preset_values(config.preset).items()
+            if mine.get(name) == value and option_flag(name) not in typed}
+    keys = _keys_named(kept, (err.what, err.where, err.fix))
+    if not keys:
         return err
-    return _blamed_on_file(err, preset_path(config.preset), kept)
+    path = preset_path(config.preset)
+    if isinstance(err, OptionError) and [err.flag] == [option_flag(key) for key in keys]:
+        return _blamed_on_file(err, path, kept)
+    return SplatuError(_as_keys(err.what, keys), f"in {path}", _as_keys(err.fix, keys))
 
 
 def _keys_named(keys: Collection[str], texts: Sequence[str]) -> list[str]:
@@ -320,11 +333,15 @@ def preset_values(preset: str) -> dict[str, Any]:
     return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
 
 
-def typed_options(config: TrainConfig) -> list[str]:
-    """Dotted names of the options `config` holds off its preset's values (the file's, else the defaults): those a
-    new run's command line set. A flag that repeats the preset's value cannot be told from it, and changes nothing."""
-    base = flat_options(to_dict(TrainConfig())) | preset_values(config.preset)
-    return [name for name, value in flat_options(to_dict(config)).items() if base.get(name) != value]
+def flags_off_preset(config: TrainConfig) -> set[str]:
+    """The flags a command line would have typed to give `config`, told by value, for a caller without one (Python
+    code calling `train`; the command line's own are `flags_given`): one per option off what a bare `--preset P`
+    gives (the file's values, else the defaults, with the schedule `--steps N` rescales at the config's length), and
+    --steps at another length than the preset's. A flag that repeats that value cannot be told from it."""
+    scaled = scaled_schedule(config.preset, config.steps) or {}
+    chosen = {"preset": config.preset, "method": config.method}  # they choose the bare config, as its flags do
+    bare = flat_options(to_dict(TrainConfig())) | preset_values(config.preset) | scaled | chosen
+    return {option_flag(name) for name, value in flat_options(to_dict(config)).items() if bare.get(name) != value}
 
 
 def _scan_flag(argv: Sequence[str], flag: str) -> str | None:

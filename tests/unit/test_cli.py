@@ -209,17 +209,25 @@ def test_a_flag_replaces_a_bad_value_of_the_preset_file(capsys, tmp_path, flag):
     ("data:\n  eval_every: 1\n", ["--eval-split", "every-n"],
      "data.eval_every: 1 must be at least 2, in {}, set data.eval_every to at least 2 in that file, or override it "
      "with --eval-every"),
+    # the check's own fix: "override it with --eval-every" (or --downscale) was offered, and is refused just the same
     ("data:\n  eval_split: every-n\n  eval_every: 4\n", ["--eval-split", "contiguous"],
-     "data.eval_every is not used by --eval-split contiguous, in {}, fix data.eval_every in that file, or override it "
-     "with --eval-every"),
+     "data.eval_every is not used by --eval-split contiguous, in {}, pass --eval-split every-n to use "
+     "data.eval_every, or drop data.eval_every"),
     ("data:\n  downscale: 2\n", ["--max-image-size", "400"],
-     "--max-image-size 400 is not used beside data.downscale 2, which sets the image size itself, in {}, fix "
-     "data.downscale in that file, or override it with --downscale"),
+     "--max-image-size 400 is not used beside data.downscale 2, which sets the image size itself, in {}, drop "
+     "--max-image-size, or drop data.downscale to have train choose the factor from it"),
 ])
 def test_a_preset_value_refused_beside_a_flag_is_blamed_on_the_file(capsys, tmp_path, preset, flags, line):
     """A check of two options, one from the file and one typed, named the file's option by a flag never typed
     ("--eval-every must be at least 2 (got 1), in the options")."""
     assert _train_error(capsys, tmp_path, preset, *flags) == f"error: {line.format(tmp_path / 'p.yaml')}\n"
+
+
+def test_a_flag_typed_with_the_files_own_value_is_the_flags(capsys, tmp_path):
+    """The command line tells a typed flag from the file's value, equal or not: it was blamed on the file."""
+    flags = ("--eval-split", "every-n", "--eval-every", "1")
+    assert _train_error(capsys, tmp_path, "data:\n  eval_every: 1\n", *flags) == (
+        "error: --eval-every must be at least 2 (got 1), in the options, pass --eval-every of at least 2\n")
 
 
 @pytest.mark.parametrize("preset", ["steps: -5\n", "steps: 20\n", "seed: 3\n"])
@@ -237,6 +245,15 @@ def test_a_typed_max_image_size_beside_downscale_is_refused(capsys, tmp_path, fl
     assert capsys.readouterr().err == (
         "error: --max-image-size 400 is not used beside --downscale 2, which sets the image size itself, in the "
         "options, drop --max-image-size, or drop --downscale to have train choose the factor from it\n")
+
+
+def test_a_max_image_size_typed_at_the_presets_value_beside_downscale_is_refused(capsys, tmp_path):
+    """fast's own 800 px typed beside --downscale asks for two sizes too: told by value, it went unrefused."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--preset", "fast", "--downscale", "2", "--max-image-size", "800", "--data",
+                    str(tmp_path / "absent")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.startswith("error: --max-image-size 800 is not used beside --downscale 2")
 
 
 @pytest.mark.parametrize("preset", ["fast", "quality"])

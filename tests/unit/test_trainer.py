@@ -2257,3 +2257,17 @@ def test_a_member_resumed_from_an_earlier_checkpoint_sets_aside_the_ensembles_re
     assert {name for name in kept + moved if (superseded / name).exists()} == set(moved)
     assert (ensemble / "ensemble.json").is_file() and len(list((member / run_records.ABANDONED_DIR).iterdir())) == 1
     assert str(superseded) in capsys.readouterr().err
+
+
+def test_a_python_caller_without_a_command_line_has_its_flags_told_by_value():
+    """`train(config)` has no argv: the flags a command line would have typed are told off a bare --preset's values,
+    with the schedule --steps rescales (preset_config(steps=N) types only --steps, so the note still tells it)."""
+    from splatu.train_config import flags_off_preset
+
+    assert flags_off_preset(preset_config("fast")) == set()
+    assert flags_off_preset(preset_config("fast", steps=4000)) == {"--steps"}
+    config = preset_config("fast")
+    config = dataclasses.replace(config, data=dataclasses.replace(config.data, downscale=2, max_image_size=400))
+    assert flags_off_preset(config) == {"--downscale", "--max-image-size"}
+    with pytest.raises(SplatuError, match="--max-image-size 400 is not used beside --downscale 2"):
+        train_command.check_options(config, flags_off_preset(config))
