@@ -7,7 +7,9 @@ layout `--data <output>` detects as COLMAP.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
 import os
 import re
 import shlex
@@ -240,12 +242,22 @@ def _reconstruct(cfg: ProcessImagesConfig, names: list[str], mode: pycolmap.Came
 STAGING_PREFIX = ".process-images-"
 _STAGING_NAME = re.compile(re.escape(STAGING_PREFIX) + r"(\d+)@(.+)-[^-]+")
 """A staging folder's name: the prefix, the id of the process that made it @ its host, then mkdtemp's random part."""
+_UNNAMED = f"{STAGING_PREFIX}new-"
+"""A staging folder's name until it is locked: no process id, so never taken for a killed run's."""
 
 
-def _staging_prefix() -> str:
-    """The start of this run's staging folder name: it names the process and host, so that a later run can tell a
-    killed run's folder (its process gone) from a live one's."""
-    return f"{STAGING_PREFIX}{os.getpid()}@{socket.gethostname()}-"
+def _locked_staging(output: Path) -> tuple[Path, int]:
+    """A new staging folder in `output`, named for this process and host, and the descriptor that holds its lock
+    (flock on the folder) until it is closed. The kernel drops the lock when the process ends, however it ends; the
+    name is given only once the lock is held, so no later run sees it unlocked while this one lives."""
+    unnamed = Path(tempfile.mkdtemp(prefix=_UNNAMED, dir=output))  # never a folder the user had
+    held = os.open(unnamed, os.O_RDONLY)
+    with contextlib.suppress(OSError):  # a file system without locks: the process id alone tells a killed run's
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    staging = unnamed.with_name(f"{STAGING_PREFIX}{os.getpid()}@{socket.gethostname()}-"
+                                f"{unnamed.name.removeprefix(_UNNAMED)}")
+    os.rename(unnamed, staging)
+    return staging, held
 
 
 def _running(pid: int) -> bool:
@@ -259,14 +271,33 @@ def _running(pid: int) -> bool:
     return True
 
 
+def _unlocked(folder: Path) -> bool:
+    """Whether no process holds `folder`'s lock (`_locked_staging`): a process id alone does not tell, as a run in
+    another container of the same host name (another process-id namespace) has an id this one cannot see. False
+    where it cannot tell (no locks, an unreadable folder)."""
+    try:
+        probe = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)  # released as the descriptor closes
+    except OSError:
+        return False
+    finally:
+        os.close(probe)
+    return True
+
+
 def _stale_staging(output: Path) -> list[Path]:
     """The staging folders in `output` that a run killed outright (kill -9, a power cut) left: made on this host by
-    a process that no longer runs. A live run's stays, and so does one made on another host sharing the folder, or
-    by an older splatu whose names held no process id, which cannot be told from a live one."""
+    a process that no longer runs, and unlocked. A live run's stays, and so does one made on another host sharing the
+    folder, or by an older splatu whose names held no process id, which cannot be told from a live one. A reused
+    process id keeps a killed run's folder until that process ends: kept, never a live run's deleted."""
     host = socket.gethostname()
     return [entry for entry in sorted(output.iterdir())
             if (found := _STAGING_NAME.fullmatch(entry.name)) is not None and found.group(2) == host
-            and entry.is_dir() and not entry.is_symlink() and not _running(int(found.group(1)))]
+            and entry.is_dir() and not entry.is_symlink() and not _running(int(found.group(1)))
+            and _unlocked(entry)]
 
 
 def _remove_stale_staging(output: Path, console: Console) -> None:
@@ -310,7 +341,7 @@ def process_images(cfg: ProcessImagesConfig) -> Path:
     created = [path for path in (output, output / "sparse") if not path.exists()] + ([link] if link else [])
     output.mkdir(parents=True, exist_ok=True)
     _remove_stale_staging(output, console)
-    staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(), dir=output))  # never a folder the user had
+    staging, held = _locked_staging(output)
     # COLMAP's warnings and errors are raw log lines beside splatu's own for the same thing (an unreadable photo,
     # no model); a failure COLMAP cannot go on from is its FATAL line and an exception
     pycolmap.logging.minloglevel = pycolmap.logging.INFO if cfg.colmap_log else pycolmap.logging.FATAL
@@ -326,6 +357,7 @@ def process_images(cfg: ProcessImagesConfig) -> Path:
         raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+        os.close(held)
     console.print(f"model: {best.num_reg_images()}/{len(names)} photos registered, {best.num_points3D()} points, "
                   f"mean reprojection error {best.compute_mean_reprojection_error():.2f} px -> {sparse}",
                   soft_wrap=True)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
 import math
 import os
@@ -768,6 +769,37 @@ def test_process_images_removes_the_staging_folders_killed_runs_left(tmp_path, m
     assert sorted(p.name for p in out.iterdir()) == sorted(names[k] for k in ("live", "elsewhere", "older"))
     assert seen[0][3].startswith(f".process-images-{os.getpid()}@{host}-")  # this run's own: gone, as it failed
     assert f"removed 1 staging folder that a killed run left in {out}" in capfd.readouterr().err
+
+
+def test_process_images_keeps_a_staging_folder_whose_lock_is_held(tmp_path, monkeypatch):
+    """A run in another container of the same host name has a process id this one cannot see: its folder looked
+    killed and was deleted under it. Its lock (on the folder, held while it runs) now keeps it; a run holds its own."""
+    from splatu.data import process_images as P
+
+    photos, out = tmp_path / "photos", tmp_path / "out"
+    for i in range(2):
+        write_rgb(photos / f"{i}.png", noise_image(i, 16, 16))
+    ended = subprocess.Popen(["true"])
+    ended.wait()
+    elsewhere = out / f".process-images-{ended.pid}@{socket.gethostname()}-othrpid0"
+    elsewhere.mkdir(parents=True)
+    held = os.open(elsewhere, os.O_RDONLY)
+    fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as that run's own descriptor holds it
+    own_locked = []
+
+    def reconstruct(cfg, names, mode, staging, console):
+        own_locked.append(not P._unlocked(staging))
+        raise SplatuError("stopped", "in the test", "none")
+
+    monkeypatch.setattr(P, "_reconstruct", reconstruct)
+    try:
+        with pytest.raises(SplatuError, match="stopped"):
+            process_images(ProcessImagesConfig(images=photos, output=out))
+        assert sorted(p.name for p in out.iterdir()) == [elsewhere.name]
+    finally:
+        os.close(held)
+    assert own_locked == [True]
+    assert P._unlocked(elsewhere)  # its run ended: the next one removes it
 
 
 @pytest.mark.parametrize(("folder", "output"), [("shots", "shots-colmap"), ("images", ".")])
