@@ -173,6 +173,5 @@ def load_new_scene(given: DataConfig) -> tuple[DataConfig, Scene]:
 def load_camera_scene(cfg: DataConfig, masks: bool = False) -> CameraScene:
     """The scene `cfg` names as `load_scene` splits and normalises it, without decoding its images (with its training
     mask files when `masks` asks for them): for renders that need no ground truth (`CameraScene`)."""
-    cfg.validate()
-    raw = downscaled(read_scene_files(scene_path(cfg), cfg.background), cfg.downscale or 1)
+    raw = downscaled(read_scene(cfg), cfg.downscale or 1)
     return assemble_cameras(raw, cfg, ImageCache(cfg.cache_dir or default_cache_dir()), masks)
