@@ -250,15 +250,16 @@ def blamed_on_preset(err: SplatuError, config: TrainConfig, typed: Collection[st
     """`err`, from a check of a new run's options together (flags and preset), told as the preset file's where it
     names an option whose value came from the file (its flag not among those `typed`, its value the file's): a check
     of two options (every-n's eval_every, with --eval-split typed) named the flag of the file's option, which was
-    never typed. A range error is worded as the file's own are; any other keeps the check's own fix, with the file's
-    keys for their flags: a flag replacing the file's value need not help (a file's eval_every beside a typed
+    never typed. Only the error's subject counts: a typed flag's error whose fix names a file's option in passing
+    stays the flag's. A range error is worded as the file's own are; any other keeps the check's own fix, with the
+    file's keys for their flags: a flag replacing the file's value need not help (a file's eval_every beside a typed
     --eval-split contiguous is refused at any value, as a typed --eval-every would be)."""
     if config.preset == FULL_RECIPE:
         return err
     mine = flat_options(to_dict(config))
     kept = {name: value for name, value in preset_values(config.preset).items()
             if mine.get(name) == value and option_flag(name) not in typed}
-    keys = _keys_named(kept, (err.what, err.where, err.fix))
+    keys = _keys_named(kept, (err.what,))  # not a fix's mention in passing: "decay over the run's --steps"
     if not keys:
         return err
     path = preset_path(config.preset)

@@ -223,6 +223,20 @@ def test_a_preset_value_refused_beside_a_flag_is_blamed_on_the_file(capsys, tmp_
     assert _train_error(capsys, tmp_path, preset, *flags) == f"error: {line.format(tmp_path / 'p.yaml')}\n"
 
 
+@pytest.mark.parametrize("preset", [None, "steps: 100\n"])
+def test_a_typed_flags_error_whose_fix_names_the_files_option_is_the_flags(capsys, tmp_path, preset):
+    """The fix's "over the run's --steps" named the file's steps in passing, and the typed flag's error was blamed
+    on the file: on configs/fast.yaml for a bare `splatu train` (preset None)."""
+    line = ("error: --optim.means-lr-steps must be 0 or more (got -1), in the training options, pass 0 to decay over "
+            "the run's --steps\n")
+    if preset is not None:
+        assert _train_error(capsys, tmp_path, preset, "--optim.means-lr-steps", "-1") == line
+        return
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--optim.means-lr-steps", "-1", "--data", str(tmp_path / "absent")])
+    assert capsys.readouterr().err == line
+
+
 def test_a_flag_typed_with_the_files_own_value_is_the_flags(capsys, tmp_path):
     """The command line tells a typed flag from the file's value, equal or not: it was blamed on the file."""
     flags = ("--eval-split", "every-n", "--eval-every", "1")
