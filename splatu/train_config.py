@@ -7,6 +7,10 @@ The presets scale every step-based setting (`SCHEDULE`) by one factor s = steps 
 `splatfacto_schedule` computes it (tests/unit/test_trainer.py checks each preset file against it), so
 iterations, the resolution schedule and densification move together instead of as scattered constants.
 `--steps N` typed for a new run applies the same rule at N (`scaled_schedule`), as gsplat's `steps_scaler` does.
+
+Which flags were typed (for --steps, a --max-image-size beside --downscale, a preset file's value blamed on the
+file) is the command line's say (`flags_given`); Python code calling `train` has none, so there a flag counts
+as typed when its option is off a bare preset's value (`flags_off_preset`), one notion spelt the same way.
 """
 
 from __future__ import annotations
