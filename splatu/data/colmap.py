@@ -184,13 +184,19 @@ def _is_pose(tokens: list[str]) -> bool:
             and _is_id(tokens[8]) and not _is_points(tokens))
 
 
+def _numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(line number, line) of each line of a COLMAP text file as COLMAP's reader counts them: \\r\\n, \\r and \\n
+    each end a line (Python's universal newlines), and bytes that are no UTF-8 read as U+FFFD."""
+    with path.open(encoding="utf-8", errors="replace") as lines:
+        yield from enumerate(lines, start=1)
+
+
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
     """(line number, tokens) of each non-comment, non-blank line of a COLMAP text file; COLMAP's reader trims a line
     before it looks for the # of a comment, so an indented comment is one."""
-    with path.open(encoding="utf-8", errors="replace") as lines:
-        for number, line in enumerate(lines, start=1):
-            if (tokens := line.split()) and not tokens[0].startswith("#"):
-                yield number, tokens
+    for number, line in _numbered_lines(path):
+        if (tokens := line.split()) and not tokens[0].startswith("#"):
+            yield number, tokens
 
 
 ID_FIELDS = {"cameras": ((0, "CAMERA_ID"),), "images": ((0, "IMAGE_ID"), (8, "CAMERA_ID")),
@@ -222,60 +228,117 @@ def _text_line_error(path: Path, name: str, number: int, tokens: list[str]) -> S
     return None
 
 
-def text_model_error(files: dict[str, Path]) -> SplatuError | None:
-    """The first line of a text model that COLMAP's reader would refuse (naming no line), or misread without a word:
-    an id written 1.5 shifts the rest of its line, and a colour of 300 wrapped round to 44. None for a .bin model."""
+_FLOAT = r"-?[0-9]{1,20}+\.?[0-9]{0,30}+(?:e[-+][0-9][0-9])?+"
+"""A number as COLMAP writes one (17 or 6 significant digits, an exponent of two digits), in ASCII: below 1e50
+before its exponent and at most 1e99 in it, so always finite for float(). Possessive quantifiers (+) make every
+field match one way only, so a line that fails does so in time linear in its length."""
+_ID = "[0-9]{1,9}+"
+"""An id below 10**9, so below ID_LIMIT; int() and float() read it (leading zeros too)."""
+_CHANNEL = "(?>25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
+"""A colour channel, 0 to 255 spelt out."""
+_ONE_LINE = r"\n?"
+"""A line as the file hands it over: its \\n, if any, is its only whitespace besides the single spaces."""
+FAST_LINES = {
+    "points3D": re.compile(rf"[0-9]{{1,18}}+ {_FLOAT} {_FLOAT} {_FLOAT} {_CHANNEL} {_CHANNEL} {_CHANNEL} {_FLOAT}"
+                           rf"(?: {_ID} {_ID})*+{_ONE_LINE}"),
+    "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} [!-~]+{_ONE_LINE}"),
+    "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_ONE_LINE}"),
+}
+"""Lines of a large model that are certainly valid, matched whole without splitting them into tokens (a few
+times faster than the per-token check, which every other line still gets, and which words every error).
+
+Each accepts only lines that `_text_line_error` passes, in the same line numbering (`_numbered_lines`): fields are
+ASCII, one space apart, so `str.split` finds exactly these tokens; every one is a finite number (`_FLOAT`, `_ID`,
+`_CHANNEL`); ids have at most 9 digits (a POINT3D_ID 18), so they are ids below their limits; colours are 0–255.
+A points3D line has 8 fields then (IMAGE_ID, POINT2D_IDX) pairs of ids; a pose line 10, IMAGE_ID, 7 numbers,
+CAMERA_ID and a NAME of printable ASCII (10 fields is no multiple of 3, so no points line either: it is a pose
+line with a name without a space); a 2D points line numbers in threes (never a pose line, by `_is_pose`).
+Both paths get a line after universal newlines, so a CRLF file's lines take the fast path too. Anything else, a
+comment, a blank line, a tab, '+5', '.5', '1e5', a colour 007, digits of other scripts, goes to the per-token
+check, which decides and words the error as it always has. cameras.txt, a line per camera, has no fast path.
+"""
+
+
+def _file_error(path: Path, name: str) -> SplatuError | None:
+    """The first line of a cameras.txt or points3D.txt that COLMAP's reader would refuse or misread, if any."""
+    fast = FAST_LINES.get(name)
+    for number, line in _numbered_lines(path):
+        if fast is not None and fast.fullmatch(line):
+            continue
+        tokens = line.split()
+        if tokens and not tokens[0].startswith("#") and (
+                error := _text_line_error(path, name, number, tokens)) is not None:
+            return error
+    return None
+
+
+def _images_errors(path: Path) -> tuple[SplatuError | None, SplatuError | None]:
+    """In one pass over an images.txt: its first line that COLMAP's reader would refuse or misread, and the first
+    fault of its layout that the reader takes without a word (`_layout_error`)."""
+    pose_after_pose = spaced_name = None
+    after_pose = False
+    for number, line in _numbered_lines(path):
+        if FAST_LINES["pose"].fullmatch(line):
+            pose = True
+        elif FAST_LINES["points2D"].fullmatch(line):
+            pose = False
+        else:
+            tokens = line.split()
+            if tokens and not tokens[0].startswith("#") and (
+                    error := _text_line_error(path, "images", number, tokens)) is not None:
+                return error, None
+            pose = _is_pose(tokens)  # a comment's first token starts with #, so it is no IMAGE_ID
+            if pose and len(tokens) > 10 and spaced_name is None:
+                spaced_name = (number, " ".join(tokens[9:]))
+        if pose and after_pose and pose_after_pose is None:
+            pose_after_pose = number
+        after_pose = pose
+    return None, _layout_error(path, pose_after_pose, spaced_name)
+
+
+def _layout_error(path: Path, pose_after_pose: int | None, spaced_name: tuple[int, str] | None) -> SplatuError | None:
+    """The error for an images.txt whose every line parses but which COLMAP's reader misreads silently: a pose line
+    right after a pose line (the reader takes the line after each pose as its 2D points, blank or not, so a file
+    whose empty points lines were removed read as every other image), else a pose line whose name holds a space
+    (the reader takes a name up to its first space, so `my photo.jpg` was looked for as `my`)."""
+    if pose_after_pose is not None:
+        return SplatuError(f"{path.name} line {pose_after_pose} is an image's pose where COLMAP reads the 2D points "
+                           "of the image on the line before, so every other image would be lost", f"in {path}",
+                           "give each image two lines, its pose then its 2D points (an empty line when it has none)")
+    if spaced_name is not None:
+        return SplatuError(f"{path.name} line {spaced_name[0]} names image {spaced_name[1]!r}, but COLMAP's text "
+                           "format reads a name only up to its first space", f"in {path}",
+                           "rename the photo and its entry without spaces, or export the model as .bin")
+    return None
+
+
+def text_model_errors(files: dict[str, Path]) -> tuple[SplatuError | None, SplatuError | None]:
+    """For a text model, (the first line COLMAP's reader would refuse, naming no line, or misread without a word: an
+    id written 1.5 shifts the rest of its line, a colour of 300 wrapped round to 44; the first images.txt layout it
+    misreads, `_layout_error`, raised only once pycolmap has read the model). (None, None) for a .bin model."""
     if files["cameras"].suffix != ".txt":
-        return None
-    for name, path in files.items():
-        for number, tokens in _data_lines(path):
-            if (error := _text_line_error(path, name, number, tokens)) is not None:
-                return error
-    return None
-
-
-def pose_line_in_place_of_points(path: Path) -> int | None:
-    """The number of the first images.txt line where COLMAP's reader expects an image's 2D points but finds the
-    next image's pose. The reader takes the line after each pose line as its points, blank or not, so a file
-    whose empty points lines were removed reads as every other image, silently."""
-    expect_points = False
-    with path.open(encoding="utf-8", errors="replace") as lines:
-        for number, line in enumerate(lines, start=1):
-            if expect_points:
-                if _is_pose(line.split()):
-                    return number
-                expect_points = False
-            elif not line.startswith("#"):
-                expect_points = _is_pose(line.split())
-    return None
-
-
-def name_with_space(path: Path) -> tuple[int, str] | None:
-    """(line number, name) of the first images.txt pose line whose image name holds a space. COLMAP's reader takes
-    a name up to its first space, so `my photo.jpg` was looked for as `my`, and reported as a missing image."""
-    return next(((number, " ".join(tokens[9:])) for number, tokens in _data_lines(path)
-                 if len(tokens) > 10 and _is_pose(tokens)), None)
+        return None, None
+    if (error := _file_error(files["cameras"], "cameras")) is not None:
+        return error, None
+    error, layout = _images_errors(files["images"])
+    if error is None:
+        error = _file_error(files["points3D"], "points3D")
+    return error, layout
 
 
 def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
     """The model through pycolmap; a text file it cannot parse, or would misread, is named with its line (checked
     first: pycolmap reads some bad lines without a word)."""
     files = model_files(sparse_dir)
-    if (error := text_model_error(files)) is not None:
+    error, layout = text_model_errors(files)
+    if error is not None:
         raise error
     try:
         reconstruction = pycolmap.Reconstruction(str(sparse_dir))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on unreadable models
         raise _unreadable(sparse_dir, files, err) from None
-    images = files["images"]
-    if images.suffix == ".txt" and (number := pose_line_in_place_of_points(images)) is not None:
-        raise SplatuError(f"{images.name} line {number} is an image's pose where COLMAP reads the 2D points of the "
-                          "image on the line before, so every other image would be lost", f"in {images}",
-                          "give each image two lines, its pose then its 2D points (an empty line when it has none)")
-    if images.suffix == ".txt" and (spaced := name_with_space(images)) is not None:
-        raise SplatuError(f"{images.name} line {spaced[0]} names image {spaced[1]!r}, but COLMAP's text format "
-                          "reads a name only up to its first space", f"in {images}",
-                          "rename the photo and its entry without spaces, or export the model as .bin")
+    if layout is not None:
+        raise layout
     return reconstruction
 
 

@@ -1,0 +1,155 @@
+"""The COLMAP text pre-check's fast path (colmap.FAST_LINES) decides exactly as the per-token check: it takes only
+lines that check passes, so on many generated lines, valid and subtly not, the errors are the same with and without
+it. The per-token check's own verdicts on odd input (tables below) are pinned as they were."""
+
+from __future__ import annotations
+
+import random
+import re
+from pathlib import Path
+
+import pytest
+
+from splatu.data import colmap
+
+NUMBERS = ["0", "-1", "1.5", "4.8222974381749717", "-0.0336422", "207.398", "1e-05", "1.2345678901234567e-05",
+           "-2.5e+20", "12345678901234567890", "123456789012345678901234567890", "5.", "0.000012345678901234567890123"]
+ODD_NUMBERS = ["1e999", "9" * 400, "1e+99", "9" * 50 + "e+99", "1e308", "1e309", "nan", "NaN", "inf", "-inf",
+               "Infinity", ".5", "+5", "1_0", "1__0", "1E+05", "1e5", "1.5.2", "1e5e5", "-", "e5", "0x10", "x",
+               "１", "٣", "٣.٥", "5e-5", "1e-100"]
+IDS = ["0", "1", "7", "1234", "999999999", "4294967294", "18446744073709551614"]
+ODD_IDS = ["-0", "+3", "007", "1.5", "-1", "1e3", "4294967295", "4294967296", "1000000000", "18446744073709551615",
+           "99999999999999999999", "１", "٣", "1_0", "nan", "x"]
+CHANNELS = ["0", "9", "10", "99", "100", "199", "200", "249", "250", "255"]
+ODD_CHANNELS = ["256", "300", "-1", "007", "0255", "+5", "1.0", "1e2", "٢٥٥", "２５５", "nan", "99999999"]
+NAMES = ["a.png", "IMG_0001.JPG", "dir/x.jpg", "5", "#x", "é.png", "my photo.jpg", "a\u00a0b.png", "a\x1cb.png"]
+SEPARATORS = [" "] * 12 + ["  ", "\t", " \t", "\u00a0", "\x0b", "\x1c", "\u3000"]
+ENDINGS = ["\n"] * 8 + ["\r\n", "\r", " \n", "\t\n", "  \r\n"]
+PREFIXES = [""] * 20 + [" ", "\t", "# ", "  # ", "\ufeff"]
+
+
+class Lines:
+    """Random lines of each kind: fields as COLMAP writes them, else (at rate `odd`) an odd one; joined by single
+    spaces with LF or CRLF, else (at rate `messy`) by whitespace of other kinds, indented, commented, a lone CR."""
+
+    def __init__(self, seed: int, odd: float = 0.04, messy: float = 0.5) -> None:
+        self.rng, self.odd, self.messy = random.Random(seed), odd, messy
+
+    def pick(self, usual: list[str], odd: list[str]) -> str:
+        return self.rng.choice(odd if self.rng.random() < self.odd else usual)
+
+    def join(self, fields: list[str]) -> str:
+        rng = self.rng
+        if rng.random() >= self.messy:
+            return " ".join(fields) + rng.choice(["\n", "\r\n"])
+        text = rng.choice(PREFIXES) + "".join(field + rng.choice(SEPARATORS) for field in fields[:-1])
+        return text + (fields[-1] if fields else "") + rng.choice(ENDINGS)
+
+    def point(self) -> str:
+        track = [self.pick(IDS[:5], ODD_IDS) for _ in range(2 * self.rng.randint(0, 6))]
+        if self.rng.random() < self.odd:  # an odd track length
+            track.append(self.pick(IDS[:5], ODD_IDS))
+        return self.join([self.pick(IDS, ODD_IDS), *(self.pick(NUMBERS, ODD_NUMBERS) for _ in range(3)),
+                          *(self.pick(CHANNELS, ODD_CHANNELS) for _ in range(3)), self.pick(NUMBERS, ODD_NUMBERS),
+                          *track])
+
+    def pose(self) -> str:
+        fields = [self.pick(IDS[:5], ODD_IDS), *(self.pick(NUMBERS, ODD_NUMBERS) for _ in range(7)),
+                  self.pick(IDS[:5], ODD_IDS), self.rng.choice(NAMES)]
+        return self.join(fields[:self.rng.randint(8, 10)] if self.rng.random() < self.odd else fields)
+
+    def points2d(self) -> str:
+        count = 3 * self.rng.randint(0, 5) + (self.rng.choice([-1, 1]) if self.rng.random() < self.odd else 0)
+        return self.join([self.pick(NUMBERS, ODD_NUMBERS) for _ in range(max(count, 0))])
+
+
+def write_lines(path: Path, lines: list[str], extra: bytes = b"") -> Path:
+    path.write_bytes("".join(lines).encode("utf-8") + extra)
+    return path
+
+
+def slow_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Send every line to the per-token check, as before the fast path."""
+    never = re.compile(r"(?!)")
+    monkeypatch.setattr(colmap, "FAST_LINES", dict.fromkeys(colmap.FAST_LINES, never))
+
+
+def shown(error: Exception | None) -> str | None:
+    return None if error is None else str(error)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_each_line_the_fast_path_takes_is_one_the_per_token_check_passes(tmp_path, seed):
+    lines = Lines(seed)
+    kinds = {"points3D": lines.point, "pose": lines.pose, "points2D": lines.points2d}
+    taken = refused = 0
+    for kind, make in kinds.items():
+        path = write_lines(tmp_path / f"{kind}.txt", [make() for _ in range(3000)])
+        file = "points3D" if kind == "points3D" else "images"
+        for number, text in colmap._numbered_lines(path):
+            tokens = text.split()
+            valid = bool(tokens) and not tokens[0].startswith("#") and (
+                colmap._text_line_error(path, file, number, tokens) is None)
+            refused += not valid
+            if colmap.FAST_LINES[kind].fullmatch(text):
+                taken += 1
+                assert valid, text
+                if file == "images":  # a pose line, with no space in its name; a points line, no pose line
+                    assert colmap._is_pose(tokens) == (kind == "pose") and (kind != "pose" or len(tokens) == 10), text
+    assert taken > 1500 and refused > 1500  # both kinds of line were there in numbers
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_a_generated_model_gets_the_same_verdict_with_and_without_the_fast_path(tmp_path, monkeypatch, seed):
+    """Whole files, so line numbering (CRLF, a lone CR, bytes that are no UTF-8) and the images.txt layout checks
+    (a pose after a pose, a name with a space) are compared too."""
+    rng = random.Random(seed)
+    lines = Lines(seed, odd=rng.choice([0.0, 0.002, 0.01]), messy=rng.choice([0.0, 0.01, 0.1]))
+    images = []
+    for _ in range(rng.randint(1, 6)):
+        images.append(lines.pose())
+        if rng.random() < 0.9:  # else the points line is left out: a pose after a pose
+            images.append(lines.points2d() if rng.random() < 0.8 else "\n")
+    files = {"cameras": write_lines(tmp_path / "cameras.txt", ["# cameras\n", "1 PINHOLE 8 6 5 5 4 3\n"]),
+             "images": write_lines(tmp_path / "images.txt", ["# images\n", *images],
+                                   b"\xff\n" if rng.random() < 0.1 else b""),
+             "points3D": write_lines(tmp_path / "points3D.txt", [lines.point() for _ in range(30)])}
+    fast = tuple(map(shown, colmap.text_model_errors(files)))
+    slow_only(monkeypatch)
+    assert fast == tuple(map(shown, colmap.text_model_errors(files)))
+
+
+def test_lines_as_colmap_writes_them_take_the_fast_path():
+    """The speed-up holds only while real lines match (lund_door's, and an exponent as %.17g writes one)."""
+    assert colmap.FAST_LINES["points3D"].fullmatch(
+        "11686 5.528041511827797 5.4739093221374002 17.951171205614333 134 128 132 0.38821204521741998 2 7379 1 7367\n")
+    assert colmap.FAST_LINES["points3D"].fullmatch("3 -1.2345678901234567e-05 0 1 255 0 9 1e-05\n")
+    assert colmap.FAST_LINES["pose"].fullmatch(
+        "1 0.983789 0.00113517 0.176825 -0.0298644 -7.60712 0.428157 2.75243 1 DSC_0001.JPG\n")
+    assert colmap.FAST_LINES["points2D"].fullmatch("207.398 25.1136 -1 721.026 26.3628 2749\n")
+
+
+@pytest.mark.parametrize(("text", "verdict"), [
+    ("7 0.5 0.5 2 255 0 0 0.1 1 2\r\n", None),
+    ("7\t0.5\t0.5\t2\t255\t0\t0\t0.1\t1\t2  \n", None),  # tabs and trailing spaces are whitespace to split()
+    ("  # an indented comment\n", None),
+    ("１ 0.5 0.5 2 ٢٥٥ 0 0 0.1 1 2\n", None),  # Python's int() reads other scripts' digits (pycolmap does not)
+    ("7 1_0.5 0.5 2 +255 0 0 0.1 1 2\n", None),  # and underscores and a + sign
+    ("7 0.5 0.5 2 255 0 0 0.1 4294967294 2\n", None),
+    ("7 0.5 0.5 2 255 0 0 0.1 4294967295 2\n", "cannot parse points3D.txt line 1 ('7 0.5 0.5 2 255 0 0 0.1 4294967295 "
+     "2')"),
+    ("7 1e999 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 ('7 1e999 0.5 2 255 0 0 0.1')"),
+    ("7 nan 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 ('7 nan 0.5 2 255 0 0 0.1')"),
+    ("7 0.5 0.5 2 255 0 0 0.1 1\n", "cannot parse points3D.txt line 1 ('7 0.5 0.5 2 255 0 0 0.1 1')"),
+    ("7.5 0.5 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 (POINT3D_ID 7.5 is not an id, a whole number "
+     "from 0 to 18446744073709551614)"),
+    ("-1 0.5 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 (POINT3D_ID -1 is not an id, a whole number "
+     "from 0 to 18446744073709551614)"),
+    ("# x\r7 0.5 0.5 2 256 0 0 0.1\n", "point 7's colour (256, 0, 0) is not RGB from 0 to 255"),  # CR ends a line
+])
+def test_the_per_token_checks_verdicts_on_odd_points3d_lines_are_kept(tmp_path, text, verdict):
+    files = {"cameras": write_lines(tmp_path / "cameras.txt", ["1 PINHOLE 8 6 5 5 4 3\n"]),
+             "images": write_lines(tmp_path / "images.txt", ["1 1 0 0 0 0 0 1 1 a.png\n", "\n"]),
+             "points3D": write_lines(tmp_path / "points3D.txt", [text])}
+    error, layout = colmap.text_model_errors(files)
+    assert (None if error is None else error.what) == verdict and layout is None
