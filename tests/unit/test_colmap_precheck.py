@@ -8,9 +8,11 @@ import random
 import re
 from pathlib import Path
 
+import pycolmap
 import pytest
 
 from splatu.data import colmap
+from tests.benchmark_scripts import benchmark_script
 
 NUMBERS = ["0", "-1", "1.5", "4.8222974381749717", "-0.0336422", "207.398", "1e-05", "1.2345678901234567e-05",
            "-2.5e+20", "12345678901234567890", "123456789012345678901234567890", "5.", "0.000012345678901234567890123"]
@@ -172,3 +174,20 @@ def test_the_per_token_checks_verdicts_on_odd_points3d_lines_are_kept(tmp_path, 
              "points3D": write_lines(tmp_path / "points3D.txt", [text])}
     error, layout = colmap.text_model_errors(files)
     assert (None if error is None else error.what) == verdict and layout is None
+
+
+@pytest.fixture(scope="module")
+def precheck_benchmark():
+    yield from benchmark_script("colmap_precheck")
+
+
+def test_the_benchmarks_model_is_one_pycolmap_reads_whole(tmp_path, precheck_benchmark):
+    """Its tracks name the 2D points that name them back, so the timed read is of a model COLMAP would write."""
+    files = precheck_benchmark.write_model(tmp_path, points=300, images=12)
+    assert colmap.text_model_errors(files) == (None, None)
+    model = pycolmap.Reconstruction(str(tmp_path))
+    assert len(model.points3D) == 300 and len(model.images) == 12
+    for point_id, point in model.points3D.items():
+        assert 2 <= point.track.length() <= 10
+        for element in point.track.elements:
+            assert model.images[element.image_id].points2D[element.point2D_idx].point3D_id == point_id
