@@ -13,7 +13,8 @@ written in full, see `swap_in`):
     panels/NAME.png                              render | uncertainty | error (error when GT exists)
     maps/                                        the layout `eval-ause --maps` scores (when GT exists)
     orbit.gif                                    for --views orbit
-    render.json                                  per-view mean uncertainty, elevations, the orbit's shape, timings, the --cameras file
+    render.json                                  per-view mean uncertainty, elevations, the orbit's shape, timings,
+                                                 the --cameras file
 """
 
 from __future__ import annotations
