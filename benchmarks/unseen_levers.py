@@ -207,6 +207,11 @@ def _with_regulariser(photometric_loss: Callable, lever: Lever, weight: float, p
     return loss
 
 
+def _rounded(seconds: float | None) -> float | None:
+    """A time to a tenth of a second; None stays None (a compile time the kernels' clock could not take)."""
+    return None if seconds is None else round(seconds, 1)
+
+
 def train_with(args: Args) -> dict:
     """One training of `args.preset` on poster with the lever on; returns its results row."""
     config = dataclasses.replace(preset_config(args.preset), output_dir=args.output_dir, progress=False,
@@ -223,7 +228,7 @@ def train_with(args: Args) -> dict:
     evals = summary["eval"]
     return {"lever": args.lever, "weight": args.weight, "preset": args.preset, "seed": args.seed,
             "gaussians": summary["num_gaussians"], "train_seconds": round(summary["train_seconds"], 1),
-            "train_compile_seconds": round(summary["train_compile_seconds"], 1),
+            "train_compile_seconds": _rounded(summary["train_compile_seconds"]),
             "unseen_observed_psnr": evals["eval"]["psnr_observed"], "unseen_psnr": evals["eval"]["psnr"],
             "every_8th_psnr": evals["interp"]["psnr"], "run_dir": str(run_dir),
             **{k: v for k, v in measured_on().items() if k in ("date", "cpu")}}

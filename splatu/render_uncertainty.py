@@ -438,8 +438,8 @@ def train_timing(run: LoadedRun) -> dict[str, float | None]:
     compiling the rasterizer's kernels (each session's first step, ~10 s to a minute), is left out of it, so that a
     resumed run or one ensemble member compiling for all does not skew the comparison; `train_wall_seconds` (scene
     loading, evaluations, every session of an ensemble) is beside them. All None for a run or ensemble not
-    finished; `train_compile_seconds` also for one saved before compiles were timed apart, whose
-    `train_step_seconds` includes them."""
+    finished; `train_compile_seconds` also for one saved before compiles were timed apart, or whose torch could
+    not time them (`kernels.compile_seconds`), whose `train_step_seconds` includes them."""
     return {"train_step_seconds": run.train_seconds, "train_compile_seconds": run.train_compile_seconds,
             "train_wall_seconds": run.wall_seconds}
 

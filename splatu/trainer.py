@@ -212,7 +212,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                                       f"{bad.parameter} non-finite", f"in {run_dir}",
                                       f"{_last_good(run_dir)}; retrain with lower learning rates") from None
                 state.step += 1
-                count_training_time(state, time.perf_counter() - started, compile_seconds() - compiling)
+                count_training_time(state, time.perf_counter() - started, compiled_since(compiling))
                 in_step = False
                 _account(state, config, outcome, log, run_dir)
                 if outcome.skipped is None:
@@ -267,7 +267,7 @@ def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: Me
                                                         state.uncertainty_generators, config, scores)
     choice = scores.record
     seconds = time.perf_counter() - started
-    count_training_time(state, seconds, compile_seconds() - compiling)
+    count_training_time(state, seconds, compiled_since(compiling))
     record = {"step": state.step, "event": "degree_choice", **choice, "seconds": seconds}
     log.write(record)
     atomic_write_text(run_dir / DEGREE_CHOICE_FILE, json.dumps(record, indent=2))
@@ -279,12 +279,20 @@ def choose_degrees(state: TrainState, config: TrainConfig, scene: Scene, log: Me
     return config
 
 
-def count_training_time(state: TrainState, seconds: float, compiling: float) -> None:
+def compiled_since(before: float | None) -> float | None:
+    """Seconds compiled since `compile_seconds()` read `before`; None once the clock has stopped (or had)."""
+    now = compile_seconds()
+    return None if before is None or now is None else now - before
+
+
+def count_training_time(state: TrainState, seconds: float, compiling: float | None) -> None:
     """Add `seconds` of training, `compiling` of it spent compiling kernels, to the state's two clocks: the time of
     the steps alone is what a run's cost is compared on, and a session's first step can take a minute to compile.
-    A state resumed from a checkpoint without a compile time keeps its measure, compiles included."""
-    if state.train_compile_seconds is None:
-        state.train_seconds += seconds
+    A state resumed from a checkpoint without a compile time keeps its measure, compiles included; so does one whose
+    compiles could not be timed (`compiling` None), with those already timed put back, as null means that measure."""
+    if compiling is None or state.train_compile_seconds is None:
+        state.train_seconds += seconds + (state.train_compile_seconds or 0.0)
+        state.train_compile_seconds = None
         return
     state.train_compile_seconds += compiling
     state.train_seconds += seconds - compiling

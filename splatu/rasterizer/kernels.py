@@ -22,6 +22,7 @@ weighted sum yields the colour, Σ w·z and Σ w = alpha together.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -204,8 +205,10 @@ graphs of each, and past the eighth dynamo ran the kernel eager, saying so only 
 1.7-1.8x the time of the other float64 ones in the same process, against 1.03-1.07x with a limit per dtype
 (`python benchmarks/mixed_dtypes.py --rounds 21`, docs/results.md)."""
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
-_compile_seconds = 0.0
+_compile_seconds: float | None = 0.0
 _compile_began: float | None = None
+_compiles_begun = 0
+"""Compiles whose start callback ran: a compile that ran none shows the clock deaf to dynamo (`_stop_clock`)."""
 
 
 def set_compile(enabled: bool) -> bool:
@@ -229,40 +232,61 @@ def compile_pending() -> bool:
     return _use_compile and not _compiled
 
 
-def compile_seconds() -> float:
+def compile_seconds() -> float | None:
     """Seconds this process has spent compiling: loading torch's compiler for the first compiled kernel, then every
     compile dynamo ran (first calls, recompiles, a backward compiled at its first call), as its own start and end
-    callbacks time them. The trainer takes it out of the time of its steps, which it would otherwise dominate."""
+    callbacks time them. The trainer takes it out of the time of its steps, which it would otherwise dominate.
+    None once the clock could not follow dynamo (its callbacks are a private API, `_stop_clock`): the steps' time
+    then includes the compiles, as it did before they were timed apart."""
     return _compile_seconds
 
 
 def start_compile_clock() -> None:
     """Load torch's compiler, counting its ~2 s (dynamo times its compiles only once loaded), and time dynamo's
-    compiles from here on. The first compiled kernel calls it; again after torch._dynamo.reset() (tests), which
-    drops every callback."""
+    compiles from here on. Every compiled kernel call checks it, as torch._dynamo.reset() (tests) drops every
+    callback; a torch whose callback API is missing or other stops the clock rather than training."""
     global _compile_seconds
-    started = time.perf_counter()
-    import torch._inductor.compile_fx  # noqa: F401 (loaded here to be counted, not inside the first compile)
-    from torch._dynamo.callback import callback_handler
+    if _compile_seconds is None:
+        return
+    try:
+        from torch._dynamo.callback import callback_handler
 
-    if _compile_started not in callback_handler.start_callbacks:
+        if _compile_started in callback_handler.start_callbacks:
+            return
+        started = time.perf_counter()
+        with contextlib.suppress(ImportError):  # a compiler that cannot load fails the first compile, which says so
+            import torch._inductor.compile_fx  # noqa: F401 (loaded here to be counted, not inside the first compile)
         callback_handler.register_start_callback(_compile_started)
         callback_handler.register_end_callback(_compile_ended)
-        _compile_seconds += time.perf_counter() - started
+    except (ImportError, AttributeError, TypeError) as error:
+        _stop_clock(f"torch._dynamo.callback is not as splatu knows it ({error!r})")
+        return
+    _compile_seconds += time.perf_counter() - started
 
 
-def _compile_started(_args: object) -> None:
-    """dynamo calls its callbacks around the outermost compile only, so one start is open at a time."""
-    global _compile_began
+def _stop_clock(why: str) -> None:
+    """Give up timing compiles for the rest of the process, and say so once: what was timed is no longer the whole."""
+    global _compile_seconds
+    if _compile_seconds is not None:
+        _compile_seconds = None
+        warnings.warn(f"the kernels' compile time cannot be timed apart: {why}; train_compile_seconds is null and "
+                      "train_step_seconds includes the compiles", stacklevel=3)
+
+
+def _compile_started(*_: object, **__: object) -> None:
+    """dynamo calls its callbacks around the outermost compile only, so one start is open at a time. Any arguments
+    are taken: they are dynamo's to change."""
+    global _compile_began, _compiles_begun
     _compile_began = time.perf_counter()
+    _compiles_begun += 1
 
 
-def _compile_ended(_args: object) -> None:
+def _compile_ended(*_: object, **__: object) -> None:
     """Count the compile that `_compile_started` opened (none if the clock started while one was running)."""
     global _compile_seconds, _compile_began
-    if _compile_began is not None:
+    if _compile_began is not None and _compile_seconds is not None:
         _compile_seconds += time.perf_counter() - _compile_began
-        _compile_began = None
+    _compile_began = None
 
 
 def kernel(name: str) -> Callable:
@@ -277,7 +301,6 @@ def compiled(fn: Callable) -> Callable:
     if not _use_compile:
         return fn
     if fn not in _compiled:
-        start_compile_clock()
         _compiled[fn] = _with_eager_fallback(fn)
     return _compiled[fn]
 
@@ -296,18 +319,24 @@ def _with_eager_fallback(fn: Callable) -> Callable:
 
     def run(*args):
         global _use_compile
+        start_compile_clock()
         key = _dtypes(args)
-        if key not in by_dtypes:
-            by_dtypes[key] = torch.compile(fn, dynamic=True, isolate_recompiles=True, recompile_limit=RECOMPILE_LIMIT)
+        first, begun = key not in by_dtypes, _compiles_begun
         try:
+            if first:
+                by_dtypes[key] = torch.compile(fn, dynamic=True, isolate_recompiles=True,
+                                               recompile_limit=RECOMPILE_LIMIT)
             # a model's parameters change length as it densifies: without this, each new length recompiles
             with torch._dynamo.config.patch(force_parameter_static_shapes=False, fail_on_recompile_limit_hit=True):
-                return by_dtypes[key](*args)
+                result = by_dtypes[key](*args)
         except Exception as error:  # torch.compile raises many exception types; eager gives the same results
             # (a backward that compiles lazily, at its first call, fails in loss.backward() instead, outside this)
             warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager torch",
                           stacklevel=2)
             _use_compile = False
             return fn(*args)
+        if first and _compiles_begun == begun:  # a new torch.compile compiles at its first call
+            _stop_clock("dynamo compiled a kernel without calling its compile callbacks")
+        return result
 
     return run

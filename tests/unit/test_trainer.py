@@ -1710,6 +1710,22 @@ def test_a_checkpoint_without_a_compile_time_keeps_counting_compiles_in_the_step
     assert (state.train_seconds, state.train_compile_seconds) == (13.5, 2.0)
 
 
+def test_a_compile_clock_that_stops_leaves_the_compiles_in_the_steps_and_no_compile_time(tmp_path, scene,
+                                                                                           monkeypatch):
+    """The clock hangs on dynamo's private callbacks and stops when a torch changes them (compile_seconds None):
+    the subtraction then raised inside the step and ended the run. A run whose clock stops part way puts back the
+    compiles timed before, so that its null compile time means one thing: train_seconds includes every compile."""
+    state = dataclasses.replace(trainer.fresh_state(tiny_config(tmp_path), scene), train_seconds=10.0,
+                                train_compile_seconds=2.0)
+    trainer.count_training_time(state, 3.0, None)
+    assert (state.train_seconds, state.train_compile_seconds) == (15.0, None)
+    trainer.count_training_time(state, 3.0, 1.0)
+    assert (state.train_seconds, state.train_compile_seconds) == (18.0, None)
+    monkeypatch.setattr(kernels, "_compile_seconds", None)
+    summary = trainer.train_run(tiny_config(tmp_path, steps=2), scene, tmp_path / "run")
+    assert summary["train_compile_seconds"] is None and summary["train_seconds"] > 0
+
+
 def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(tmp_path, scene, capsys):
     """Uncertainty threshold 0 (refused for new runs since 19c6c8f: it supervises Gaussians the view never drew) and
     a u_init_logit beyond ±30 (since 36d6409: it only slows the loss's start) were allowed when older runs trained,

@@ -1,0 +1,92 @@
+"""The kernels' compile clock (splatu.rasterizer.kernels.compile_seconds), which hangs on dynamo's private compile
+callbacks: it must follow every compile, and stop, saying so, rather than stop a training when torch changes them.
+
+torch.compile is replaced by stand-ins here, so that no test waits for inductor: `timed_compile` calls the
+callbacks around its first call as dynamo does around a compile."""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from collections.abc import Callable
+
+import pytest
+import torch
+from torch._dynamo.callback import CallbackTrigger, callback_handler
+
+from splatu.rasterizer import kernels
+
+COMPILE_SECONDS = 0.05
+
+
+def doubled(x: torch.Tensor) -> torch.Tensor:
+    """A pure tensor function, as `kernels.compiled` takes."""
+    return x * 2
+
+
+def timed_compile(fn: Callable, **_options: object) -> Callable:
+    """torch.compile as the clock sees it: the first call compiles, inside dynamo's start and end callbacks."""
+    compiled = []
+
+    def call(*args: torch.Tensor) -> torch.Tensor:
+        if not compiled:
+            with callback_handler.install_callbacks(CallbackTrigger.DYNAMO, "0/0"):
+                time.sleep(COMPILE_SECONDS)
+            compiled.append(True)
+        return fn(*args)
+
+    return call
+
+
+@pytest.fixture
+def clock(monkeypatch) -> None:
+    """A process that has compiled nothing yet, with the kernels routed through torch.compile."""
+    monkeypatch.setattr(kernels, "_compile_seconds", 0.0)
+    monkeypatch.setattr(kernels, "_compile_began", None)
+    monkeypatch.setattr(kernels, "_compiled", {})
+    monkeypatch.setattr(kernels, "_use_compile", True)
+
+
+def test_a_compile_after_dynamo_reset_is_still_timed(clock, monkeypatch):
+    """torch._dynamo.reset() drops every callback (the tests reset it); a kernel made before it compiles again after
+    it, and that compile went uncounted."""
+    monkeypatch.setattr(torch, "compile", timed_compile)
+    run = kernels.compiled(doubled)
+    run(torch.ones(3))
+    timed = kernels.compile_seconds()
+    assert timed >= COMPILE_SECONDS
+    callback_handler.clear()  # what torch._dynamo.reset() does to them
+    run(torch.ones(3, dtype=torch.float64))  # another dtype: another compile
+    assert kernels.compile_seconds() >= timed + COMPILE_SECONDS
+
+
+def test_a_torch_without_the_callback_api_stops_the_clock_not_the_training(clock, monkeypatch):
+    """torch._dynamo.callback is private: without it the first compiled kernel raised ImportError, ending the run."""
+    monkeypatch.setattr(torch, "compile", timed_compile)
+    monkeypatch.setitem(sys.modules, "torch._dynamo.callback", None)  # as if this torch had no such module
+    with pytest.warns(UserWarning, match="compile time cannot be timed apart") as said:
+        assert torch.equal(kernels.compiled(doubled)(torch.ones(3)), torch.full((3,), 2.0))
+        kernels.compiled(doubled)(torch.ones(3, dtype=torch.float64))
+    assert len(said) == 1
+    assert kernels.compile_seconds() is None
+
+
+def test_a_compile_the_callbacks_miss_stops_the_clock(clock, monkeypatch):
+    """A torch that keeps the callback API but no longer calls it around a compile would have had its compiles
+    counted in the steps while train_compile_seconds said 0."""
+    monkeypatch.setattr(torch, "compile", lambda fn, **_options: fn)  # compiles without a callback
+    with pytest.warns(UserWarning, match="without calling its compile callbacks"):
+        kernels.compiled(doubled)(torch.ones(3))
+    assert kernels.compile_seconds() is None
+
+
+def test_the_callbacks_take_whatever_dynamo_passes(clock, monkeypatch):
+    """A callback that failed on dynamo's arguments would fail every compile, and the kernels run eager."""
+    monkeypatch.setattr(torch, "compile", timed_compile)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kernels.compiled(doubled)(torch.ones(3))
+    kernels._compile_started(object(), "more", trigger=None)
+    kernels._compile_ended(object(), "more", trigger=None)
+    assert kernels.compile_seconds() >= COMPILE_SECONDS
