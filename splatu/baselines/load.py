@@ -90,12 +90,16 @@ def _ensemble_seconds(record_wall: float | None,
                       members: list[Path]) -> tuple[float | None, float | None, float | None]:
     """An ensemble's time in steps and its compile time, each the sum of its members' (each summary.json's, as a
     single run reports its own), and its wall time from ensemble.json; all None unless every member has its time
-    in steps, the compile time None unless every member has one."""
+    in steps. The compile time is None unless every member has one, and then the time in steps includes every
+    member's compiles, as a single run's does (a member with none counted its compiles in its steps)."""
     seconds = [_summary_seconds(member)[:2] for member in members]
     if any(train is None for train, _ in seconds):
         return None, None, None
+    train = sum(train for train, _ in seconds)
     compiles = [compiling for _, compiling in seconds]
-    return (sum(train for train, _ in seconds), None if None in compiles else sum(compiles), record_wall)
+    if None in compiles:
+        return train + sum(c for c in compiles if c is not None), None, record_wall
+    return train, sum(compiles), record_wall
 
 
 def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import pytest
@@ -9,6 +10,7 @@ import torch
 
 from splatu.baselines.ensemble import EnsembleSource, read_ensemble
 from splatu.baselines.fisher import fisher_diagonal
+from splatu.baselines.load import _ensemble_seconds
 from splatu.baselines.visibility import visibility_feature
 from splatu.errors import SplatuError
 from splatu.rasterizer.kernels import set_compile
@@ -78,3 +80,17 @@ def test_the_fisher_information_is_the_same_with_compiled_kernels():
             set_compile(previous)
     assert estimates[0].max() > 0  # the visible Gaussians are constrained
     torch.testing.assert_close(estimates[1], estimates[0], rtol=1e-5, atol=1e-8)
+
+
+def test_an_ensemble_with_a_member_without_a_compile_time_counts_every_compile_in_its_steps(tmp_path):
+    """A member saved before compiles were timed apart (or whose torch could not time them) has them in its
+    train_seconds; summed with members that left theirs out, the ensemble's time in steps mixed the two measures
+    beside a null compile time, which says that the steps include every compile."""
+    members = []
+    for name, times in (("old", {"train_seconds": 50.0}), ("new", {"train_seconds": 40.0,
+                                                                     "train_compile_seconds": 9.0})):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(times))
+        members.append(tmp_path / name)
+    assert _ensemble_seconds(1000.0, members) == (99.0, None, 1000.0)
+    assert _ensemble_seconds(1000.0, members[1:] * 2) == (80.0, 18.0, 1000.0)
