@@ -281,6 +281,17 @@ def _resume_point(resume: Path) -> Path | None:
     return path
 
 
+def check_restart(saved: TrainConfig, run_dir: Path) -> None:
+    """A run stopped before its first checkpoint restarts from step 0, a new model made of its config.yml: a new
+    run's checks apply, which a saved config with a value allowed when it was written (threshold 0, a u_init_logit
+    beyond ±30) passes only to load. Told before the scene loads, as the file's."""
+    try:
+        check_parts(saved)
+    except SplatuError as err:
+        raise SplatuError(err.what, f"in {run_dir / 'config.yml'}, which this resume trains anew from (the run stopped "
+                          "before its first checkpoint)", f"{err.fix} in that file, or start a new run") from None
+
+
 def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble: Path | None, wall_start: float,
                 hooks: Sequence[StepHook]) -> Path:
     """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None;
@@ -289,6 +300,8 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
                            else from_dict(checkpoint["config"], str(path)), run_dir)
     step = 0 if checkpoint is None else int(checkpoint["step"])
+    if checkpoint is None:
+        check_restart(saved, run_dir)
     if config.extend_to is not None:
         if ensemble is not None:
             raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "

@@ -1745,6 +1745,28 @@ def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(t
     assert math.isfinite(summary["eval"]["eval"]["psnr"])
 
 
+@pytest.mark.parametrize(("older", "said"), [
+    ({"uncertainty": {"threshold": 0.0}}, "uncertainty threshold = 0.0 is not a blend weight in (0, 1]"),
+    ({"model": {"u_init_logit": 45.0}}, "--model.u-init-logit 45.0 is not a number within ±30"),
+])
+def test_a_resume_before_the_first_checkpoint_refuses_what_a_new_run_may_not_use(tmp_path, scene, monkeypatch,
+                                                                                  capsys, older, said):
+    """A run stopped before its first checkpoint restarts at step 0 from its config.yml: a new training. Threshold 0
+    trained on, though a new run refuses it; a u_init_logit beyond ±30 was refused only after the scene loaded, and
+    blamed on the model options rather than the file."""
+    run_dir = train_command.train(tiny_config(tmp_path, steps=6, checkpoint_every=6))
+    for path in list_checkpoints(run_dir):
+        path.unlink()
+    (run_dir / "summary.json").unlink()
+    saved_with(run_dir, **older)
+    monkeypatch.setattr(train_command, "load_scene", lambda *_: pytest.fail("the scene loaded first"))
+    with pytest.raises(SplatuError) as refused:
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert str(refused.value).startswith(f"{said}, in {run_dir / 'config.yml'}, which this resume trains anew from")
+    assert str(refused.value).endswith("in that file, or start a new run")
+    assert not list_checkpoints(run_dir)
+
+
 def test_an_infinite_screen_space_gradient_skips_the_step_and_leaves_the_model_untouched(tmp_path, monkeypatch):
     """The 2D-mean absgrad is no parameter gradient: it needs its own check, or density control reads an inf."""
     scene = tiny_scene(n_train=2)
