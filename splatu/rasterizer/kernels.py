@@ -310,11 +310,24 @@ def _dtypes(args: tuple) -> tuple[torch.dtype, ...]:
     return tuple(arg.dtype for arg in args if isinstance(arg, Tensor))
 
 
+def _dtype_names(key: tuple[torch.dtype, ...]) -> str:
+    """The dtypes of a kernel's version, as a warning names them: `float64/int64`."""
+    return "/".join(sorted({str(dtype).removeprefix("torch.") for dtype in key}))
+
+
+def _recompile_limit_hit(error: Exception) -> bool:
+    """Whether `error` is dynamo refusing a graph past the limit (`fail_on_recompile_limit_hit`), known by its class
+    name: the class lives in a private module, which a torch may move."""
+    return type(error).__name__ == "FailOnRecompileLimitHit"
+
+
 def _with_eager_fallback(fn: Callable) -> Callable:
     """Run `fn` through one torch.compile per set of input dtypes, each with its own recompile limit (dynamo's cache
-    is per code object otherwise, so float32 training and float64 renders shared one limit). If compiling fails (no
-    C++ compiler, an unsupported backend, or RECOMPILE_LIMIT graphs not enough) warn once and run eager torch from
-    then on: dynamo itself would run a function past its limit eager with only a log line."""
+    is per code object otherwise, so float32 training and float64 renders shared one limit). If compiling fails, warn
+    once and run eager torch, which gives the same results: past RECOMPILE_LIMIT graphs, for this kernel and these
+    dtypes from then on (dynamo itself would run them eager with only a log line); for any other failure (no C++
+    compiler, an unsupported backend), every kernel until `set_compile(True)` again. Either way the failed version is
+    never tried again, so a later session of the process (an ensemble's next member) neither warns nor fails again."""
     by_dtypes: dict[tuple[torch.dtype, ...], Callable] = {}
 
     def run(*args):
@@ -331,9 +344,14 @@ def _with_eager_fallback(fn: Callable) -> Callable:
                 result = by_dtypes[key](*args)
         except Exception as error:  # torch.compile raises many exception types; eager gives the same results
             # (a backward that compiles lazily, at its first call, fails in loss.backward() instead, outside this)
-            warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager torch",
-                          stacklevel=2)
-            _use_compile = False
+            by_dtypes[key] = fn
+            if _recompile_limit_hit(error):
+                warnings.warn(f"rasterizer kernel {fn.__name__} needed more than {RECOMPILE_LIMIT} compiled graphs "
+                              f"for {_dtype_names(key)} inputs; it runs eager torch for them from now on", stacklevel=2)
+            else:
+                warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager "
+                              "torch", stacklevel=2)
+                _use_compile = False
             return fn(*args)
         if first and _compiles_begun == begun:  # a new torch.compile compiles at its first call
             _stop_clock("dynamo compiled a kernel without calling its compile callbacks")

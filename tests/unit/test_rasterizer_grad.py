@@ -15,7 +15,7 @@ import pytest
 import torch
 from torch._dynamo.utils import counters
 
-from splatu.rasterizer import RasterInputError, rasterize
+from splatu.rasterizer import RasterInputError, kernels, rasterize
 from splatu.rasterizer.footprint import block_entries
 from splatu.rasterizer.function import CompositeFunction
 from splatu.rasterizer.kernels import ALPHA_MIN, kernels_compiled, set_compile
@@ -314,3 +314,40 @@ def test_compiled_kernels_stay_compiled_across_dtypes_and_channel_widths():
     finally:
         set_compile(previous)
     assert not [reason for reason in counters["unimplemented"] if "recompile limit" in reason]
+
+
+def test_a_kernel_past_its_recompile_limit_runs_eager_for_those_dtypes_saying_so_once(monkeypatch):
+    """A kernel past its limit warned, then turned every kernel eager until the next session's set_compile(True)
+    (an ensemble's next member), which tried it again, hit the limit again and warned again. Now the version past
+    its limit runs eager, exactly as with compiling off, and the other kernels stay compiled. dynamo's eager backend
+    stands in for inductor: the limit is dynamo's, and nothing waits for a C++ compile."""
+    real_compile = torch.compile
+    monkeypatch.setattr(torch, "compile", lambda fn, **options: real_compile(fn, backend="eager", **options))
+    monkeypatch.setattr(kernels, "RECOMPILE_LIMIT", 1)
+    monkeypatch.setattr(kernels, "_compiled", {})
+    torch._dynamo.reset()
+
+    def gradients(channels: int, compile_kernels: bool) -> list[torch.Tensor]:
+        set_compile(compile_kernels)  # as each session (run, ensemble member) of a process does
+        scene = tiny_scene(40 + channels, n=6)
+        scene["features"] = scene["features"].detach()[:, :1].repeat(1, channels)
+        scene["background"] = scene["background"].detach()[:1].repeat(channels)
+        leaves = [v.detach().requires_grad_(True) for v in scene.values()]
+        outputs = render_all(*leaves)
+        sum(o.sum() for o in outputs).backward()
+        return [o.detach() for o in outputs] + [leaf.grad for leaf in leaves]
+
+    previous = set_compile(True)
+    try:
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            for channels in (1, 2, 3):  # the backward kernels need a graph per channel count
+                compiled = gradients(channels, True)
+                assert kernels_compiled()
+                for mine, eager in zip(compiled, gradients(channels, False), strict=True):
+                    assert torch.equal(mine, eager)
+    finally:
+        set_compile(previous)
+        torch._dynamo.reset()
+    told = sorted(str(w.message).split(" needed")[0] for w in said if "rasterizer kernel" in str(w.message))
+    assert told == ["rasterizer kernel entry_gradients", "rasterizer kernel upstream_per_weight"]
