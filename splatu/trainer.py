@@ -129,6 +129,10 @@ def seed_everything(seed: int) -> torch.Generator:
 
 
 def fresh_state(config: TrainConfig, scene: Scene) -> TrainState:
+    """The state a new training starts from. It checks what a new run may not use and a saved one may (the
+    uncertainty threshold 0; the model's initial values, in `from_points`): every new training begins here, from
+    Python (`train_run`) too, and an ensemble's members not yet started."""
+    config.uncertainty.validate()
     generator = seed_everything(config.seed)
     extent = scene_extent(scene.train.cameras)
     heads = uncertainty_heads(config.uncertainty, config.model.u_sh_degree)  # validates each head's degree

@@ -38,7 +38,7 @@ from splatu.data.scene import Scene, Views
 from splatu.densify import DensifyConfig, DensityController
 from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
 from splatu.errors import SplatuError
-from splatu.losses import photometric_loss
+from splatu.losses import UncertaintyLossConfig, photometric_loss
 from splatu.methods import METHODS, get_method, method_of
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
@@ -1765,6 +1765,14 @@ def test_a_resume_before_the_first_checkpoint_refuses_what_a_new_run_may_not_use
     assert str(refused.value).startswith(f"{said}, in {run_dir / 'config.yml'}, which this resume trains anew from")
     assert str(refused.value).endswith("in that file, or start a new run")
     assert not list_checkpoints(run_dir)
+
+
+def test_a_new_training_from_python_refuses_an_uncertainty_threshold_of_0(tmp_path, scene):
+    """Threshold 0 loads (a saved run may have it) but no new training may use it: train_run from Python, which
+    skips the command's option checks, trained with it, while a u_init_logit beyond ±30 was refused there."""
+    config = tiny_config(tmp_path, uncertainty=UncertaintyLossConfig(threshold=0.0))
+    with pytest.raises(SplatuError, match=re.escape("uncertainty threshold = 0.0 is not a blend weight in (0, 1]")):
+        trainer.train_run(config, scene, tmp_path / "run")
 
 
 def test_an_infinite_screen_space_gradient_skips_the_step_and_leaves_the_model_untouched(tmp_path, monkeypatch):
