@@ -50,7 +50,8 @@ class TrainState:
     """Time spent in steps, summed over sessions (resumes), without the compiles of the rasterizer's kernels."""
     train_compile_seconds: float | None = 0.0
     """The time those steps spent compiling the kernels (mostly each session's first step); None when resumed from
-    a checkpoint written before it was recorded, whose train_seconds includes the compiles, as it goes on doing."""
+    a checkpoint written before it was recorded, or once the compile clock stopped (`kernels.compile_seconds`):
+    train_seconds then includes every compile, as it goes on doing."""
     wall_start: float = dataclasses.field(default_factory=time.perf_counter)
     """perf_counter origin of the run's wall time; on resume, moved back by the earlier sessions' wall time."""
 
