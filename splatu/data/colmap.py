@@ -185,9 +185,10 @@ def _is_pose(tokens: list[str]) -> bool:
 
 
 def _numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
-    """(line number, line) of each line of a COLMAP text file as COLMAP's reader counts them: \\r\\n, \\r and \\n
-    each end a line (Python's universal newlines), and bytes that are no UTF-8 read as U+FFFD."""
-    with path.open(encoding="utf-8", errors="replace") as lines:
+    """(line number, line with its ending) of each line of a COLMAP text file; bytes that are no UTF-8 read as U+FFFD.
+    \\n, \\r\\n and a lone \\r each end a line, as in an editor; COLMAP's reader ends one at \\n alone (and trims
+    the \\r of \\r\\n), so the two count alike once `_line_error` has refused a lone \\r."""
+    with path.open(encoding="utf-8", errors="replace", newline="") as lines:
         yield from enumerate(lines, start=1)
 
 
@@ -228,6 +229,21 @@ def _text_line_error(path: Path, name: str, number: int, tokens: list[str]) -> S
     return None
 
 
+def _line_error(path: Path, name: str, number: int, line: str) -> tuple[list[str], SplatuError | None]:
+    """The tokens of one line of a COLMAP text file, and the error if COLMAP's reader would refuse or misread it. A
+    line ended by a lone \\r (as classic Mac OS saved text) is refused: COLMAP reads it and the next as one line, so
+    such an images.txt read as one comment line, a model of no image, without a word. (Ending a file's last line, a
+    lone \\r is harmless, but it never comes alone.)"""
+    if line.endswith("\r"):
+        return [], SplatuError(f"{path.name} line {number} ends in a lone carriage return (CR), which COLMAP does not "
+                               "read as the end of a line", f"in {path}",
+                               "save the file with LF (or CRLF) line endings")
+    tokens = line.split()
+    if not tokens or tokens[0].startswith("#"):
+        return tokens, None
+    return tokens, _text_line_error(path, name, number, tokens)
+
+
 _FLOAT = r"-?[0-9]{1,20}+\.?[0-9]{0,30}+(?:e[-+][0-9][0-9])?+"
 """A number as COLMAP writes one (17 or 6 significant digits, an exponent of two digits), in ASCII: below 1e50
 before its exponent and at most 1e99 in it, so always finite for float(). Possessive quantifiers (+) make every
@@ -236,27 +252,29 @@ _ID = "[0-9]{1,9}+"
 """An id below 10**9, so below ID_LIMIT; int() and float() read it (leading zeros too)."""
 _CHANNEL = "(?>25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
 """A colour channel, 0 to 255 spelt out."""
-_ONE_LINE = r"\n?"
-"""The end of a line as the file hands it over (none on a last line): no other whitespace ends a fast line."""
+_LINE_END = r"(?:\r?\n)?"
+"""The end of a line as `_numbered_lines` hands it over, LF or CRLF (none on a last line): no other whitespace, and
+no lone CR, ends a fast line."""
 FAST_LINES = {
     "points3D": re.compile(rf"[0-9]{{1,18}}+ {_FLOAT} {_FLOAT} {_FLOAT} {_CHANNEL} {_CHANNEL} {_CHANNEL} {_FLOAT}"
-                           rf"(?: {_ID} {_ID})*+{_ONE_LINE}"),
-    "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} [!-~]+{_ONE_LINE}"),
-    "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_ONE_LINE}"),
+                           rf"(?: {_ID} {_ID})*+{_LINE_END}"),
+    "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} [!-~]+{_LINE_END}"),
+    "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_LINE_END}"),
 }
 """Lines of a large model that are certainly valid, matched whole without splitting them into tokens (8 times
 faster than the per-token check on a model of 1M points, docs/results.md; every other line still gets that check,
 which words every error).
 
-Each accepts only lines that `_text_line_error` passes, in the same line numbering (`_numbered_lines`): fields are
+Each accepts only lines that `_line_error` passes, in the same line numbering (`_numbered_lines`): fields are
 ASCII, one space apart, so `str.split` finds exactly these tokens; every one is a finite number (`_FLOAT`, `_ID`,
 `_CHANNEL`); ids have at most 9 digits (a POINT3D_ID 18), so they are ids below their limits; colours are 0–255.
 A points3D line has 8 fields then (IMAGE_ID, POINT2D_IDX) pairs of ids; a pose line 10, IMAGE_ID, 7 numbers,
 CAMERA_ID and a NAME of printable ASCII (10 fields is no multiple of 3, so no points line either: it is a pose
 line with a name without a space); a 2D points line numbers in threes (never a pose line, by `_is_pose`).
-Both paths get a line after universal newlines, so a CRLF file's lines take the fast path too. Anything else, a
-comment, a blank line, a tab, '+5', '.5', '1e5', a colour 007, digits of other scripts, goes to the per-token
-check, which decides and words the error as it always has. cameras.txt, a line per camera, has no fast path.
+Both paths get the same lines (`_numbered_lines`): a CRLF file's take the fast path too, one ended by a lone CR
+never. Anything else, a comment, a blank line, a tab, '+5', '.5', '1e5', a colour 007, digits of other scripts,
+goes to the per-token check, which decides and words the error as it always has. cameras.txt, a line per camera,
+has no fast path.
 """
 
 
@@ -266,9 +284,7 @@ def _file_error(path: Path, name: str) -> SplatuError | None:
     for number, line in _numbered_lines(path):
         if fast is not None and fast.fullmatch(line):
             continue
-        tokens = line.split()
-        if tokens and not tokens[0].startswith("#") and (
-                error := _text_line_error(path, name, number, tokens)) is not None:
+        if (error := _line_error(path, name, number, line)[1]) is not None:
             return error
     return None
 
@@ -284,9 +300,8 @@ def _images_errors(path: Path) -> tuple[SplatuError | None, SplatuError | None]:
         elif FAST_LINES["points2D"].fullmatch(line):
             pose = False
         else:
-            tokens = line.split()
-            if tokens and not tokens[0].startswith("#") and (
-                    error := _text_line_error(path, "images", number, tokens)) is not None:
+            tokens, error = _line_error(path, "images", number, line)
+            if error is not None:
                 return error, None
             pose = _is_pose(tokens)  # a comment's first token starts with #, so it is no IMAGE_ID
             if pose and len(tokens) > 10 and spaced_name is None:

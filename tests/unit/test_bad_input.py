@@ -232,6 +232,18 @@ def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, fil
     assert error.what.startswith(f"cannot parse {file} line {line} (") and error.where == f"in {path}"
 
 
+def test_colmap_text_with_lines_ended_by_a_lone_cr_is_refused_not_misread(tmp_path):
+    """COLMAP's reader ends a line at LF alone (CRLF works as it trims the CR), so a file saved with classic Mac
+    line endings is one line to it: here pycolmap reads no image at all, without a word."""
+    sparse = write_colmap(tmp_path / "scene")
+    images = sparse / "images.txt"
+    images.write_bytes(images.read_bytes().replace(b"\n", b"\r"))
+    assert len(pycolmap.Reconstruction(str(sparse)).images) == 0
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what.startswith("images.txt line 1 ends in a lone carriage return (CR)")
+    assert error.where == f"in {images}"
+
+
 def test_colmap_images_txt_without_its_empty_points_lines_is_refused_not_half_read(tmp_path):
     """pycolmap takes the line after each pose as its 2D points, so with the empty lines removed it read the
     model as every other image, silently (checked here: it reads 1 of these 2 images)."""

@@ -106,9 +106,8 @@ def test_each_line_the_fast_path_takes_is_one_the_per_token_check_passes(tmp_pat
         path = write_lines(tmp_path / f"{kind}.txt", [make() for _ in range(3000)])
         file = "points3D" if kind == "points3D" else "images"
         for number, text in colmap._numbered_lines(path):
-            tokens = text.split()
-            valid = bool(tokens) and not tokens[0].startswith("#") and (
-                colmap._text_line_error(path, file, number, tokens) is None)
+            tokens, error = colmap._line_error(path, file, number, text)
+            valid = bool(tokens) and not tokens[0].startswith("#") and error is None
             refused += not valid
             if colmap.FAST_LINES[kind].fullmatch(text):
                 taken += 1
@@ -148,6 +147,9 @@ def test_lines_as_colmap_writes_them_take_the_fast_path():
     assert colmap.FAST_LINES["pose"].fullmatch(
         "1 0.983789 0.00113517 0.176825 -0.0298644 -7.60712 0.428157 2.75243 1 DSC_0001.JPG\n")
     assert colmap.FAST_LINES["points2D"].fullmatch("207.398 25.1136 -1 721.026 26.3628 2749\n")
+    for kind, line in [("points3D", "3 0.5 0 1 255 0 9 0.1 1 2"), ("pose", "1 1 0 0 0 0 0 1 1 a.png"),
+                       ("points2D", "207.398 25.1136 -1")]:  # a CRLF file's lines too, a lone CR's never
+        assert colmap.FAST_LINES[kind].fullmatch(line + "\r\n") and not colmap.FAST_LINES[kind].fullmatch(line + "\r")
 
 
 @pytest.mark.parametrize(("text", "verdict"), [
@@ -166,7 +168,10 @@ def test_lines_as_colmap_writes_them_take_the_fast_path():
      "from 0 to 18446744073709551614)"),
     ("-1 0.5 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 (POINT3D_ID -1 is not an id, a whole number "
      "from 0 to 18446744073709551614)"),
-    ("# x\r7 0.5 0.5 2 256 0 0 0.1\n", "point 7's colour (256, 0, 0) is not RGB from 0 to 255"),  # CR ends a line
+    ("# x\r7 0.5 0.5 2 256 0 0 0.1\n", "points3D.txt line 1 ends in a lone carriage return (CR), which COLMAP does "
+     "not read as the end of a line"),  # to COLMAP one line, a comment
+    ("7 0.5 0.5 2 255 0 0 0.1\r", "points3D.txt line 1 ends in a lone carriage return (CR), which COLMAP does not "
+     "read as the end of a line"),
 ])
 def test_the_per_token_checks_verdicts_on_odd_points3d_lines_are_kept(tmp_path, text, verdict):
     files = {"cameras": write_lines(tmp_path / "cameras.txt", ["1 PINHOLE 8 6 5 5 4 3\n"]),
