@@ -250,15 +250,19 @@ before its exponent and at most 1e99 in it, so always finite for float(). Posses
 field match one way only, so a line that fails does so in time linear in its length."""
 _ID = "[0-9]{1,9}+"
 """An id below 10**9, so below ID_LIMIT; int() and float() read it (leading zeros too)."""
+_POINT3D_ID = "[0-9]{1,18}+"
+"""A 3D point's id below 10**18, so below its 64-bit limit."""
+_NAME = "[!-~]+"
+"""An image's name in printable ASCII, so without a space or any other whitespace."""
 _CHANNEL = "(?>25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
 """A colour channel, 0 to 255 spelt out."""
 _LINE_END = r"(?:\r?\n)?"
 """The end of a line as `_numbered_lines` hands it over, LF or CRLF (none on a last line): no other whitespace, and
 no lone CR, ends a fast line."""
 FAST_LINES = {
-    "points3D": re.compile(rf"[0-9]{{1,18}}+ {_FLOAT} {_FLOAT} {_FLOAT} {_CHANNEL} {_CHANNEL} {_CHANNEL} {_FLOAT}"
+    "points3D": re.compile(rf"{_POINT3D_ID} {_FLOAT} {_FLOAT} {_FLOAT} {_CHANNEL} {_CHANNEL} {_CHANNEL} {_FLOAT}"
                            rf"(?: {_ID} {_ID})*+{_LINE_END}"),
-    "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} [!-~]+{_LINE_END}"),
+    "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} {_NAME}{_LINE_END}"),
     "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_LINE_END}"),
 }
 """Lines of a large model that are certainly valid, matched whole without splitting them into tokens (8 times
