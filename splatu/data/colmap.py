@@ -265,7 +265,7 @@ FAST_LINES = {
     "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} {_NAME}{_LINE_END}"),
     "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_LINE_END}"),
 }
-"""Lines of a large model that are certainly valid, matched whole without splitting them into tokens (8 times
+"""Lines of a large model that are certainly valid, matched whole without splitting them into tokens (7 times
 faster than the per-token check on a model of 1M points, docs/results.md; every other line still gets that check,
 which words every error).
 
