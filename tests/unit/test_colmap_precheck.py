@@ -196,3 +196,30 @@ def test_the_benchmarks_model_is_one_pycolmap_reads_whole(tmp_path, precheck_ben
         assert 2 <= point.track.length() <= 10
         for element in point.track.elements:
             assert model.images[element.image_id].points2D[element.point2D_idx].point3D_id == point_id
+
+
+@pytest.mark.parametrize(("faults", "first"), [
+    ({"spaced"}, "images.txt line 6 names image 'my c.png'"),
+    ({"spaced", "pose_after_pose"}, "images.txt line 3 is an image's pose where COLMAP reads the 2D points"),
+    ({"spaced", "pose_after_pose", "no_camera"}, "image d.png uses camera 9, which cameras.txt does not define"),
+    ({"spaced", "pose_after_pose", "no_camera", "parse"}, "cannot parse images.txt line 9 ('1 2 3 4')"),
+])
+def test_an_images_txt_with_several_faults_is_refused_for_the_one_checked_first(tmp_path, faults, first):
+    """One pass finds them all; they are raised as when each had its pass: a line that does not parse, then what
+    pycolmap cannot read, then a pose where 2D points belong, then a name with a space."""
+    lines = ["# images\n", *(f"{i} 1 0 0 0 0 0 1 1 {name}.png\n\n" for i, name in enumerate("abcd", start=1))]
+    lines = "".join(lines).splitlines(keepends=True)
+    if "pose_after_pose" in faults:
+        lines[2] = "5 1 0 0 0 0 0 1 1 e.png\n"
+    if "spaced" in faults:
+        lines[5] = "3 1 0 0 0 0 0 1 1 my c.png\n"
+    if "no_camera" in faults:
+        lines[7] = "4 1 0 0 0 0 0 1 9 d.png\n"
+    if "parse" in faults:
+        lines[8] = "1 2 3 4\n"
+    write_lines(tmp_path / "cameras.txt", ["1 PINHOLE 8 6 5 5 4 3\n"])
+    write_lines(tmp_path / "images.txt", lines)
+    write_lines(tmp_path / "points3D.txt", [])
+    with pytest.raises(colmap.SplatuError) as raised:
+        colmap.read_reconstruction(tmp_path)
+    assert raised.value.what.startswith(first)
