@@ -138,8 +138,16 @@ def _principal_point_fix(kind: PrincipalPointFault) -> str:
     return "give the camera's parameters in pixels of its WIDTH x HEIGHT, or re-run the reconstruction"
 
 
+def _ascii_numeral(token: str) -> bool:
+    """Whether `token` has none of what Python's int() and float() read but COLMAP's C++ reader does not: digits of
+    other scripts, and _ between digits (the reader took CAMERA_ID 1_0 as 1 followed by a photo named "_0")."""
+    return token.isascii() and "_" not in token
+
+
 def _is_number(token: str, kind: type = float) -> bool:
     """Whether COLMAP's C++ reader would parse `token` as a finite `kind` (it rejects nan and inf)."""
+    if not _ascii_numeral(token):
+        return False
     try:
         return math.isfinite(kind(token))
     except (ValueError, OverflowError):
@@ -154,6 +162,8 @@ means "invalid"; 3D point ids are 64-bit."""
 def _is_id(token: str, limit: int = ID_LIMIT) -> bool:
     """Whether `token` is an id COLMAP's reader can hold: an integer from 0 below `limit`. A larger one fails its
     reader, which names no line (and numpy could not even test an integer that large for finiteness)."""
+    if not _ascii_numeral(token):
+        return False
     try:
         return 0 <= int(token) < limit
     except ValueError:

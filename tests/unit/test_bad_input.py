@@ -224,6 +224,10 @@ def test_colmap_model_missing_a_file_names_it(tmp_path, missing):
     ("cameras.txt", lambda text: text.replace("1 PINHOLE", f"{2 ** 32 - 1} PINHOLE"), 2),  # COLMAP's "invalid" id
     ("cameras.txt", lambda text: text.replace("5 5 4 3", "5 5 4 3 0"), 2),  # one parameter too many
     ("points3D.txt", lambda text: "1 0.5 0.5 2 255 0 0 0.1 1 0.5\n", 1),  # a track's 2D point index is an id
+    # Python's int() and float() read these, COLMAP's reader does not: it took CAMERA_ID 1_0 as 1 and the photo "_0"
+    ("images.txt", lambda text: text.replace("0 0 1 a.png", "0 0 1_0 a.png"), 1),
+    ("points3D.txt", lambda text: "7 0.5 0.5 2 \u0662\u0665\u0665 0 0 0.1\n", 1),  # 255 in Arabic-Indic digits
+    ("cameras.txt", lambda text: text.replace("1 PINHOLE", "\uff11 PINHOLE"), 2),  # a fullwidth 1
 ])
 def test_colmap_text_that_cannot_be_parsed_names_the_file_and_line(tmp_path, file, edit, line):
     path = write_colmap(tmp_path / "scene") / file

@@ -1,6 +1,6 @@
 """The COLMAP text pre-check's fast path (colmap.FAST_LINES) decides exactly as the per-token check: it takes only
 lines that check passes, so on many generated lines, valid and subtly not, the errors are the same with and without
-it. The per-token check's own verdicts on odd input (tables below) are pinned as they were."""
+it. The per-token check's own verdicts on odd input (tables below) are pinned."""
 
 from __future__ import annotations
 
@@ -156,8 +156,9 @@ def test_lines_as_colmap_writes_them_take_the_fast_path():
     ("7 0.5 0.5 2 255 0 0 0.1 1 2\r\n", None),
     ("7\t0.5\t0.5\t2\t255\t0\t0\t0.1\t1\t2  \n", None),  # tabs and trailing spaces are whitespace to split()
     ("  # an indented comment\n", None),
-    ("１ 0.5 0.5 2 ٢٥٥ 0 0 0.1 1 2\n", None),  # Python's int() reads other scripts' digits (pycolmap does not)
-    ("7 1_0.5 0.5 2 +255 0 0 0.1 1 2\n", None),  # and underscores and a + sign
+    ("１ 0.5 0.5 2 ٢٥٥ 0 0 0.1 1 2\n", "cannot parse points3D.txt line 1 ('１ 0.5 0.5 2 ٢٥٥ 0 0 0.1 1 2')"),  # Python's
+    ("7 1_0.5 0.5 2 255 0 0 0.1 1 2\n", "cannot parse points3D.txt line 1 ('7 1_0.5 0.5 2 255 0 0 0.1 1 2')"),  # int()
+    ("7 0.5 0.5 2 +255 0 0 0.1 1 2\n", None),  # reads other scripts' digits and underscores, COLMAP's a + sign alone
     ("7 0.5 0.5 2 255 0 0 0.1 4294967294 2\n", None),
     ("7 0.5 0.5 2 255 0 0 0.1 4294967295 2\n", "cannot parse points3D.txt line 1 ('7 0.5 0.5 2 255 0 0 0.1 4294967295 "
      "2')"),
@@ -173,7 +174,7 @@ def test_lines_as_colmap_writes_them_take_the_fast_path():
     ("7 0.5 0.5 2 255 0 0 0.1\r", "points3D.txt line 1 ends in a lone carriage return (CR), which COLMAP does not "
      "read as the end of a line"),
 ])
-def test_the_per_token_checks_verdicts_on_odd_points3d_lines_are_kept(tmp_path, text, verdict):
+def test_the_per_token_checks_verdicts_on_odd_points3d_lines(tmp_path, text, verdict):
     files = {"cameras": write_lines(tmp_path / "cameras.txt", ["1 PINHOLE 8 6 5 5 4 3\n"]),
              "images": write_lines(tmp_path / "images.txt", ["1 1 0 0 0 0 0 1 1 a.png\n", "\n"]),
              "points3D": write_lines(tmp_path / "points3D.txt", [text])}
