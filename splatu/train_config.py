@@ -321,16 +321,20 @@ def preset_config(preset: str = DEFAULT_PRESET, method: str = "splatu", overridd
                   steps: int | None = None) -> TrainConfig:
     """The config a bare `splatu train --preset P --method M` starts from (the Python entry point); the preset's
     values for the flags in `overridden` are left out, so that a flag can replace a value the preset has wrong.
-    With `steps`, that of `--steps steps` for a new run: that length, and the schedule `scaled_schedule` rescales
-    (the settings whose flags are in `overridden` kept)."""
+    With `steps`, that of `--steps steps` for a new run (`rescaled`, the settings whose flags are in `overridden`
+    kept)."""
     config = TrainConfig()
     if preset != FULL_RECIPE:
         config = _with_preset(config, preset_path(preset), overridden)
-    config = dataclasses.replace(config, preset=preset, method=method)
-    if steps is not None:
-        scaled = scaled_schedule(preset, steps, overridden) or {}
-        config = apply_values(config, {"steps": steps, **nested_options(scaled)}, f"--steps {steps}")
-    return get_method(method).configure(config)
+    config = get_method(method).configure(dataclasses.replace(config, preset=preset, method=method))
+    return config if steps is None else rescaled(config, steps, overridden)
+
+
+def rescaled(config: TrainConfig, steps: int, kept: Collection[str] = ()) -> TrainConfig:
+    """`config` as `--steps steps` makes it for a new run: that length, and the schedule `scaled_schedule` rescales
+    (the settings whose flags are in `kept` keep their values)."""
+    scaled = scaled_schedule(config.preset, steps, kept) or {}
+    return apply_values(config, {"steps": steps, **nested_options(scaled)}, f"--steps {steps}")
 
 
 def preset_values(preset: str) -> dict[str, Any]:
@@ -386,9 +390,13 @@ def _new_run_steps(argv: Sequence[str], typed: Collection[str]) -> int | None:
 
 def default_config(argv: Sequence[str]) -> TrainConfig:
     """Defaults for `splatu train`: the chosen preset and method, and the schedule a typed --steps rescales, so
-    `--help` shows the real values (all of the preset's, also for the flags typed beside --help, which a run would
-    leave out for the flags to replace; the preset's schedule too, which the --steps help explains)."""
-    shows_help = "-h" in argv or "--help" in argv
+    `--help` shows the real values. There each flag's default is the value the run takes without that flag: the
+    preset's for a typed flag (a run leaves its preset value out for the flag to replace; shown, it read as the full
+    recipe's), and for a schedule setting, the one a typed --steps rescales it to, typed or not."""
     typed = flags_given(argv)
-    return preset_config(_scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu",
-                         () if shows_help else typed, None if shows_help else _new_run_steps(argv, typed))
+    preset, method = _scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu"
+    steps = _new_run_steps(argv, typed)
+    if "-h" not in argv and "--help" not in argv:
+        return preset_config(preset, method, typed, steps)
+    config = preset_config(preset, method)
+    return config if steps is None else dataclasses.replace(rescaled(config, steps), steps=config.steps)

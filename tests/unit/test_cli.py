@@ -436,6 +436,22 @@ def test_help_shows_the_presets_values_also_for_the_flags_typed_beside_it(capsys
     assert re.search(r"--densify.max-gaussians INT [^│]*?\(default: (\d+)\)", flat).group(1) == "20000"
 
 
+def test_help_beside_steps_shows_the_schedule_the_run_trains_with(capsys):
+    """`--steps 4000 --help` showed fast's 2000-step schedule as the defaults, not the one the run rescales it to.
+    Each default is the value without that flag: --steps keeps the preset's length, and a schedule flag typed beside
+    it shows the rescaled value it replaces; beside --resume, which keeps the run's saved schedule, the preset's."""
+    def shown(*flags: str) -> list[str]:
+        with pytest.raises(SystemExit):
+            entrypoint(["train", *flags, "--help"])
+        flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
+        return [re.search(re.escape(flag) + r" INT [^│]*?\(default: (\d+)\)", flat).group(1)
+                for flag in ("--steps", "--resolution-interval", "--densify.refine-every", "--densify.stop-split-at")]
+
+    assert shown("--steps", "4000", "--densify.refine-every", "5") == ["2000", "400", "13", "2000"]
+    assert shown("--preset", "quality", "--steps=4000") == ["3000", "400", "13", "2000"]
+    assert shown("--resume", "RUN", "--steps", "4000") == ["2000", "200", "7", "1000"]
+
+
 @pytest.mark.parametrize("spelling", ["render_uncertainty", "eval_ause", "process_images"])
 def test_a_subcommand_spelt_with_underscores_is_still_that_subcommand(capsys, spelling):
     """tyro reads render_uncertainty as render-uncertainty; the check for mistyped subcommands refused it."""
