@@ -7,7 +7,9 @@ line naming the option, the file, the expected type and the value, never a trace
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -21,9 +23,10 @@ from splatu.errors import SplatuError
 
 
 def read_yaml(path: Path) -> dict[str, Any]:
-    """A YAML mapping, or a one-line error naming the file."""
+    """A YAML mapping, or a one-line error naming the file. The file is read each time and parsed once per text
+    (`_parsed`): a train command consults its preset three times (loading, the --steps rescale, the note)."""
     try:
-        values = yaml.safe_load(path.read_text(encoding="utf-8"))
+        values = copy.deepcopy(_parsed(path.read_text(encoding="utf-8")))  # the caller's own, free to change
     except (OSError, yaml.YAMLError) as err:
         raise SplatuError(f"cannot read YAML ({type(err).__name__})", f"in {path}",
                           "check the file exists and is valid YAML") from None
@@ -33,6 +36,13 @@ def read_yaml(path: Path) -> dict[str, Any]:
         raise SplatuError("a config file must hold a mapping of option: value", f"in {path}",
                           "write one `option: value` per line")
     return values
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed(text: str) -> Any:
+    """`text` parsed as YAML. Keyed by the text, not by path and mtime, so a file rewritten within the clock tick its
+    filesystem stamps (tests rewrite a preset in a row) is never answered from its old contents."""
+    return yaml.safe_load(text)
 
 
 def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: str = "") -> Any:

@@ -306,7 +306,7 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
     flag does); none for a preset file whose own steps is no length (which the typed --steps replaces)."""
     if steps < 1:  # the option checks refuse it
         return None
-    values = {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
+    values = preset_values(preset)
     own = values.get("steps", SPLATFACTO_STEPS)
     if type(own) is not int or own < 1:  # replaced by the flag unchecked: no length for the rule to scale from
         return {}

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 import tyro
+import yaml
 from torch._dynamo.callback import CallbackTrigger, callback_handler
 
 from splatu import (
@@ -553,6 +554,22 @@ def test_the_schedule_note_says_what_the_preset_kept_and_leaves_out_what_was_typ
         "sets that value instead)")
     assert note_of(["--steps", "2000"]) is None  # fast's own length
     assert note_of(["--steps", "2000", "--preset", str(custom), "--resolution-interval", "7"]) is None
+
+
+def test_a_train_command_parses_its_preset_file_once(tmp_path, monkeypatch):
+    """The preset was parsed three times per new run with --steps (loading, the rescale, the note); the one parse is
+    keyed by the text, so the file rewritten at once with as many bytes (the same mtime tick) is read anew."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text(f"# {tmp_path}\nsteps: 2000\ndensify:\n  refine_every: 7\n")  # a text no other test parsed
+    parse, texts = yaml.safe_load, []
+    monkeypatch.setattr(yaml, "safe_load", lambda text: texts.append(text) or parse(text))
+    argv = ["--preset", str(custom), "--steps", "4000"]
+    config = parsed(argv)
+    train_command.check_options(config, flags_given(argv))
+    assert "--densify.refine-every 13" in train_command.schedule_note(config, flags_given(argv))
+    assert texts.count(custom.read_text()) == 1
+    custom.write_text(custom.read_text().replace("7", "8"))
+    assert parsed(["--preset", str(custom)]).densify.refine_every == 8
 
 
 def test_steps_says_so_when_it_rescales_none_of_a_preset_files_schedule(tmp_path):
