@@ -40,11 +40,15 @@ class OptionError(SplatuError):
 
 class DownscaleError(SplatuError):
     """A scene that cannot load at its downscale factor (a pre-downscaled images_N copy of the wrong size), told
-    without naming --downscale as typed: `train` may have chosen the factor itself, and then says so."""
+    without naming --downscale as typed: `train` may have chosen the factor itself, and then says so. Its fix is one
+    every command can follow; a new run, free to choose its size, adds full size (`copy_at_fault`)."""
 
-    def __init__(self, what: str, where: str, fix: str, *, factor: int) -> None:
+    def __init__(self, what: str, where: str, fix: str, *, factor: int, copy_at_fault: bool) -> None:
         super().__init__(what, where, fix)
         self.factor = factor
+        self.copy_at_fault = copy_at_fault
+        """Whether the copy is the wrong size, not turned on its side (a camera given the wrong way round): training
+        at full size then does without it."""
 
 
 def require_file(path: Path, what: str, fix: str) -> Path:

@@ -275,18 +275,19 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
         raise DownscaleError(f"{noun} is {width}x{height}, but the camera's {recipe.width}x{recipe.height} at "
                              f"1/{recipe.source_downscale} of its size is {expected}", f"in {recipe.path}",
                              _size_fix(recipe.kind, noun, turned) if turned else _copy_fix(recipe, expected),
-                             factor=recipe.source_downscale)
+                             factor=recipe.source_downscale, copy_at_fault=not turned)
 
 
 def _copy_fix(recipe: PixelRecipe, expected: str) -> str:
     """What to do about a pre-downscaled copy (in images_N) of the wrong size: make it again, or do without it (the
     loader then shrinks the full-size image itself). The camera is not at fault when the full-size images fit it.
-    Full size is --downscale 1: without the flag, `train` picks a factor itself, which may be this one again; the
-    factor is named as a fraction, since the user may not have typed it."""
+    Both serve every command that loads the scene, a saved run's too, whose factor its config.yml fixes; a new run
+    may also train at full size (`splatu.data.resolve.new_run_error`). The factor is named as a fraction, since the
+    user may not have typed it."""
     n = recipe.source_downscale
     folder = next((p.name for p in recipe.path.parents if p.name.endswith(f"_{n}")), recipe.path.parent.name)
     return (f"regenerate {folder} at {expected} (1/{n} of the camera's size), or remove {folder} to have the "
-            "full-size images shrunk as they load (or train at full size with --downscale 1)")
+            "full-size images shrunk as they load")
 
 
 def _size_fix(kind: PixelKind, noun: str, turned: bool) -> str:

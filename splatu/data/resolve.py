@@ -129,13 +129,16 @@ def downscale_note(given: DataConfig, chosen: DataConfig, longest: int) -> str |
             "with slower steps")
 
 
-def chosen_factor_error(err: DownscaleError, given: DataConfig) -> SplatuError:
-    """`err`, raised loading the scene at a factor `train` chose itself (`given` has no --downscale), saying where
-    the factor came from and how to set another: the user typed none."""
-    if given.downscale is not None:
-        return err
-    return SplatuError(f"{err.what} (1/{err.factor} is the factor train chose to bring the images within "
-                       f"--max-image-size {given.max_image_size}; --downscale N sets another)", err.where, err.fix)
+def new_run_error(err: DownscaleError, given: DataConfig) -> SplatuError:
+    """`err`, raised loading a new run's scene, with what only a new run can do: train at full size without the
+    copy (a saved run loads at the factor its config.yml records, so resume, render and the rest are told only to
+    make the copy again or remove it). A factor `train` chose itself (`given` has no --downscale) is said to be its
+    choice, with the flag that sets another: the user typed none."""
+    what = err.what if given.downscale is not None else (
+        f"{err.what} (1/{err.factor} is the factor train chose to bring the images within --max-image-size "
+        f"{given.max_image_size}; --downscale N sets another)")
+    fix = f"{err.fix} (or train at full size with --downscale 1)" if err.copy_at_fault else err.fix
+    return SplatuError(what, err.where, fix)
 
 
 def read_scene(cfg: DataConfig) -> RawScene:
@@ -167,7 +170,7 @@ def load_new_scene(given: DataConfig) -> tuple[DataConfig, Scene]:
     try:
         return cfg, assemble_scene(raw, cfg)
     except DownscaleError as err:
-        raise chosen_factor_error(err, given) from None
+        raise new_run_error(err, given) from None
 
 
 def load_camera_scene(cfg: DataConfig, masks: bool = False) -> CameraScene:

@@ -37,6 +37,7 @@ from splatu.data.poster.path import camera_path
 from splatu.data.resolve import (
     downscale_note,
     load_camera_scene,
+    load_new_scene,
     load_scene,
     read_scene,
     read_scene_files,
@@ -249,7 +250,7 @@ def test_images_n_folder_is_used_for_downscale(tmp_path):
 
 @pytest.mark.parametrize(("size", "fix"), [
     ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have the "
-               "full-size images shrunk as they load (or train at full size with --downscale 1)"),
+               "full-size images shrunk as they load"),
     ((15, 20), "swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
                "stored on its side (an EXIF orientation, which is not applied), save it upright"),
 ])
@@ -275,10 +276,10 @@ def test_a_wrong_downscaled_copy_under_the_chosen_downscale_is_not_told_to_drop_
     cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
     for i, camera in enumerate(cameras):
         write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 21 if i == 2 else 20, 15))
-    chosen = chosen_for(config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2))
-    assert chosen.downscale == 2
+    given = config(root, tmp_path, max_image_size=30, eval_split="every-n", eval_every=2)
+    assert chosen_for(given).downscale == 2
     with pytest.raises(SplatuError) as caught:
-        load_scene(chosen)
+        load_new_scene(given)
     assert "drop --downscale" not in caught.value.fix
     assert caught.value.fix.endswith("(or train at full size with --downscale 1)")
 
@@ -298,7 +299,7 @@ def test_a_colmap_downscaled_copy_of_the_wrong_size_names_its_folder(tmp_path):
     assert str(caught.value) == (
         f"image is 20x16, but the camera's 40x30 at 1/2 of its size is 20x15, in "
         f"{root / 'images_2/cam1/img_1.png'}, regenerate images_2 at 20x15 (1/2 of the camera's size), or remove "
-        "images_2 to have the full-size images shrunk as they load (or train at full size with --downscale 1)")
+        "images_2 to have the full-size images shrunk as they load")
 
 
 def test_blender_composites_rgba_on_background_and_records_alpha(tmp_path):

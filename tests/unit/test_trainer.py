@@ -219,6 +219,32 @@ def test_a_wrong_downscaled_copy_at_the_factor_train_chose_says_train_chose_it(t
     assert not (tmp_path / "outputs").exists()  # refused before the run folder is made
 
 
+def test_a_wrong_downscaled_copy_offers_full_size_to_a_new_run_only(tmp_path):
+    """A resume or render of a saved run was told to "train at full size with --downscale 1", which cannot help: its
+    config.yml fixes the factor. Removing the copy serves every command, the images then shrunk as they load."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=6, width=40, height=30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 20, 15))
+    config = tiny_config(tmp_path, data=DataConfig(data=str(root), cache_dir=tmp_path / "cache", downscale=2), steps=2)
+    run_dir = train_command.train(config)
+    write_rgb(root / "images_2" / Path(cameras[2].name).name, noise_image(102, 21, 15))
+    copy_fix = "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have the full-size "
+    copy_fix += "images shrunk as they load"
+    with pytest.raises(SplatuError) as new_run:
+        train_command.train(config)
+    assert new_run.value.fix == copy_fix + " (or train at full size with --downscale 1)"
+    resume = dataclasses.replace(config, resume=run_dir, extend_to=4)
+    for command in (lambda: train_command.train(resume), lambda: render_uncertainty.run(RenderUncertaintyConfig(
+            load=run_dir))):
+        with pytest.raises(SplatuError) as saved_run:
+            command()
+        assert saved_run.value.fix == copy_fix
+    shutil.rmtree(root / "images_2")
+    assert train_command.train(resume) == run_dir
+    assert load_run(run_dir).config.data.downscale == 2
+
+
 def test_the_note_does_not_promise_the_size_a_side_of_8_px_held_it_above(tmp_path, capsys, monkeypatch):
     """400x20 strips with --max-image-size 100: 1/4 would make them 100x5, so train stops at 1/2, 200x10, whose longer
     side is still above 100 px; the note said "their longer side at most 100 px"."""
