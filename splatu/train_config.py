@@ -258,11 +258,11 @@ def blamed_on_preset(err: SplatuError, config: TrainConfig, typed: Collection[st
     stays the flag's. A range error is worded as the file's own are; any other keeps the check's own fix, with the
     file's keys for their flags: a flag replacing the file's value need not help (a file's eval_every beside a typed
     --eval-split contiguous is refused at any value, as a typed --eval-every would be)."""
-    if config.preset == FULL_RECIPE:
+    values = _readable_preset_values(config.preset)
+    if not values:  # the full recipe, or a Python caller's preset file gone since: the check's error as it is
         return err
     mine = flat_options(to_dict(config))
-    kept = {name: value for name, value in preset_values(config.preset).items()
-            if mine.get(name) == value and option_flag(name) not in typed}
+    kept = {name: value for name, value in values.items() if mine.get(name) == value and option_flag(name) not in typed}
     keys = _keys_named(kept, (err.what,))  # not a fix's mention in passing: "decay over the run's --steps"
     if not keys:
         return err
@@ -342,14 +342,28 @@ def preset_values(preset: str) -> dict[str, Any]:
     return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
 
 
+def _readable_preset_values(preset: str) -> dict[str, Any] | None:
+    """`preset_values`, or None when the preset cannot be read: a config built in Python names its preset only as
+    where its values came from, and the file may be gone (a relative path from another folder), which a new run,
+    whose values are all in the config, never needed."""
+    try:
+        return preset_values(preset)
+    except SplatuError:
+        return None
+
+
 def flags_off_preset(config: TrainConfig) -> set[str]:
     """The flags a command line would have typed to give `config`, told by value, for a caller without one (Python
     code calling `train`; the command line's own are `flags_given`): one per option off what a bare `--preset P`
     gives (the file's values, else the defaults, with the schedule `--steps N` rescales at the config's length), and
-    --steps at another length than the preset's. A flag that repeats that value cannot be told from it."""
+    --steps at another length than the preset's. A flag that repeats that value cannot be told from it; none is
+    told from a preset file gone since the config was made (a new run does not need it: its values are in `config`)."""
+    values = _readable_preset_values(config.preset)
+    if values is None:
+        return set()
     scaled = scaled_schedule(config.preset, config.steps) or {}
     chosen = {"preset": config.preset, "method": config.method}  # they choose the bare config, as its flags do
-    bare = flat_options(to_dict(TrainConfig())) | preset_values(config.preset) | scaled | chosen
+    bare = flat_options(to_dict(TrainConfig())) | values | scaled | chosen
     return {option_flag(name) for name, value in flat_options(to_dict(config)).items() if bare.get(name) != value}
 
 

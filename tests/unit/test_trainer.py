@@ -645,6 +645,20 @@ def test_a_tiny_step_count_clamps_the_schedule_to_one_step(steps):
     assert config.densify.stop_split_at == max(1, round(steps / 2))
 
 
+@pytest.mark.parametrize("threshold", [0.05, 0.0])
+def test_a_python_configs_preset_file_gone_since_is_not_needed_for_a_new_run(tmp_path, threshold):
+    """A config built in Python (or loaded from a run's config.yml) names its preset only as where its values came
+    from: telling its flags by value read the file, so a new run from it stopped at "preset file not found" (the
+    file moved, or a relative path from another folder), before the scene and in place of an option's own error."""
+    config = dataclasses.replace(preset_config("fast"), preset=str(tmp_path / "gone.yaml"),
+                                 data=DataConfig(data=str(tmp_path / "absent"), downscale=2),
+                                 uncertainty=UncertaintyLossConfig(threshold=threshold))
+    with pytest.raises(SplatuError) as caught:
+        train_command.train(config)
+    assert caught.value.what == ("scene not found" if threshold else
+                                 "uncertainty threshold = 0.0 is not a blend weight in (0, 1]")
+
+
 def test_steps_beside_resume_leaves_the_schedule_to_the_saved_run():
     assert schedule_of(parsed(["--resume", "RUN", "--steps", "4000"])) == schedule_of(preset_config("fast"))
     assert schedule_of(parsed(["--resume", "RUN", "--extend-to", "4000"])) == schedule_of(preset_config("fast"))
