@@ -252,7 +252,9 @@ def _locked_staging(output: Path) -> tuple[Path, int]:
     name is given only once the lock is held, so no later run sees it unlocked while this one lives."""
     unnamed = Path(tempfile.mkdtemp(prefix=_UNNAMED, dir=output))  # never a folder the user had
     held = os.open(unnamed, os.O_RDONLY)
-    with contextlib.suppress(OSError):  # a file system without locks: the process id alone tells a killed run's
+    # a file system without locks: the run goes on, but no later run can tell its folder unlocked (`_unlocked`), so
+    # one a kill leaves there stays
+    with contextlib.suppress(OSError):
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
     staging = unnamed.with_name(f"{STAGING_PREFIX}{os.getpid()}@{socket.gethostname()}-"
                                 f"{unnamed.name.removeprefix(_UNNAMED)}")
