@@ -197,22 +197,27 @@ def one_sided_note(plan: OrbitPlan, radius_chosen: bool) -> str:
 
 def orbit_cameras(cameras: list[Camera], frames: int, max_elevation_degrees: float = DEFAULT_ELEVATION_DEGREES,
                   radius_scale: float | None = None, shape: OrbitShape = "auto") -> list[OrbitFrame]:
-    """`frames` cameras on a closed loop, each looking at the capture's centre from its image's centre, with the
-    first camera's focal length and image size. The circle goes round once with elevation = max·cos(azimuth), so
-    half of it looks from below; the arc runs azimuth = middle + half_width·sin(t) and elevation = max·cos(t): from
-    above the captured side to past its one edge, below it, past the other edge and back (see `plan_orbit`)."""
+    """`frames` cameras on the orbit `plan_orbit` chooses for these training cameras (`orbit_along`)."""
+    return orbit_along(plan_orbit(cameras, shape, radius_scale), cameras[0], frames, max_elevation_degrees)
+
+
+def orbit_along(plan: OrbitPlan, first: Camera, frames: int,
+                max_elevation_degrees: float = DEFAULT_ELEVATION_DEGREES) -> list[OrbitFrame]:
+    """`frames` cameras on `plan`'s closed loop, each looking at the capture's centre from its image's centre, with
+    the `first` training camera's focal length and image size. The circle goes round once with elevation =
+    max·cos(azimuth), so half of it looks from below; the arc runs azimuth = middle + half_width·sin(t) and
+    elevation = max·cos(t): from above the captured side to past its one edge, below it, past the other edge and
+    back (see `plan_orbit`). Taking the plan, a caller that also records it renders the very path it records."""
     if frames < 2:
         raise SplatuError(f"an orbit needs at least 2 frames, got {frames}", "in --orbit-frames", "pass 2 or more")
     if not 0.0 <= max_elevation_degrees <= 85.0:
         raise SplatuError(f"orbit elevation must be in [0, 85] degrees, got {max_elevation_degrees}",
                           "in --orbit-elevation", "pass e.g. 60 (looking straight down or up is degenerate)")
-    plan = plan_orbit(cameras, shape, radius_scale)
     frame = plan.frame
     side = torch.linalg.cross(frame.up, frame.forward_axis)
     # the first camera's focal length and size, with its principal point at the image's centre, where the capture's
     # centre is looked at: a tile of a larger photo has it far off the tile (or off it), and its orbit showed a
     # window beside the centre, or none of it
-    first = cameras[0]
     K = first.K.clone()
     K[0, 2], K[1, 2] = 0.5 * first.width, 0.5 * first.height
     template = replace(first, K=K)

@@ -68,7 +68,7 @@ from splatu.orbit import (
     OrbitPlan,
     OrbitShape,
     one_sided_note,
-    orbit_cameras,
+    orbit_along,
     plan_orbit,
 )
 from splatu.train_progress import view_progress
@@ -186,10 +186,9 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
         return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
                         depth_unit=frame.scale)
     if which == "orbit":
-        frames = orbit_cameras(scene.train.cameras, config.orbit_frames, config.orbit_elevation,
-                               config.orbit_radius_scale, config.orbit_shape)
-        keep = _evenly(len(frames), config.max_views)
         plan = plan_orbit(scene.train.cameras, config.orbit_shape, config.orbit_radius_scale)
+        frames = orbit_along(plan, scene.train.cameras[0], config.orbit_frames, config.orbit_elevation)
+        keep = _evenly(len(frames), config.max_views)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
                         elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale,
                         note=orbit_note(plan, config), orbit=plan.record(config.orbit_elevation))
