@@ -48,6 +48,7 @@ from splatu.train_config import (
     SPLATFACTO_STEPS,
     TrainConfig,
     blamed_on_preset,
+    blamed_on_saved,
     check_parts,
     flags_given,
     flags_off_preset,
@@ -284,12 +285,13 @@ def _resume_point(resume: Path) -> Path | None:
 def check_restart(saved: TrainConfig, run_dir: Path) -> None:
     """A run stopped before its first checkpoint restarts from step 0, a new model made of its config.yml: a new
     run's checks apply, which a saved config with a value allowed when it was written (threshold 0, a u_init_logit
-    beyond ±30) passes only to load. Told before the scene loads, as the file's."""
+    beyond ±30) passes only to load. Told before the scene loads, as the file's keys: a flag beside --resume is
+    ignored."""
     try:
         check_parts(saved)
     except SplatuError as err:
-        raise SplatuError(err.what, f"in {run_dir / 'config.yml'}, which this resume trains anew from (the run stopped "
-                          "before its first checkpoint)", f"{err.fix} in that file, or start a new run") from None
+        raise blamed_on_saved(err, saved, run_dir / "config.yml", ", which this resume trains anew from (the run "
+                              "stopped before its first checkpoint)") from None
 
 
 def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble: Path | None, wall_start: float,

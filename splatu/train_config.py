@@ -243,6 +243,18 @@ def _blamed_on_file(err: SplatuError, path: Path, values: Mapping[str, Any]) -> 
                        f"fix {' or '.join(keys)} in that file, or override it with {' or '.join(flags)}")
 
 
+def blamed_on_saved(err: SplatuError, config: TrainConfig, path: Path, why: str) -> SplatuError:
+    """`err`, from a check of a saved run's `config` (its file `path`, which a restart trains anew from: `why`),
+    told as the file's: every flag is ignored beside --resume, so the check's flags are named by the file's keys, and
+    the fix is an edit of the file or a new run."""
+    keys = _keys_named(flat_options(to_dict(config)), (err.what, err.where, err.fix))
+    if isinstance(err, OptionError) and [err.flag] == [option_flag(key) for key in keys]:
+        edit = f"set {keys[0]} to {err.allowed} in that file"
+    else:
+        edit = f"edit {' or '.join(keys) or 'its value'} in that file: {_as_keys(err.fix, keys)}"
+    return SplatuError(_as_keys(err.what, keys), f"in {path}{why}", f"{edit}; or start a new run (without --resume)")
+
+
 def _as_keys(text: str, keys: Collection[str]) -> str:
     """`text` with the flags of options `keys` spelt as the preset file's keys."""
     for key in keys:

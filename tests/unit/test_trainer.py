@@ -1802,15 +1802,18 @@ def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(t
     assert math.isfinite(summary["eval"]["eval"]["psnr"])
 
 
-@pytest.mark.parametrize(("older", "said"), [
-    ({"uncertainty": {"threshold": 0.0}}, "uncertainty threshold = 0.0 is not a blend weight in (0, 1]"),
-    ({"model": {"u_init_logit": 45.0}}, "--model.u-init-logit 45.0 is not a number within ±30"),
+@pytest.mark.parametrize(("older", "said", "edit"), [
+    ({"uncertainty": {"threshold": 0.0}}, "uncertainty threshold = 0.0 is not a blend weight in (0, 1]",
+     "edit uncertainty.threshold in that file: use e.g. 0.05"),
+    ({"model": {"u_init_logit": 45.0}}, "model.u_init_logit 45.0 is not a number within ±30",
+     "edit model.u_init_logit in that file: use e.g. 2.0"),
 ])
 def test_a_resume_before_the_first_checkpoint_refuses_what_a_new_run_may_not_use(tmp_path, scene, monkeypatch,
-                                                                                  capsys, older, said):
+                                                                                  capsys, older, said, edit):
     """A run stopped before its first checkpoint restarts at step 0 from its config.yml: a new training. Threshold 0
     trained on, though a new run refuses it; a u_init_logit beyond ±30 was refused only after the scene loaded, and
-    blamed on the model options rather than the file."""
+    blamed on the model options rather than the file. The value is named by the file's key, and the fix is an edit of
+    the file: a flag beside --resume is ignored."""
     run_dir = train_command.train(tiny_config(tmp_path, steps=6, checkpoint_every=6))
     for path in list_checkpoints(run_dir):
         path.unlink()
@@ -1820,7 +1823,10 @@ def test_a_resume_before_the_first_checkpoint_refuses_what_a_new_run_may_not_use
     with pytest.raises(SplatuError) as refused:
         train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     assert str(refused.value).startswith(f"{said}, in {run_dir / 'config.yml'}, which this resume trains anew from")
-    assert str(refused.value).endswith("in that file, or start a new run")
+    assert f"which this resume trains anew from (the run stopped before its first checkpoint), {edit}" in str(
+        refused.value)
+    assert str(refused.value).endswith("; or start a new run (without --resume)")
+    assert "--" not in str(refused.value).replace("--resume", "")  # no flag, which --resume would ignore
     assert not list_checkpoints(run_dir)
 
 
