@@ -10,8 +10,9 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from splatu.checkpoint import (
     RESUME_KEYS,
@@ -56,7 +57,9 @@ from splatu.train_config import (
     load_config,
     option_flag,
     option_value,
+    own_length,
     preset_config,
+    preset_values,
     scaled_schedule,
 )
 from splatu.train_progress import console, scene_line
@@ -117,10 +120,18 @@ def schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
     if scaled:
         told.append(f"rescales the schedule to splatfacto's × {config.steps}/{SPLATFACTO_STEPS}: {flags(list(scaled))}")
     if kept:
-        told.append(f"keeps the preset's {flags(kept)}, not splatfacto's × its own length/{SPLATFACTO_STEPS}")
+        told.append(f"keeps the preset's {flags(kept)}, {_why_kept(preset_values(config.preset))}")
     if not told:  # every schedule flag typed
         return None
     return f"note: --steps {config.steps} {'; '.join(told)} (a flag typed beside --steps sets that value instead)"
+
+
+def _why_kept(values: Mapping[str, Any]) -> str:
+    """Why `schedule_note` kept a preset file's values (`values`): off the rule at the file's own length, or, when its
+    steps is no length (the typed --steps replaced it), because there is no length to scale from."""
+    if own_length(values) is None:
+        return f"as the file's own steps: {values['steps']!r} is no length to rescale them from"
+    return f"not splatfacto's × its own length/{SPLATFACTO_STEPS}"
 
 
 def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:

@@ -311,6 +311,13 @@ def splatfacto_schedule(steps: int) -> dict[str, int]:
     return {name: max(1, round(option_value(recipe, name) * scale)) for name in SCHEDULE}
 
 
+def own_length(values: Mapping[str, Any]) -> int | None:
+    """The length a preset file's `values` scale their schedule from: its steps, the full recipe's when it sets none;
+    None when its steps is no length (a typed --steps replaced it unchecked), so no rule can tell its schedule."""
+    own = values.get("steps", SPLATFACTO_STEPS)
+    return own if type(own) is int and own >= 1 else None
+
+
 def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict[str, int] | None:
     """The settings `--steps steps` rescales in `preset`, with their values: None at the preset's own length (no
     rescale applies); else every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset
@@ -319,8 +326,8 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
     if steps < 1:  # the option checks refuse it
         return None
     values = preset_values(preset)
-    own = values.get("steps", SPLATFACTO_STEPS)
-    if type(own) is not int or own < 1:  # replaced by the flag unchecked: no length for the rule to scale from
+    own = own_length(values)
+    if own is None:
         return {}
     if own == steps:
         return None

@@ -621,10 +621,11 @@ def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
     assert config.densify.stop_split_at == 15000 and config.model.sh_degree_interval == 1000
 
 
-@pytest.mark.parametrize("length", ["0", "2000.0", "true", "long"])
-def test_steps_beside_a_preset_file_without_a_length_keeps_its_schedule_and_says_so(tmp_path, length):
+@pytest.mark.parametrize(("length", "read"), [("0", "0"), ("2000.0", "2000.0"), ("true", "True"), ("long", "'long'")])
+def test_steps_beside_a_preset_file_without_a_length_keeps_its_schedule_and_says_so(tmp_path, length, read):
     """The flag replaces a bad value of the file (test_cli), but the file's length is what the rule scales from:
-    without one, --steps rescaled nothing and said nothing."""
+    without one, --steps rescaled nothing and said nothing; then said it kept the values as "not splatfacto's × its
+    own length", a length the file does not have."""
     custom = tmp_path / "mine.yaml"
     custom.write_text(f"steps: {length}\nresolution_interval: 100\n")
     config = parsed(["--preset", str(custom), "--steps", "400"])
@@ -633,8 +634,8 @@ def test_steps_beside_a_preset_file_without_a_length_keeps_its_schedule_and_says
     assert note_of(["--preset", str(custom), "--steps", "400"]) == (
         "note: --steps 400 keeps the preset's --resolution-interval 100 --model.sh-degree-interval 1000 "
         "--densify.warmup-length 500 --densify.refine-every 100 --densify.stop-split-at 15000 "
-        "--densify.stop-screen-size-at 4000, not splatfacto's × its own length/30000 (a flag typed beside --steps "
-        "sets that value instead)")
+        f"--densify.stop-screen-size-at 4000, as the file's own steps: {read} is no length to rescale them from (a "
+        "flag typed beside --steps sets that value instead)")
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 30])
