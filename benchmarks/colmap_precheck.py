@@ -7,7 +7,9 @@ writes it): `--points` 3D points with tracks of 2–10 observations in consecuti
 for positions), `--images` images whose 2D points lines hold those observations plus a quarter as many untracked
 features (POINT3D_ID -1, 6 significant digits), two cameras. Times every check `read_reconstruction` runs on
 such a model before and after pycolmap reads it (the median of `--runs`), and `pycolmap.Reconstruction(path)`
-on the same files for scale. Writes benchmarks/results/colmap_precheck.json.
+on the same files for scale, and iterating the files' lines alone with their endings kept (as the pre-check
+reads them, to refuse a lone CR) and with Python's universal newlines. Writes
+benchmarks/results/colmap_precheck.json.
 """
 
 from __future__ import annotations
@@ -104,6 +106,15 @@ def precheck(files: dict[str, Path]) -> None:
     assert colmap.text_model_errors(files) == (None, None)
 
 
+def iterate_lines(files: dict[str, Path], newline: str | None) -> None:
+    """Read every line of the model's files as the pre-check opens them: `newline=""` keeps each line's ending (the
+    pre-check's, to refuse a lone CR), None is Python's universal newlines; the cost of that choice alone."""
+    for path in files.values():
+        with path.open(encoding="utf-8", errors="replace", newline=newline) as lines:
+            for _ in lines:
+                pass
+
+
 def median_ms(run: Callable[[], object], runs: int) -> tuple[float, list[float]]:
     """The median and each of `runs` wall times of `run`, in milliseconds."""
     times = []
@@ -139,12 +150,15 @@ def main() -> None:
         megabytes = {name: round(path.stat().st_size / 1e6, 1) for name, path in files.items()}
         ms_precheck, precheck_runs = median_ms(lambda: precheck(files), args.runs)
         ms_pycolmap, pycolmap_runs = median_ms(lambda: pycolmap.Reconstruction(folder), args.runs)
+        ms_kept, _ = median_ms(lambda: iterate_lines(files, ""), args.runs)
+        ms_universal, _ = median_ms(lambda: iterate_lines(files, None), args.runs)
     total_mb = sum(megabytes.values())
     result = {
         "points": args.points, "images": args.images, "megabytes": megabytes,
         "ms_precheck": round(ms_precheck), "ms_precheck_runs": [round(t) for t in precheck_runs],
         "ms_precheck_per_mb": round(ms_precheck / total_mb, 2),
         "ms_pycolmap_read": round(ms_pycolmap), "ms_pycolmap_read_runs": [round(t) for t in pycolmap_runs],
+        "ms_iterate_lines_endings_kept": round(ms_kept), "ms_iterate_lines_universal_newlines": round(ms_universal),
         "seconds_to_write_model": round(written, 1), "revision": current_revision(), "measured_on": measured_on(),
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -152,6 +166,8 @@ def main() -> None:
     print(f"{'points':>10}{'images':>8}{'MB':>8}{'pre-check ms':>14}{'ms per MB':>11}{'pycolmap ms':>13}")
     print(f"{args.points:>10}{args.images:>8}{total_mb:>8.1f}{ms_precheck:>14.0f}{ms_precheck / total_mb:>11.2f}"
           f"{ms_pycolmap:>13.0f}")
+    print(f"iterating the lines alone: {ms_kept:.0f} ms keeping their endings (as the pre-check reads them), "
+          f"{ms_universal:.0f} ms with universal newlines")
     print(f"revision {result['revision']}; written to {args.json}")
 
 
