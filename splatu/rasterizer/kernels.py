@@ -222,14 +222,23 @@ def set_compile(enabled: bool) -> bool:
 
 
 def kernels_compiled() -> bool:
-    """Whether the kernels currently go through torch.compile (`set_compile` or SPLATU_COMPILE=1)."""
-    return _use_compile
+    """Whether the kernels currently go through torch.compile (`set_compile` or SPLATU_COMPILE=1), which dynamo must
+    not have turned off (`_dynamo_disabled`)."""
+    return _use_compile and not _dynamo_disabled()
+
+
+def _dynamo_disabled() -> bool:
+    """Whether torch.compile is a no-op in this process: TORCHDYNAMO_DISABLE=1, which torch.compile reads at each
+    call, or TORCH_COMPILE_DISABLE=1 (torch._dynamo.config.disable), read at each call of what it made. Nothing
+    compiles then, so the kernels run eager: no compiler is loaded, and the compile time stays 0 s; going through
+    torch.compile, the clock saw a kernel made without its compile callbacks and stopped, warning."""
+    return os.environ.get("TORCHDYNAMO_DISABLE", "") == "1" or torch._dynamo.config.disable
 
 
 def compile_pending() -> bool:
     """Whether the next render will compile: the kernels go through torch.compile and none has run in this process
     yet (later runs of the process, such as an ensemble's further members, reuse what the first compiled)."""
-    return _use_compile and not _compiled
+    return kernels_compiled() and not _compiled
 
 
 def compile_seconds() -> float | None:
@@ -300,7 +309,7 @@ def compiled(fn: Callable) -> Callable:
     """`fn` itself, or, after `set_compile(True)`, its torch.compile'd version (made once, with an eager fallback).
 
     For any pure tensor function of the rasterizer, not only this module's kernels (the projection uses it too)."""
-    if not _use_compile:
+    if not kernels_compiled():
         return fn
     if fn not in _compiled:
         _compiled[fn] = _with_eager_fallback(fn)
