@@ -337,7 +337,13 @@ def _eval_due(step: int, config: TrainConfig) -> bool:
 
 
 def _log_eval(state: TrainState, config: TrainConfig, scene: Scene, log: MetricsLog) -> dict[str, dict[str, float]]:
+    """Evaluate and log the model of `state.step`. The kernels it compiles count as the run's compile time, though
+    its other time is no training: an evaluation renders with the forward kernels of the steps, and which of the two
+    compiles them first is an accident of order (a resume redoes its step's evaluation before any step)."""
+    compiling = compile_seconds()
     results = evaluate_scene(state.model, scene, config, trained_sh_degree(state.step, config.model))
+    compiled = compiled_since(compiling)
+    count_training_time(state, compiled or 0.0, compiled)  # a stopped clock (None) adds none to the steps' time
     for name, metrics in results.items():
         log.write({"step": state.step, "event": "eval", "set": name, **metrics})
         console.print(eval_line(state.step, name, metrics), highlight=False, soft_wrap=True)

@@ -1753,6 +1753,30 @@ def test_the_kernel_compile_is_timed_apart_from_the_steps(tmp_path, scene, monke
     assert load_any_run(run_dir).train_compile_seconds == resumed["train_compile_seconds"]
 
 
+def test_an_evaluations_compiles_count_as_the_runs_compile_time(tmp_path, scene, monkeypatch):
+    """The periodic evaluations (--eval-every-steps) and the final one render with the steps' forward kernels, and
+    a resume redoes its step's evaluation before any step: what they compiled counted in neither train_seconds nor
+    train_compile_seconds. Their other time stays out of both."""
+    compile_seconds, evaluations = 0.2, []
+    real_evaluate = trainer.evaluate_scene
+
+    def compiling_evaluation(*args, **kwargs):
+        evaluations.append(True)
+        with callback_handler.install_callbacks(CallbackTrigger.DYNAMO, "0/0"):  # as dynamo wraps a compile
+            time.sleep(compile_seconds)
+        return real_evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(trainer, "evaluate_scene", compiling_evaluation)
+    monkeypatch.setattr(kernels, "_compile_seconds", 0.0)
+    kernels.start_compile_clock()  # what the first compiled kernel does
+    summary = trainer.train_run(tiny_config(tmp_path, steps=6, eval_every_steps=2, checkpoint_every=0), scene,
+                                tmp_path / "run")
+    assert len(evaluations) >= 3  # steps 2 and 4 at least, and the final one
+    timed = len(evaluations) * compile_seconds
+    assert timed <= summary["train_compile_seconds"] < timed + 0.1
+    assert summary["train_seconds"] < compile_seconds  # the tiny steps alone
+
+
 def test_a_checkpoint_without_a_compile_time_keeps_counting_compiles_in_the_steps(tmp_path, scene):
     """A run checkpointed before compiles were timed apart has them inside its train_seconds: its resume goes on
     measuring that way, and reports no compile time, rather than a part of it."""
