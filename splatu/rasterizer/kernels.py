@@ -232,7 +232,8 @@ def _dynamo_disabled() -> bool:
     call, or TORCH_COMPILE_DISABLE=1 (torch._dynamo.config.disable), read at each call of what it made. Nothing
     compiles then, so the kernels run eager: no compiler is loaded, and the compile time stays 0 s; going through
     torch.compile, the clock saw a kernel made without its compile callbacks and stopped, warning."""
-    return os.environ.get("TORCHDYNAMO_DISABLE", "") == "1" or torch._dynamo.config.disable
+    # a private config key: a torch without it (or a patch that removed it) must not fail every kernel call
+    return os.environ.get("TORCHDYNAMO_DISABLE", "") == "1" or bool(getattr(torch._dynamo.config, "disable", False))
 
 
 def compile_pending() -> bool:

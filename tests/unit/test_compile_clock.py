@@ -97,13 +97,13 @@ def test_with_dynamo_disabled_nothing_compiles_and_nothing_is_said(clock, monkey
     """With dynamo off (TORCHDYNAMO_DISABLE=1, or TORCH_COMPILE_DISABLE=1 as torch._dynamo.config.disable) torch.compile
     is a no-op: the clock warned that a kernel compiled without its callbacks and went null, though nothing compiled.
     The kernels run eager instead, and the compile time stays 0."""
-    if disabled == "config":
-        monkeypatch.setattr(torch._dynamo.config, "disable", True)
-    else:
+    if disabled != "config":
         monkeypatch.setenv(disabled, "1")
-    with warnings.catch_warnings():
+    # dynamo's own patch for its config: monkeypatch's undo left torch._dynamo.config without the key, and every
+    # later compiled kernel failed on reading it
+    with torch._dynamo.config.patch(disable=disabled == "config"), warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)  # the clock's warning (loading inductor may deprecate things)
         assert torch.equal(kernels.compiled(doubled)(torch.ones(3)), torch.full((3,), 2.0))
-    assert kernels.compile_seconds() == 0.0
-    assert kernels.compiled(doubled) is doubled
-    assert not kernels.compile_pending() and not kernels.kernels_compiled()  # no compile to announce
+        assert kernels.compile_seconds() == 0.0
+        assert kernels.compiled(doubled) is doubled
+        assert not kernels.compile_pending() and not kernels.kernels_compiled()  # no compile to announce
