@@ -205,6 +205,9 @@ graphs of each, and past the eighth dynamo ran the kernel eager, saying so only 
 1.7-1.8x the time of the other float64 ones in the same process, against 1.03-1.07x with a limit per dtype
 (`python benchmarks/mixed_dtypes.py --rounds 21`, docs/results.md)."""
 _use_compile = os.environ.get("SPLATU_COMPILE", "0") == "1"
+_compile_failed = False
+"""A compile failed other than by the recompile limit (no C++ compiler, an unsupported backend): the kernels run
+eager for the rest of the process, as a later `set_compile(True)` would only fail, and warn, once more per kernel."""
 _compile_seconds: float | None = 0.0
 _compile_began: float | None = None
 _compiles_begun = 0
@@ -223,8 +226,8 @@ def set_compile(enabled: bool) -> bool:
 
 def kernels_compiled() -> bool:
     """Whether the kernels currently go through torch.compile (`set_compile` or SPLATU_COMPILE=1), which dynamo must
-    not have turned off (`_dynamo_disabled`)."""
-    return _use_compile and not _dynamo_disabled()
+    not have turned off (`_dynamo_disabled`) and no compile of this process must have failed (`_compile_failed`)."""
+    return _use_compile and not _compile_failed and not _dynamo_disabled()
 
 
 def _dynamo_disabled() -> bool:
@@ -338,12 +341,13 @@ def _with_eager_fallback(fn: Callable) -> Callable:
     is per code object otherwise, so float32 training and float64 renders shared one limit). If compiling fails, warn
     once and run eager torch, which gives the same results: past RECOMPILE_LIMIT graphs, for this kernel and these
     dtypes from then on (dynamo itself would run them eager with only a log line); for any other failure (no C++
-    compiler, an unsupported backend), every kernel until `set_compile(True)` again. Either way the failed version is
-    never tried again, so a later session of the process (an ensemble's next member) neither warns nor fails again."""
+    compiler, an unsupported backend), every kernel for the rest of the process (`_compile_failed`). Either way what
+    failed is never tried again, so a later session of the process (an ensemble's next member) neither warns nor
+    fails again."""
     by_dtypes: dict[tuple[torch.dtype, ...], Callable] = {}
 
     def run(*args):
-        global _use_compile
+        global _compile_failed
         start_compile_clock()
         key = _dtypes(args)
         first, begun = key not in by_dtypes, _compiles_begun
@@ -363,7 +367,7 @@ def _with_eager_fallback(fn: Callable) -> Callable:
             else:
                 warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager "
                               "torch", stacklevel=2)
-                _use_compile = False
+                _compile_failed = True
             return fn(*args)
         if first and _compiles_begun == begun:  # a new torch.compile compiles at its first call
             _stop_clock("dynamo compiled a kernel without calling its compile callbacks")

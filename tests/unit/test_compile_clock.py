@@ -46,6 +46,7 @@ def clock(monkeypatch) -> None:
     monkeypatch.setattr(kernels, "_compile_began", None)
     monkeypatch.setattr(kernels, "_compiled", {})
     monkeypatch.setattr(kernels, "_use_compile", True)
+    monkeypatch.setattr(kernels, "_compile_failed", False)
 
 
 def test_a_compile_after_dynamo_reset_is_still_timed(clock, monkeypatch):
@@ -107,3 +108,33 @@ def test_with_dynamo_disabled_nothing_compiles_and_nothing_is_said(clock, monkey
         assert kernels.compile_seconds() == 0.0
         assert kernels.compiled(doubled) is doubled
         assert not kernels.compile_pending() and not kernels.kernels_compiled()  # no compile to announce
+
+
+def halved(x: torch.Tensor) -> torch.Tensor:
+    """A second pure tensor function: another kernel."""
+    return x / 2
+
+
+def failing_compile(fn: Callable, **_options: object) -> Callable:
+    """torch.compile where it cannot compile (no C++ compiler): its first call raises."""
+
+    def call(*_args: torch.Tensor) -> torch.Tensor:
+        raise RuntimeError("no C++ compiler")
+
+    return call
+
+
+def test_a_compile_that_failed_is_not_tried_again_by_a_later_session(clock, monkeypatch):
+    """A failed compile (no C++ compiler) turns every kernel eager, with one warning. A later session of the process
+    (an ensemble's next member) calls set_compile(True) again, and each kernel the first session had not yet run was
+    compiled again, failed again and warned again, one more warning per member."""
+    monkeypatch.setattr(torch, "compile", failing_compile)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        for _session in range(2):
+            kernels.set_compile(True)  # as `train_locked_run` does for each run and member
+            assert torch.equal(kernels.compiled(doubled)(torch.ones(3)), torch.full((3,), 2.0))
+            assert torch.equal(kernels.compiled(halved)(torch.ones(3)), torch.full((3,), 0.5))
+    told = [str(w.message).split(" failed")[0] for w in said if "rasterizer kernel" in str(w.message)]
+    assert told == ["torch.compile of rasterizer kernel doubled"]
+    assert not kernels.kernels_compiled() and not kernels.compile_pending()
