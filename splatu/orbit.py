@@ -79,6 +79,13 @@ baseline spans about 1 there, while one turning on one spot keeps scale 1 and a 
 coordinates (5e-9 at the 2e7 of web-Mercator metres), or a baseline `normalization` calls one spot."""
 
 
+PARALLEL_AXES = 1e-10
+"""Optical axes this close to parallel meet nowhere (the ratio of the least to the greatest eigenvalue of the centre's
+normal equations, about the mean squared angle in radians of the axes to their mean direction; axes parallel up to
+float32 rounding differ by ~1e-7 rad). lstsq's least-norm point of such lines was the cameras' own middle, and the
+orbit circled it looking sideways at nothing they saw."""
+
+
 def capture_frame(cameras: list[Camera]) -> CaptureFrame:
     """Centre, up and radius of a set of (training) cameras, in float64."""
     if len(cameras) < 2:
@@ -91,10 +98,13 @@ def capture_frame(cameras: list[Camera]) -> CaptureFrame:
     # least-squares point nearest to all optical axes: sum_i (I - f f^T)(c - o_i) = 0
     projectors = torch.eye(3, dtype=torch.float64) - forwards[:, :, None] * forwards[:, None, :]
     lhs = projectors.sum(dim=0)
+    spread = torch.linalg.eigvalsh(lhs)
+    if float(spread[0]) <= PARALLEL_AXES * float(spread[-1]):
+        raise SplatuError("the training cameras' optical axes are parallel (cameras that all look one way: a stereo "
+                          "pair, a camera slid along a line), so there is no point they look at to orbit around",
+                          "in the scene", "use --views eval, train or cameras instead")
     rhs = (projectors @ centres[:, :, None]).sum(dim=0)[:, 0]
     center = torch.linalg.lstsq(lhs, rhs[:, None]).solution[:, 0]
-    if not torch.isfinite(center).all():
-        center = centres.mean(dim=0)
     offsets = centres - center
     radius = float(offsets.norm(dim=1).median())
     if radius <= ORBIT_RADIUS_FLOOR:  # every orbit camera would sit on the point it looks at: an all-zero rotation

@@ -80,12 +80,19 @@ def test_default_orbit_stays_above_the_poster_floor_and_looks_up_from_below_the_
     assert len(below) >= 6 and all(z < SEAT_BOTTOM for z in below)  # under the seat, looking up at it
     # the old default (±60° at the full radius) went through the floor
     assert min(float(f.camera.center()[2]) for f in orbit_cameras(path, 24, 60.0, 1.0)) < floor
-    # cameras that all face one way leave the vertical undetermined: their own up is kept
-    facing = [dataclasses.replace(path[0], world_to_camera=path[0].world_to_camera.clone()) for _ in range(3)]
-    for k, camera in enumerate(facing):
-        camera.world_to_camera[0, 3] += 0.1 * k
-    mean_up = -path[0].world_to_camera[1, :3]
-    assert torch.allclose(capture_frame(facing).up, mean_up.double(), atol=1e-9)
+    # cameras that all face one way (one right axis, here pitched at one point) leave the vertical undetermined:
+    # their own up is kept
+    rotation, centre = path[0].world_to_camera[:3, :3].double(), path[0].center().double()
+    target, facing = centre + 2.0 * rotation[2], []
+    for k in range(3):
+        position = centre - 0.1 * k * rotation[1]  # up the first camera's image
+        forward = (target - position) / (target - position).norm()
+        w2c = torch.eye(4, dtype=torch.float64)
+        w2c[:3, :3] = torch.stack([rotation[0], torch.linalg.cross(forward, rotation[0]), forward])
+        w2c[:3, 3] = -w2c[:3, :3] @ position
+        facing.append(dataclasses.replace(path[0], world_to_camera=w2c.to(path[0].world_to_camera.dtype)))
+    mean_up = -torch.stack([c.world_to_camera[1, :3].double() for c in facing]).mean(dim=0)
+    assert torch.allclose(capture_frame(facing).up, mean_up / mean_up.norm(), atol=1e-6)
 
 
 # --- on a tiny trained stand-in ----------------------------------------------------------------

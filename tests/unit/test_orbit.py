@@ -56,6 +56,22 @@ def test_an_orbit_of_cameras_turning_on_one_spot_is_refused_in_one_line(rounding
     assert "share one position" in caught.value.what and "--views eval, train or cameras" in caught.value.fix
 
 
+@pytest.mark.parametrize("count", [2, 5])
+def test_an_orbit_of_cameras_that_all_look_one_way_is_refused_in_one_line(count):
+    """A stereo pair, or a camera slid along a line, has parallel optical axes, which meet nowhere: the centre was
+    the least-squares solution of least norm, the middle of the cameras themselves, and the orbit circled there at half
+    their median distance from it, looking sideways along their line at nothing they saw, with exit 0."""
+    K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+    along = np.linspace(-1.0, 1.0, count)
+    cameras = [look_at_camera(np.array([x, 0.0, 0.3]), np.array([x, 4.0, 0.3]), K, 32, 24) for x in along]
+    with pytest.raises(SplatuError) as caught:
+        orbit_cameras(cameras, 4)
+    assert "parallel" in caught.value.what and "--views eval, train or cameras" in caught.value.fix
+    # axes that converge, however slightly (a forward-facing capture), still meet in front of the cameras
+    converging = [look_at_camera(np.array([x, 0.0, 0.3]), np.array([0.0, 40.0, 0.3]), K, 32, 24) for x in along]
+    assert float(capture_frame(converging).center[1]) == pytest.approx(40.0)
+
+
 def _one_sided(n: int = 9, spread_degrees: float = 40.0) -> list:
     """A door photographed from the front: cameras 3 m from it over `spread_degrees` of azimuth about +y, +z up."""
     K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
