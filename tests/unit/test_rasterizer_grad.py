@@ -250,6 +250,7 @@ def test_compiled_kernels_match_eager():
             out = render_all(*leaves.values())
             sum(o.sum() for o in out).backward()
             results.append([o.detach() for o in out] + [v.grad for v in leaves.values()])
+            assert kernels_compiled() == compiled  # else eager is compared with itself (a failed compile, dynamo off)
         finally:
             set_compile(previous)
     for eager, compiled in zip(*results, strict=True):
