@@ -1728,17 +1728,37 @@ def test_a_restored_checkpoint_keeps_the_step_the_nonfinite_streak_and_the_train
     assert 12.5 < summary["train_seconds"] <= 12.5 + time.perf_counter() - started  # the earlier session's time too
 
 
+class JumpingClock:
+    """time.perf_counter, plus the `jump`s a test makes: a stand-in compile that takes its seconds at once. A sleep
+    of 0.2-0.4 s was near the tiny steps' own time on two busy cores (0.41 s of steps beside a 0.4 s compile), and
+    the tests that the compile is not in the steps' time failed."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.real, self.offset = time.perf_counter, 0.0
+        monkeypatch.setattr(time, "perf_counter", self)
+
+    def __call__(self) -> float:
+        return self.real() + self.offset
+
+    def jump(self, seconds: float) -> None:
+        self.offset += seconds
+
+
+COMPILE_JUMP = 100.0
+"""A stand-in compile's seconds: far more than any tiny run's steps take."""
+
+
 def test_the_kernel_compile_is_timed_apart_from_the_steps(tmp_path, scene, monkeypatch):
     """A session's first step compiles the kernels (~10 s to a minute), and a resumed run compiles once more:
     counted in train_seconds, it made a run's cost in steps, which the ensemble's is compared with, depend on how
     often it was resumed. A compile timed by dynamo's own callbacks goes to train_compile_seconds instead."""
-    compile_seconds = 0.4
+    compile_seconds, clock = COMPILE_JUMP, JumpingClock(monkeypatch)
     real_step = trainer.train_step
 
     def compiling_first_step(state, config, images):
         if state.step in (0, 6):  # the first step of each session
             with callback_handler.install_callbacks(CallbackTrigger.DYNAMO, "0/0"):  # as dynamo wraps a compile
-                time.sleep(compile_seconds)
+                clock.jump(compile_seconds)
         return real_step(state, config, images)
 
     monkeypatch.setattr(trainer, "train_step", compiling_first_step)
@@ -1757,13 +1777,13 @@ def test_an_evaluations_compiles_count_as_the_runs_compile_time(tmp_path, scene,
     """The periodic evaluations (--eval-every-steps) and the final one render with the steps' forward kernels, and
     a resume redoes its step's evaluation before any step: what they compiled counted in neither train_seconds nor
     train_compile_seconds. Their other time stays out of both."""
-    compile_seconds, evaluations = 0.2, []
+    compile_seconds, evaluations, clock = COMPILE_JUMP, [], JumpingClock(monkeypatch)
     real_evaluate = trainer.evaluate_scene
 
     def compiling_evaluation(*args, **kwargs):
         evaluations.append(True)
         with callback_handler.install_callbacks(CallbackTrigger.DYNAMO, "0/0"):  # as dynamo wraps a compile
-            time.sleep(compile_seconds)
+            clock.jump(compile_seconds)
         return real_evaluate(*args, **kwargs)
 
     monkeypatch.setattr(trainer, "evaluate_scene", compiling_evaluation)
