@@ -22,7 +22,7 @@ from splatu.checkpoint import (
     run_dir_of,
     saved_frame,
 )
-from splatu.config_values import changed_options
+from splatu.config_values import changed_options, flat_options, to_dict
 from splatu.data.assemble import refuse_split_flags_the_scene_overrides
 from splatu.data.config import DataConfig
 from splatu.data.resolve import (
@@ -164,13 +164,19 @@ def _flag(config: TrainConfig, name: str) -> str:
     return "--" + ".".join([*parents, ("no-" if value is False else "") + last]).replace("_", "-")
 
 
-def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path) -> TrainConfig:
+def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
+                   typed: Collection[str] | None = None) -> TrainConfig:
     """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
-    scene is (the run's split and downscale stay); any other option given is ignored, and the user told so."""
-    chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
-              if getattr(given, name) != default]  # the base of the comparison below, so never in it
-    ignored = chosen + [name for name in changed_options(given, preset_config(given.preset, given.method))
-                        if name not in ("resume", "extend_to", "data.data")]
+    scene is (the run's split and downscale stay); any other option given is ignored, and the user told so: each
+    flag `typed` on the command line (one at the preset's value too, which the run may not have), or for a caller
+    without one (None), each option off a bare preset's value."""
+    if typed is None:
+        chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
+                  if getattr(given, name) != default]  # the base of the comparison below, so never in it
+        given_names = chosen + changed_options(given, preset_config(given.preset, given.method))
+    else:
+        given_names = [name for name in flat_options(to_dict(given)) if option_flag(name) in typed]
+    ignored = [name for name in given_names if name not in ("resume", "extend_to", "data.data")]
     if ignored:
         flags = " ".join(_flag(given, name) for name in ignored)
         more = " (--extend-to N trains the run on to N steps)" if "steps" in ignored else ""
@@ -215,21 +221,22 @@ def filed_as_trained(config: TrainConfig) -> TrainConfig:
 def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection[str] | None = None) -> Path:
     """Train (or resume, a single run or a whole ensemble) as configured; returns the run directory. `typed`: the
     flags of the command line (`flags_given`), which a new run's checks and notes tell from the preset's values (a
-    --max-image-size typed beside --downscale, a file's value blamed on the file, the schedule a --steps rescaled);
-    None for a caller without one, whose flags are told by value (`flags_off_preset`)."""
+    --max-image-size typed beside --downscale, a file's value blamed on the file, the schedule a --steps rescaled)
+    and a resume names as ignored; None for a caller without one, whose flags are told by value (`flags_off_preset`,
+    and for a resume, `resumed_config`'s own comparison)."""
     wall_start = time.perf_counter()
     if config.resume is not None:
         saved_ensemble = ensemble_config(config.resume)
         if saved_ensemble is not None:
             run_dir = Path(config.resume).expanduser()
             with training_lock(run_dir):
-                return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks)
+                return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks, typed)
         path = _resume_point(config.resume)
         run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
         # a member's resume holds its ensemble's lock too; then choose again: a training that just ended may have
         # pruned the checkpoint or saved a newer one
         with enclosing_ensemble_lock(run_dir) as ensemble, training_lock(run_dir):
-            return _resume_run(config, _resume_point(config.resume), run_dir, ensemble, wall_start, hooks)
+            return _resume_run(config, _resume_point(config.resume), run_dir, ensemble, wall_start, hooks, typed)
     typed = flags_off_preset(config) if typed is None else typed  # as the caller gave it, before the method's own
     config = filed_as_trained(config)
     if config.degree_choice.on:
@@ -262,12 +269,12 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
 
 
 def _resume_ensemble(config: TrainConfig, saved: TrainConfig, run_dir: Path, wall_start: float,
-                     hooks: Sequence[StepHook]) -> Path:
-    """`--resume` of an ensemble run: finish every unfinished member."""
+                     hooks: Sequence[StepHook], typed: Collection[str] | None) -> Path:
+    """`--resume` of an ensemble run: finish every unfinished member (`typed`: as `resumed_config` takes it)."""
     if config.extend_to is not None:  # its members' schedules and its wall-time record are one run's
         raise SplatuError("--extend-to trains on a single run, not an ensemble", f"in {run_dir}",
                           "train a new ensemble with --steps N")
-    saved = resumed_config(config, saved, run_dir)
+    saved = resumed_config(config, saved, run_dir, typed)
     members = ensemble_members(run_dir, saved)
     if (run_dir / "ensemble.json").is_file() and all((m / "summary.json").is_file() for m in members):
         console.print(f"already finished: every member of {run_dir} is trained; nothing to resume", soft_wrap=True)
@@ -306,12 +313,12 @@ def check_restart(saved: TrainConfig, run_dir: Path) -> None:
 
 
 def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble: Path | None, wall_start: float,
-                hooks: Sequence[StepHook]) -> Path:
+                hooks: Sequence[StepHook], typed: Collection[str] | None) -> Path:
     """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None;
     `ensemble` is the ensemble run that `run_dir` is a member of, whose wall time the session then adds to."""
     checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
-                           else from_dict(checkpoint["config"], str(path)), run_dir)
+                           else from_dict(checkpoint["config"], str(path)), run_dir, typed)
     step = 0 if checkpoint is None else int(checkpoint["step"])
     if checkpoint is None:
         check_restart(saved, run_dir)

@@ -1434,6 +1434,19 @@ def test_resume_names_a_preset_or_method_it_ignores(tmp_path, capsys):
     assert "ignoring --densify.refine-every --steps --no-progress --no-compile-kernels" in capsys.readouterr().err
 
 
+def test_resume_names_every_flag_typed_beside_it_also_at_the_presets_value(tmp_path, capsys):
+    """Ignored flags were told by value against a bare preset: `--resume RUN --steps 2000` (fast's length) or
+    `--densify.refine-every 7` (fast's), on a run trained with --steps 30 (refine-every 1), were ignored without a
+    word, while --steps 4000 was named."""
+    saved = preset_config(steps=30)
+    argv = ["--resume", str(tmp_path), "--steps", "2000", "--densify.refine_every=7", "--method", "splatu",
+            "--data", "poster", "--extend-to", "60"]
+    train_command.resumed_config(parsed(argv), saved, tmp_path, flags_given(argv))
+    assert "ignoring --densify.refine-every --method --steps (--extend-to N" in capsys.readouterr().err
+    train_command.resumed_config(parsed(["--resume", str(tmp_path)]), saved, tmp_path, flags_given([]))
+    assert "ignoring" not in capsys.readouterr().err
+
+
 def test_an_ensembles_seeds_must_all_fit():
     TrainConfig(seed=MAX_SEED - 3, ensemble=3)
     with pytest.raises(SplatuError, match="too large"):
