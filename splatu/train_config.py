@@ -425,11 +425,15 @@ def default_config(argv: Sequence[str]) -> TrainConfig:
     """Defaults for `splatu train`: the chosen preset and method, and the schedule a typed --steps rescales, so
     `--help` shows the real values. There each flag's default is the value the run takes without that flag: the
     preset's for a typed flag (a run leaves its preset value out for the flag to replace; shown, it read as the full
-    recipe's), and for a schedule setting, the one a typed --steps rescales it to, typed or not."""
+    recipe's; the recipe's for a typed flag that replaces a value the preset has wrong), and for a schedule setting,
+    the one a typed --steps rescales it to, typed or not."""
     typed = flags_given(argv)
     preset, method = _scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu"
     steps = _new_run_steps(argv, typed)
     if "-h" not in argv and "--help" not in argv:
         return preset_config(preset, method, typed, steps)
-    config = preset_config(preset, method)
+    try:
+        config = preset_config(preset, method)
+    except SplatuError:  # a preset value refused, which a typed flag may replace: without it the run is refused
+        config = preset_config(preset, method, typed)
     return config if steps is None else dataclasses.replace(rescaled(config, steps), steps=config.steps)

@@ -452,6 +452,18 @@ def test_help_beside_steps_shows_the_schedule_the_run_trains_with(capsys):
     assert shown("--resume", "RUN", "--steps", "4000") == ["2000", "200", "7", "1000"]
 
 
+def test_help_beside_a_flag_that_replaces_a_bad_preset_value_prints(capsys, tmp_path):
+    """The run takes the flag in place of the file's bad value (test_a_flag_replaces_a_bad_value_of_the_preset_file),
+    but --help beside it refused the value, with the fix of overriding it by the flag that was typed."""
+    preset = tmp_path / "p.yaml"
+    preset.write_text("steps: 0\nresolution_interval: 100\n")
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--preset", str(preset), "--steps", "30", "--help"])
+    assert exc.value.code == 0
+    flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert re.search(r"--resolution-interval INT [^│]*?\(default: (\d+)\)", flat).group(1) == "100"
+
+
 @pytest.mark.parametrize("spelling", ["render_uncertainty", "eval_ause", "process_images"])
 def test_a_subcommand_spelt_with_underscores_is_still_that_subcommand(capsys, spelling):
     """tyro reads render_uncertainty as render-uncertainty; the check for mistyped subcommands refused it."""
