@@ -428,7 +428,9 @@ def default_config(argv: Sequence[str]) -> TrainConfig:
     recipe's; the recipe's for a typed flag that replaces a value the preset has wrong), and for a schedule setting,
     the one a typed --steps rescales it to, typed or not."""
     typed = flags_given(argv)
-    preset, method = _scan_flag(argv, "--preset") or DEFAULT_PRESET, _scan_flag(argv, "--method") or "splatu"
+    preset, method = _scan_flag(argv, "--preset"), _scan_flag(argv, "--method")
+    preset = DEFAULT_PRESET if preset is None else preset  # an empty `--preset=` is refused, as the name it is
+    method = "splatu" if method is None else method
     steps = _new_run_steps(argv, typed)
     if "-h" not in argv and "--help" not in argv:
         return preset_config(preset, method, typed, steps)

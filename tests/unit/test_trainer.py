@@ -524,6 +524,14 @@ def test_the_schedule_rule_is_splatfactos_scaled_and_rounded():
     assert DensifyConfig().reset_alpha_every == 30
 
 
+@pytest.mark.parametrize(("flag", "error"), [("--preset=", "unknown preset ''"), ("--method=", "unknown method ''")])
+def test_an_empty_preset_or_method_is_refused_not_read_as_the_default(flag, error):
+    """An empty value chose the defaults as if not given, while the run kept the empty name: `--method=` trained
+    fast's splatu filed under no method's folder, `--preset= --steps N` stopped only after the scene loaded."""
+    with pytest.raises(SplatuError, match=error):
+        default_config([flag, "--steps", "300"])
+
+
 def test_presets_scale_the_splatfacto_schedule_consistently():
     for name in ("fast", "quality"):
         values = flat_options(read_yaml(preset_path(name)))
