@@ -169,11 +169,16 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
     """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so: each
     flag `typed` on the command line (one at the preset's value too, which the run may not have), or for a caller
-    without one (None), each option off a bare preset's value."""
+    without one (None), each option off a bare preset's value (none when the preset cannot be read, as a resume never
+    needs it)."""
     if typed is None:
         chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
                   if getattr(given, name) != default]  # the base of the comparison below, so never in it
-        given_names = chosen + changed_options(given, preset_config(given.preset, given.method))
+        try:
+            bare = preset_config(given.preset, given.method)
+        except SplatuError:  # its preset file gone since (a relative path from another folder): none can be told
+            bare = given
+        given_names = chosen + changed_options(given, bare)
     else:
         given_names = [name for name in flat_options(to_dict(given)) if option_flag(name) in typed]
     ignored = [name for name in given_names if name not in ("resume", "extend_to", "data.data")]

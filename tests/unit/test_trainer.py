@@ -668,6 +668,14 @@ def test_a_python_configs_preset_file_gone_since_is_not_needed_for_a_new_run(tmp
                                  "uncertainty threshold = 0.0 is not a blend weight in (0, 1]")
 
 
+def test_a_python_resume_whose_preset_file_is_gone_since_resumes(tmp_path, capsys):
+    """A resume from Python told the options it ignores against its preset file, and stopped at "preset file not
+    found" (a run's config.yml names its preset as typed: a relative path, read from another folder), though it
+    trains with the run's saved options alone."""
+    saved = dataclasses.replace(preset_config("fast"), preset="gone.yaml")
+    assert train_command.resumed_config(dataclasses.replace(saved, resume=tmp_path), saved, tmp_path) == saved
+
+
 def test_steps_beside_resume_leaves_the_schedule_to_the_saved_run():
     assert schedule_of(parsed(["--resume", "RUN", "--steps", "4000"])) == schedule_of(preset_config("fast"))
     assert schedule_of(parsed(["--resume", "RUN", "--extend-to", "4000"])) == schedule_of(preset_config("fast"))
