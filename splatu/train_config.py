@@ -323,8 +323,6 @@ def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict
     rescale applies); else every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset
     value follows `splatfacto_schedule` at the preset's length (a preset file's own choice off that rule stays, as a
     flag does); none for a preset file whose own steps is no length (which the typed --steps replaces)."""
-    if steps < 1:  # the option checks refuse it
-        return None
     values = preset_values(preset)
     own = own_length(values)
     if own is None:
