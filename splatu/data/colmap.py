@@ -202,12 +202,30 @@ def _numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
         yield from enumerate(lines, start=1)
 
 
+_TOKEN = re.compile(r"[^ \t\n\v\f\r]+")
+"""A field as COLMAP's reader (a C++ stream) finds one: between ASCII whitespace only. Python's str.split also splits
+at a no-break space, U+3000 and the like, which the reader keeps inside a field: a line spaced by them passed the
+check and failed pycolmap naming no line, and a name holding one was refused as a name with a space."""
+
+
+def _tokens(line: str) -> list[str]:
+    """The fields of one line of a COLMAP text file, as its reader splits it (`_TOKEN`)."""
+    return _TOKEN.findall(line)
+
+
+def _is_skipped(line: str) -> bool:
+    """Whether COLMAP's reader skips a line where it expects a camera, pose or point: blank or a comment once trimmed
+    of spaces, tabs, CR and LF, as its trim does (not of \\v or \\f: a line of them, or a comment indented by one, is
+    read as data, and fails)."""
+    trimmed = line.strip(" \t\n\r")
+    return not trimmed or trimmed.startswith("#")
+
+
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
-    """(line number, tokens) of each non-comment, non-blank line of a COLMAP text file; COLMAP's reader trims a line
-    before it looks for the # of a comment, so an indented comment is one."""
+    """(line number, tokens) of each line of a COLMAP text file that its reader does not skip (`_is_skipped`)."""
     for number, line in _numbered_lines(path):
-        if (tokens := line.split()) and not tokens[0].startswith("#"):
-            yield number, tokens
+        if not _is_skipped(line):
+            yield number, _tokens(line)
 
 
 ID_FIELDS = {"cameras": ((0, "CAMERA_ID"),), "images": ((0, "IMAGE_ID"), (8, "CAMERA_ID")),
@@ -227,10 +245,11 @@ def _bad_id(name: str, tokens: list[str]) -> str | None:
                  if index < len(tokens) and _is_number(tokens[index]) and not _is_id(tokens[index], limit)), None)
 
 
-def _text_line_error(path: Path, name: str, number: int, tokens: list[str]) -> SplatuError | None:
-    """The error for one data line of a COLMAP text file that COLMAP's reader would refuse or misread, if any."""
+def _text_line_error(path: Path, name: str, number: int, tokens: list[str], line: str) -> SplatuError | None:
+    """The error for one data line of a COLMAP text file that COLMAP's reader would refuse or misread, if any; a line
+    without fields (of \\v or \\f alone) is quoted as it is."""
     if not _valid_text_line(name, tokens):
-        reason = _bad_id(name, tokens) or repr(" ".join(tokens)[:60])
+        reason = _bad_id(name, tokens) or repr((" ".join(tokens) or line.rstrip("\r\n"))[:60])
         return SplatuError(f"cannot parse {path.name} line {number} ({reason})", f"in {path}",
                            "fix that line or export the model from COLMAP again")
     if name == "points3D" and not all(0 <= int(value) <= 255 for value in tokens[4:7]):
@@ -248,10 +267,9 @@ def _line_error(path: Path, name: str, number: int, line: str) -> tuple[list[str
         return [], SplatuError(f"{path.name} line {number} ends in a lone carriage return (CR), which COLMAP does not "
                                "read as the end of a line", f"in {path}",
                                "save the file with LF (or CRLF) line endings")
-    tokens = line.split()
-    if not tokens or tokens[0].startswith("#"):
-        return tokens, None
-    return tokens, _text_line_error(path, name, number, tokens)
+    if _is_skipped(line):
+        return [], None
+    return (tokens := _tokens(line)), _text_line_error(path, name, number, tokens, line)
 
 
 _FLOAT = r"-?[0-9]{1,20}+\.?[0-9]{0,30}+(?:e[-+][0-9][0-9])?+"
@@ -280,7 +298,7 @@ faster than the per-token check on a model of 1M points, docs/results.md; every 
 which words every error).
 
 Each accepts only lines that `_line_error` passes, in the same line numbering (`_numbered_lines`): fields are
-ASCII, one space apart, so `str.split` finds exactly these tokens; every one is a finite number (`_FLOAT`, `_ID`,
+ASCII, one space apart, so `_tokens` finds exactly these tokens; every one is a finite number (`_FLOAT`, `_ID`,
 `_CHANNEL`); ids have at most 9 digits (a POINT3D_ID 18), so they are ids below their limits; colours are 0–255.
 A points3D line has 8 fields then (IMAGE_ID, POINT2D_IDX) pairs of ids; a pose line 10, IMAGE_ID, 7 numbers,
 CAMERA_ID and a NAME of printable ASCII (10 fields is no multiple of 3, so no points line either: it is a pose
@@ -317,7 +335,7 @@ def _images_errors(path: Path) -> tuple[SplatuError | None, SplatuError | None]:
             tokens, error = _line_error(path, "images", number, line)
             if error is not None:
                 return error, None
-            pose = _is_pose(tokens)  # a comment's first token starts with #, so it is no IMAGE_ID
+            pose = _is_pose(tokens)  # a skipped line has no tokens, so it is no pose
             if pose and len(tokens) > 10 and spaced_name is None:
                 spaced_name = (number, " ".join(tokens[9:]))
         if pose and after_pose and pose_after_pose is None:
@@ -408,9 +426,9 @@ def _poses_and_point_counts(images: Path) -> Iterator[tuple[int, list[str], int]
     with images.open(encoding="utf-8", errors="replace") as file:
         lines = list(file)
     for number, (line, after) in enumerate(zip(lines, [*lines[1:], ""], strict=True), start=1):
-        tokens = line.split()
+        tokens = _tokens(line)
         if _is_pose(tokens):  # a comment's first token starts with #, so it is no IMAGE_ID
-            yield number, tokens, len(after.split()) // 3
+            yield number, tokens, len(_tokens(after)) // 3
 
 
 def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:

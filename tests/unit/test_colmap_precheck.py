@@ -224,3 +224,47 @@ def test_an_images_txt_with_several_faults_is_refused_for_the_one_checked_first(
     with pytest.raises(colmap.SplatuError) as raised:
         colmap.read_reconstruction(tmp_path)
     assert raised.value.what.startswith(first)
+
+
+def model(tmp_path: Path, images: str, points: str = "") -> dict[str, Path]:
+    return {"cameras": write_lines(tmp_path / "cameras.txt", ["1 PINHOLE 8 6 5 5 4 3\n"]),
+            "images": write_lines(tmp_path / "images.txt", [images]),
+            "points3D": write_lines(tmp_path / "points3D.txt", [points])}
+
+
+def pycolmap_refuses(folder: Path) -> bool:
+    try:
+        pycolmap.Reconstruction(str(folder))
+    except (ValueError, IndexError, RuntimeError):
+        return True
+    return False
+
+
+POSES = "1 1 0 0 0 0 0 1 1 a.png\n10 20 -1\n2 1 0 0 0 1 0 1 1 b.png\n\n"
+
+
+@pytest.mark.parametrize(("images", "points", "what"), [
+    # a no-break space, U+3000 and the like are whitespace to Python's str.split, part of a field to COLMAP's reader
+    (POSES.replace("1 1 0", "1\u00a01 0"), "", "cannot parse images.txt line 1 ('1\\xa01 0 0 0 0 0 1 1 a.png')"),
+    (POSES, "7\u30000.5 0.5 2 255 0 0 0.1\n", "cannot parse points3D.txt line 1 ('7\\u30000.5 0.5 2 255 0 0 0.1')"),
+    (POSES, "\u00a0\n", "cannot parse points3D.txt line 1 ('\\xa0')"),
+    (POSES, "\u00a0# an indented comment\n", "cannot parse points3D.txt line 1 ('\\xa0#"),
+    # COLMAP's trim takes spaces, tabs, CR and LF: a line of \v or \f, or a comment after one, is data to it
+    (POSES, "\v\n", "cannot parse points3D.txt line 1 ('\\x0b')"),
+    (POSES, "\f# a comment\n", "cannot parse points3D.txt line 1 ('# a comment')"),
+])
+def test_a_line_pycolmap_refuses_naming_no_line_is_named(tmp_path, images, points, what):
+    """These passed the check, as Python splits and trims a line at other characters than COLMAP's reader, and
+    pycolmap's refusal named neither file nor line ("Check failed: line_stream >> point3D_id >> ...")."""
+    files = model(tmp_path, images, points)
+    assert pycolmap_refuses(tmp_path)
+    error, _ = colmap.text_model_errors(files)
+    assert error is not None and error.what.startswith(what)
+
+
+@pytest.mark.parametrize("name", ["a\u00a0b.png", "a\u3000b.png", "a\x1cb.png"])
+def test_a_name_with_a_space_python_splits_at_and_colmap_does_not_is_read_whole(tmp_path, name):
+    """pycolmap reads such a name whole; the check refused it as a name with a space, which COLMAP cuts."""
+    files = model(tmp_path, POSES.replace("a.png", name))
+    assert colmap.text_model_errors(files) == (None, None)
+    assert {image.name for image in pycolmap.Reconstruction(str(tmp_path)).images.values()} == {name, "b.png"}
