@@ -322,10 +322,12 @@ def _file_error(path: Path, name: str) -> SplatuError | None:
 
 
 def _images_errors(path: Path) -> tuple[SplatuError | None, SplatuError | None]:
-    """In one pass over an images.txt: its first line that COLMAP's reader would refuse or misread, and the first
-    fault of its layout that the reader takes without a word (`_layout_error`)."""
+    """In one pass over an images.txt, following its reader: the first line that COLMAP's reader would refuse or
+    misread (`_order_error` too), and the first fault of its layout that the reader takes without a word
+    (`_layout_error`). The reader skips blank and comment lines where it expects a pose, and takes the line after
+    each pose, whatever it holds, as that image's 2D points."""
     pose_after_pose = spaced_name = None
-    after_pose = False
+    points_next = False
     for number, line in _numbered_lines(path):
         if FAST_LINES["pose"].fullmatch(line):
             pose = True
@@ -335,13 +337,38 @@ def _images_errors(path: Path) -> tuple[SplatuError | None, SplatuError | None]:
             tokens, error = _line_error(path, "images", number, line)
             if error is not None:
                 return error, None
-            pose = _is_pose(tokens)  # a skipped line has no tokens, so it is no pose
+            if not points_next and _is_skipped(line):
+                continue
+            pose = _is_pose(tokens)
             if pose and len(tokens) > 10 and spaced_name is None:
                 spaced_name = (number, " ".join(tokens[9:]))
-        if pose and after_pose and pose_after_pose is None:
-            pose_after_pose = number
-        after_pose = pose
+        if points_next:
+            if pose and pose_after_pose is None:
+                pose_after_pose = number
+            points_next = False
+        elif pose:
+            points_next = True
+        else:
+            return _order_error(path, number, pose_after_pose), None
+    if points_next:
+        return _order_error(path, None, pose_after_pose), None
     return None, _layout_error(path, pose_after_pose, spaced_name)
+
+
+def _order_error(path: Path, number: int | None, pose_after_pose: int | None) -> SplatuError:
+    """The error for an images.txt whose line `number` is no pose where the reader expects one (a comment or blank
+    line between a pose and its 2D points, a second points line), which pycolmap refuses naming no line, or which
+    (with 10 numbers or more) it reads as a pose; or (`number` None) whose last pose has no line after it, an image
+    the reader leaves out without a word. A pose after a pose before it is the likelier cause, so it is named."""
+    if pose_after_pose is not None:
+        return _layout_error(path, pose_after_pose, None)
+    fix = "give each image two lines, its pose then its 2D points (an empty line when it has none)"
+    if number is None:
+        return SplatuError(f"{path.name} ends with an image's pose without the line of its 2D points after it, so "
+                           "COLMAP would leave that image out", f"in {path}", f"{fix}, the last one too")
+    return SplatuError(f"{path.name} line {number} is not an image's pose (IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, "
+                       "CAMERA_ID, NAME), which COLMAP reads there: it reads the line right after each pose as that "
+                       "image's 2D points", f"in {path}", f"{fix}, with no comment or blank line between them")
 
 
 def _layout_error(path: Path, pose_after_pose: int | None, spaced_name: tuple[int, str] | None) -> SplatuError | None:

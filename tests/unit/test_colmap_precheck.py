@@ -262,9 +262,40 @@ def test_a_line_pycolmap_refuses_naming_no_line_is_named(tmp_path, images, point
     assert error is not None and error.what.startswith(what)
 
 
+@pytest.mark.parametrize(("images", "what"), [
+    # the line right after a pose is its 2D points, whatever it holds: the points after a comment or blank line
+    # there, or a second points line, are read as a pose
+    ("1 1 0 0 0 0 0 1 1 a.png\n# its points\n10 20 -1\n2 1 0 0 0 1 0 1 1 b.png\n\n",
+     "images.txt line 3 is not an image's pose"),
+    ("1 1 0 0 0 0 0 1 1 a.png\n\n10 20 -1\n2 1 0 0 0 1 0 1 1 b.png\n\n", "images.txt line 3 is not an image's pose"),
+    ("1 1 0 0 0 0 0 1 1 a.png\n10 20 -1\n10 20 -1\n", "images.txt line 3 is not an image's pose"),
+    ("1 1 0 0 0 0 0 1 1 a.png\n\v\n\v\n", "images.txt line 3 is not an image's pose"),
+    # a pose where the 2D points belong is the likelier cause of a points line where a pose belongs
+    ("1 1 0 0 0 0 0 1 1 a.png\n2 1 0 0 0 1 0 1 1 b.png\n10 20 -1\n",
+     "images.txt line 2 is an image's pose where COLMAP reads the 2D points of the image on the line before"),
+])
+def test_an_images_txt_line_where_colmap_reads_a_pose_but_finds_none_is_named(tmp_path, images, what):
+    """These passed the check, and pycolmap's refusal named neither file nor line ("Check failed: line_stream1 >>
+    image_id >> ...")."""
+    files = model(tmp_path, images)
+    assert pycolmap_refuses(tmp_path)
+    error, _ = colmap.text_model_errors(files)
+    assert error is not None and error.what.startswith(what)
+
+
 @pytest.mark.parametrize("name", ["a\u00a0b.png", "a\u3000b.png", "a\x1cb.png"])
 def test_a_name_with_a_space_python_splits_at_and_colmap_does_not_is_read_whole(tmp_path, name):
     """pycolmap reads such a name whole; the check refused it as a name with a space, which COLMAP cuts."""
     files = model(tmp_path, POSES.replace("a.png", name))
     assert colmap.text_model_errors(files) == (None, None)
     assert {image.name for image in pycolmap.Reconstruction(str(tmp_path)).images.values()} == {name, "b.png"}
+
+
+@pytest.mark.parametrize("end", ["\n", ""])
+def test_an_images_txt_whose_last_pose_has_no_points_line_is_refused_not_read_without_that_image(tmp_path, end):
+    """As `"\\n".join(lines)` writes a last empty points line: pycolmap left the last image out, without a word."""
+    files = model(tmp_path, POSES.removesuffix("\n\n") + end)
+    assert len(pycolmap.Reconstruction(str(tmp_path)).images) == 1
+    error, _ = colmap.text_model_errors(files)
+    assert error is not None and error.what.startswith("images.txt ends with an image's pose without the line of its "
+                                                       "2D points after it, so COLMAP would leave that image out")
