@@ -86,7 +86,8 @@ def _downscaled_frame(frame: Frame, factor: int) -> Frame:
 
     copy = None if frame.copies is None else (frame.copies.parent / f"{frame.copies.name}_{factor}" /
                                               frame.image.path.relative_to(frame.copies))
-    image = (replace(frame.image, path=copy, source_downscale=factor, **size) if copy is not None and copy.is_file()
+    image = (replace(frame.image, path=copy, source_downscale=factor, full_size=frame.image.path, **size)
+             if copy is not None and copy.is_file()
              else replace(frame.image, **size))
     return replace(frame, camera=camera, image=image, mask=resized(frame.mask), depth=resized(frame.depth),
                    observed=resized(frame.observed))

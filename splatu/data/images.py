@@ -65,6 +65,9 @@ class PixelRecipe:
     """Pinhole intrinsics after undistortion at full resolution, row-major 3x3."""
     source_downscale: int = 1
     """The file is a pre-downscaled copy (images_N) at 1/N of (width, height)."""
+    full_size: Path | None = None
+    """The full-size image that a pre-downscaled copy stands for (not part of the cache key: the copy's pixels are
+    what load)."""
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     """Colour that RGBA images are composited on."""
     depth_scale: float = 1.0
@@ -272,10 +275,23 @@ def _check_size(recipe: PixelRecipe, height: int, width: int) -> None:
             raise SplatuError(f"{noun} is {width}x{height} but its camera says {expected}", f"in {recipe.path}",
                               _size_fix(recipe.kind, noun, turned))
         # a pre-downscaled copy (images_N): the size the user wrote is the camera's, which the factor divides
+        copy_at_fault = not turned or _full_size_fits(recipe)
         raise DownscaleError(f"{noun} is {width}x{height}, but the camera's {recipe.width}x{recipe.height} at "
                              f"1/{recipe.source_downscale} of its size is {expected}", f"in {recipe.path}",
-                             _size_fix(recipe.kind, noun, turned) if turned else _copy_fix(recipe, expected),
-                             factor=recipe.source_downscale, copy_at_fault=not turned)
+                             _copy_fix(recipe, expected) if copy_at_fault else _size_fix(recipe.kind, noun, turned),
+                             factor=recipe.source_downscale, copy_at_fault=copy_at_fault)
+
+
+def _full_size_fits(recipe: PixelRecipe) -> bool:
+    """Whether the full-size image that a copy turned on its side stands for has its camera's size: then the copy
+    alone is turned (made by a tool that applied the photo's EXIF orientation, say), and swapping the camera's width
+    and height, as a turned image suggests, would refuse every image that fits it. Decoded only for this error."""
+    if recipe.full_size is None or not recipe.full_size.is_file():
+        return False
+    try:
+        return read_image(recipe.full_size).shape[:2] == (recipe.height, recipe.width)
+    except SplatuError:
+        return False
 
 
 def _copy_fix(recipe: PixelRecipe, expected: str) -> str:

@@ -44,7 +44,7 @@ from splatu.data.resolve import (
     refuse_unused_poster_options,
     with_chosen_downscale,
 )
-from splatu.errors import SplatuError
+from splatu.errors import DownscaleError, SplatuError
 from tests.conftest import shared_scene
 from tests.synthetic_scenes import noise_image, ring_cameras, write_nerfstudio_scene, write_rgb, write_transforms
 
@@ -251,8 +251,10 @@ def test_images_n_folder_is_used_for_downscale(tmp_path):
 @pytest.mark.parametrize(("size", "fix"), [
     ((21, 15), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have the "
                "full-size images shrunk as they load"),
-    ((15, 20), "swap the camera's width and height (and its cx and cy if they are swapped too), or, if the photo is "
-               "stored on its side (an EXIF orientation, which is not applied), save it upright"),
+    # turned on its side, but its full-size image fits the camera: the copy alone is at fault (it said to swap the
+    # camera's width and height, which would refuse every image that fits it)
+    ((15, 20), "regenerate images_2 at 20x15 (1/2 of the camera's size), or remove images_2 to have the "
+               "full-size images shrunk as they load"),
 ])
 def test_a_downscaled_copy_of_the_wrong_size_is_told_against_the_cameras_size_in_the_file(tmp_path, size, fix):
     """It said "image is 21x15 but its camera says 20x15, ... fix the camera size": a size the file never held, and
@@ -267,6 +269,25 @@ def test_a_downscaled_copy_of_the_wrong_size_is_told_against_the_cameras_size_in
     assert caught.value.what == f"image is {size[0]}x{size[1]}, but the camera's 40x30 at 1/2 of its size is 20x15"
     assert caught.value.where == f"in {root / 'images_2' / Path(cameras[2].name).name}"
     assert caught.value.fix == fix
+
+
+@pytest.mark.parametrize("full_size", ["turned", "missing"])
+def test_a_downscaled_copy_turned_as_its_full_size_image_is_says_to_swap_the_camera(tmp_path, full_size):
+    """When the full-size image is turned too (or not there to compare), the camera may be the one the wrong way
+    round, so the copy is not blamed."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4, width=40, height=30)
+    for i, camera in enumerate(cameras):
+        write_rgb(root / "images_2" / Path(camera.name).name, noise_image(100 + i, 15 if i == 2 else 20,
+                                                                          20 if i == 2 else 15))
+    if full_size == "turned":
+        write_rgb(root / cameras[2].name, noise_image(2, 30, 40))
+    else:
+        (root / cameras[2].name).unlink()
+    with pytest.raises(DownscaleError) as caught:
+        load_scene(config(root, tmp_path, downscale=2, eval_split="every-n", eval_every=2))
+    assert caught.value.what == "image is 15x20, but the camera's 40x30 at 1/2 of its size is 20x15"
+    assert caught.value.fix.startswith("swap the camera's width and height") and not caught.value.copy_at_fault
 
 
 def test_a_wrong_downscaled_copy_under_the_chosen_downscale_is_not_told_to_drop_the_flag(tmp_path):
