@@ -418,8 +418,10 @@ def read_reconstruction(sparse_dir: Path) -> pycolmap.Reconstruction:
 
 
 def broken_reference(files: dict[str, Path]) -> SplatuError | None:
-    """In a text model whose every line parses, the first camera model COLMAP does not know, or the first id that
-    points at nothing: pycolmap names these in its own terms ("Rig with ID 7 does not exist"), without file or line."""
+    """In a text model whose every line parses, the first camera model COLMAP does not know, the first id that
+    points at nothing, or the first track that names a 2D point images.txt gives to another 3D point: pycolmap names
+    these in its own terms ("Rig with ID 7 does not exist", "Check failed: point2D.point3D_id == point3D_id (8 vs.
+    7)"), without file or line."""
     cameras, images = files["cameras"], files["images"]
     camera_ids = set()
     for number, tokens in _data_lines(cameras):
@@ -427,35 +429,50 @@ def broken_reference(files: dict[str, Path]) -> SplatuError | None:
             return SplatuError(f"unknown camera model {tokens[1]!r} (camera {tokens[0]})",
                                f"in {cameras} line {number}", f"use one of {', '.join(SUPPORTED_MODELS)}")
         camera_ids.add(int(tokens[0]))
-    point_counts: dict[int, int] = {}
-    for number, tokens, count in _poses_and_point_counts(images):
-        point_counts[int(tokens[0])] = count
+    point_ids: dict[int, list[str]] = {}
+    for number, tokens, ids in _poses_and_point_ids(images):
+        point_ids[int(tokens[0])] = ids
         if int(tokens[8]) not in camera_ids:
             return SplatuError(f"image {tokens[9]} uses camera {tokens[8]}, which {cameras.name} does not define",
                                f"in {images} line {number}", "fix its CAMERA_ID or export the model from COLMAP again")
     for number, tokens in _data_lines(files["points3D"]):
         track = [(int(image), int(index)) for image, index in zip(tokens[8::2], tokens[9::2], strict=True)]
-        missing = next((image for image, _ in track if image not in point_counts), None)
+        missing = next((image for image, _ in track if image not in point_ids), None)
         if missing is not None:
             return SplatuError(f"point {tokens[0]}'s track names image {missing}, which {images.name} does not define",
                                f"in {files['points3D']} line {number}", "export the model from COLMAP again")
-        beyond = next(((image, index) for image, index in track if index >= point_counts[image]), None)
+        beyond = next(((image, index) for image, index in track if index >= len(point_ids[image])), None)
         if beyond is not None:
             return SplatuError(f"point {tokens[0]}'s track names 2D point {beyond[1]} of image {beyond[0]}, which has "
-                               f"{point_counts[beyond[0]]} in {images.name}", f"in {files['points3D']} line {number}",
+                               f"{len(point_ids[beyond[0]])} in {images.name}", f"in {files['points3D']} line {number}",
+                               "export the model from COLMAP again")
+        other = next(((image, index, point_ids[image][index]) for image, index in track
+                      if _other_point(point_ids[image][index], int(tokens[0]))), None)
+        if other is not None:
+            return SplatuError(f"point {tokens[0]}'s track names 2D point {other[1]} of image {other[0]}, which "
+                               f"{images.name} gives to point {other[2]}", f"in {files['points3D']} line {number}",
                                "export the model from COLMAP again")
     return None
 
 
-def _poses_and_point_counts(images: Path) -> Iterator[tuple[int, list[str], int]]:
-    """(line number, tokens, number of 2D points) of each pose line of an images.txt: COLMAP reads the line after
-    a pose, blank or not, as that image's 2D points, X Y POINT3D_ID triples that tracks index from 0."""
+def _other_point(named: str, point_id: int) -> bool:
+    """Whether a 2D point's POINT3D_ID `named` is another 3D point than `point_id`; -1, no point, is none (pycolmap
+    accepts a track naming such a 2D point), and one that is no whole number is left to pycolmap's own words."""
+    try:
+        return int(named) not in (-1, point_id)
+    except ValueError:
+        return False
+
+
+def _poses_and_point_ids(images: Path) -> Iterator[tuple[int, list[str], list[str]]]:
+    """(line number, tokens, its 2D points' POINT3D_IDs) of each pose line of an images.txt: COLMAP reads the line
+    after a pose, blank or not, as that image's 2D points, X Y POINT3D_ID triples that tracks index from 0."""
     with images.open(encoding="utf-8", errors="replace") as file:
         lines = list(file)
     for number, (line, after) in enumerate(zip(lines, [*lines[1:], ""], strict=True), start=1):
         tokens = _tokens(line)
         if _is_pose(tokens):  # a comment's first token starts with #, so it is no IMAGE_ID
-            yield number, tokens, len(_tokens(after)) // 3
+            yield number, tokens, _tokens(after)[2::3]
 
 
 def _unreadable(sparse_dir: Path, files: dict[str, Path], err: Exception) -> SplatuError:

@@ -1196,6 +1196,16 @@ def test_a_colmap_track_past_an_images_2d_points_names_the_point(tmp_path):
     assert error.where == f"in {sparse / 'points3D.txt'} line 1"
 
 
+def test_a_colmap_track_naming_a_2d_point_of_another_3d_point_names_the_point(tmp_path):
+    """pycolmap refused it as "Check failed: point2D.point3D_id == point3D_id (8 vs. 1)", naming no file or line."""
+    sparse = write_colmap(tmp_path / "scene", points="1 0.5 0.5 2 255 0 0 0.1 1 0\n")
+    images = sparse / "images.txt"
+    images.write_text(images.read_text().replace("a.png\n\n", "a.png\n1.5 2.5 8\n"))
+    error = load_error(tmp_path / "scene", tmp_path)
+    assert error.what == "point 1's track names 2D point 0 of image 1, which images.txt gives to point 8"
+    assert error.where == f"in {sparse / 'points3D.txt'} line 1"
+
+
 def _focal_for(degrees: float, side: int) -> float:
     """The focal length that sees `degrees` across `side` pixels."""
     return 0.5 * side / math.tan(math.radians(degrees) / 2)
