@@ -180,7 +180,19 @@ def _valid_text_line(name: str, tokens: list[str]) -> bool:
     if name == "points3D":  # POINT3D_ID, X, Y, Z, R, G, B (integers), ERROR, then (IMAGE_ID, POINT2D_IDX) pairs
         return (len(tokens) >= 8 and len(tokens) % 2 == 0 and all(numbers) and _is_id(tokens[0], (1 << 64) - 1)
                 and all(_is_number(t, int) for t in tokens[4:7]) and all(_is_id(t) for t in tokens[8:]))
-    return _is_pose(tokens) or _is_points(tokens)
+    return _is_pose(tokens) or (_is_points(tokens) and _bad_point3d_ref(tokens) is None)
+
+
+POINT3D_REF_LIMIT = 1 << 63
+"""COLMAP's reader takes a 2D point's POINT3D_ID as a signed 64-bit integer (-1 for none): a larger one failed pycolmap
+naming no line, and one written 7.0 or 1e3 was read as 7 or 1 with the rest of the line shifted."""
+
+
+def _bad_point3d_ref(tokens: list[str]) -> str | None:
+    """Why the first POINT3D_ID of a 2D points line is none the reader can hold (`POINT3D_REF_LIMIT`), if one is not."""
+    return next((f"POINT3D_ID {token} is not a whole number from {-POINT3D_REF_LIMIT} to {POINT3D_REF_LIMIT - 1} "
+                 "(-1 for none)" for token in tokens[2::3]
+                 if not (_is_number(token, int) and -POINT3D_REF_LIMIT <= int(token) < POINT3D_REF_LIMIT)), None)
 
 
 def _is_points(tokens: list[str]) -> bool:
@@ -249,7 +261,9 @@ def _text_line_error(path: Path, name: str, number: int, tokens: list[str], line
     """The error for one data line of a COLMAP text file that COLMAP's reader would refuse or misread, if any; a line
     without fields (of \\v or \\f alone) is quoted as it is."""
     if not _valid_text_line(name, tokens):
-        reason = _bad_id(name, tokens) or repr((" ".join(tokens) or line.rstrip("\r\n"))[:60])
+        points = name == "images" and _is_points(tokens)  # numbers in threes, but a POINT3D_ID the reader cannot hold
+        reason = ((_bad_point3d_ref(tokens) if points else _bad_id(name, tokens))
+                  or repr((" ".join(tokens) or line.rstrip("\r\n"))[:60]))
         return SplatuError(f"cannot parse {path.name} line {number} ({reason})", f"in {path}",
                            "fix that line or export the model from COLMAP again")
     if name == "points3D" and not all(0 <= int(value) <= 255 for value in tokens[4:7]):
@@ -280,6 +294,8 @@ _ID = "[0-9]{1,9}+"
 """An id below 10**9, so below ID_LIMIT; int() and float() read it (leading zeros too)."""
 _POINT3D_ID = "[0-9]{1,18}+"
 """A 3D point's id below 10**18, so below its 64-bit limit."""
+_POINT3D_REF = "-?[0-9]{1,18}+"
+"""A 2D point's POINT3D_ID, -1 or an id below 10**18, so within its signed 64-bit range (`POINT3D_REF_LIMIT`)."""
 _NAME = "[!-~]+"
 """An image's name in printable ASCII, so without a space or any other whitespace."""
 _CHANNEL = "(?>25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
@@ -291,7 +307,7 @@ FAST_LINES = {
     "points3D": re.compile(rf"{_POINT3D_ID} {_FLOAT} {_FLOAT} {_FLOAT} {_CHANNEL} {_CHANNEL} {_CHANNEL} {_FLOAT}"
                            rf"(?: {_ID} {_ID})*+{_LINE_END}"),
     "pose": re.compile(rf"{_ID}{f' {_FLOAT}' * 7} {_ID} {_NAME}{_LINE_END}"),
-    "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_FLOAT}(?: {_FLOAT} {_FLOAT} {_FLOAT})*+{_LINE_END}"),
+    "points2D": re.compile(rf"{_FLOAT} {_FLOAT} {_POINT3D_REF}(?: {_FLOAT} {_FLOAT} {_POINT3D_REF})*+{_LINE_END}"),
 }
 """Lines of a large model that are certainly valid, matched whole without splitting them into tokens (7 times
 faster than the per-token check on a model of 1M points, docs/results.md; every other line still gets that check,
@@ -302,7 +318,8 @@ ASCII, one space apart, so `_tokens` finds exactly these tokens; every one is a 
 `_CHANNEL`); ids have at most 9 digits (a POINT3D_ID 18), so they are ids below their limits; colours are 0–255.
 A points3D line has 8 fields then (IMAGE_ID, POINT2D_IDX) pairs of ids; a pose line 10, IMAGE_ID, 7 numbers,
 CAMERA_ID and a NAME of printable ASCII (10 fields is no multiple of 3, so no points line either: it is a pose
-line with a name without a space); a 2D points line numbers in threes (never a pose line, by `_is_pose`).
+line with a name without a space); a 2D points line numbers in threes, each third an integer of at most 18 digits
+(`_POINT3D_REF`), never a pose line, by `_is_pose`.
 Both paths get the same lines (`_numbered_lines`): a CRLF file's take the fast path too, one ended by a lone CR
 never. Anything else, a comment, a blank line, a tab, '+5', '.5', '1e5', a colour 007, digits of other scripts,
 goes to the per-token check, which decides and words the error as it always has. cameras.txt, a line per camera,

@@ -22,6 +22,9 @@ ODD_NUMBERS = ["1e999", "9" * 400, "1e+99", "9" * 50 + "e+99", "1e308", "1e309",
 IDS = ["0", "1", "7", "1234", "999999999", "4294967294", "18446744073709551614"]
 ODD_IDS = ["-0", "+3", "007", "1.5", "-1", "1e3", "4294967295", "4294967296", "1000000000", "18446744073709551615",
            "99999999999999999999", "１", "٣", "1_0", "nan", "x"]
+POINT3D_REFS = ["-1", "0", "7", "2749", "999999999999999999"]
+ODD_POINT3D_REFS = ["1.5", "7.0", "1e3", "-2", "+7", "007", "9223372036854775807", "9223372036854775808",
+                    "99999999999999999999", "-9223372036854775809", "nan", "x"]
 CHANNELS = ["0", "9", "10", "99", "100", "199", "200", "249", "250", "255"]
 ODD_CHANNELS = ["256", "300", "-1", "007", "0255", "+5", "1.0", "1e2", "٢٥٥", "２５５", "nan", "99999999"]
 NAMES = ["a.png", "IMG_0001.JPG", "dir/x.jpg", "5", "#x", "é.png", "my photo.jpg", "a\u00a0b.png", "a\x1cb.png"]
@@ -62,7 +65,8 @@ class Lines:
 
     def points2d(self) -> str:
         count = 3 * self.rng.randint(0, 5) + (self.rng.choice([-1, 1]) if self.rng.random() < self.odd else 0)
-        return self.join([self.pick(NUMBERS, ODD_NUMBERS) for _ in range(max(count, 0))])
+        return self.join([self.pick(POINT3D_REFS, ODD_POINT3D_REFS) if i % 3 == 2 else self.pick(NUMBERS, ODD_NUMBERS)
+                          for i in range(max(count, 0))])
 
 
 def write_lines(path: Path, lines: list[str], extra: bytes = b"") -> Path:
@@ -299,3 +303,25 @@ def test_an_images_txt_whose_last_pose_has_no_points_line_is_refused_not_read_wi
     error, _ = colmap.text_model_errors(files)
     assert error is not None and error.what.startswith("images.txt ends with an image's pose without the line of its "
                                                        "2D points after it, so COLMAP would leave that image out")
+
+
+@pytest.mark.parametrize(("points", "reason"), [
+    ("10 20 9223372036854775808", "POINT3D_ID 9223372036854775808"),  # past 64 bits: pycolmap refused, naming no line
+    ("10 20 99999999999999999999", "POINT3D_ID 99999999999999999999"),  # the fast path's 20 digits took it
+    ("10 20 7.0 30 40 -1", "POINT3D_ID 7.0"),  # read as 7, then .0 30 40 as the next point
+    ("10 20 1e3", "POINT3D_ID 1e3"),  # read as 1
+])
+def test_a_2d_points_point3d_id_the_reader_cannot_hold_is_named(tmp_path, monkeypatch, points, reason):
+    """COLMAP reads a 2D point's POINT3D_ID as a signed 64-bit integer; both paths passed these."""
+    files = model(tmp_path, POSES.replace("10 20 -1", points))
+    what = (f"cannot parse images.txt line 2 ({reason} is not a whole number from -9223372036854775808 to "
+            "9223372036854775807 (-1 for none))")
+    assert colmap.text_model_errors(files)[0].what == what
+    slow_only(monkeypatch)
+    assert colmap.text_model_errors(files)[0].what == what
+
+
+def test_a_2d_points_point3d_id_of_64_bits_is_read(tmp_path):
+    files = model(tmp_path, POSES.replace("10 20 -1", "10 20 9223372036854775807 1 2 +7"))
+    assert colmap.text_model_errors(files) == (None, None)
+    assert pycolmap.Reconstruction(str(tmp_path)).images[1].num_points2D() == 2
