@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import signal
 import threading
 from collections.abc import Iterator
@@ -15,7 +16,7 @@ class TrainingInterrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM: the run was saved (when it stopped between steps) and can be resumed."""
 
     def __init__(self, what: str, run_dir: Path, step: int, signal_number: int, resumable: bool = True) -> None:
-        self.message = (f"{what}; resume with `splatu train --resume {run_dir}`" if resumable
+        self.message = (f"{what}; resume with `splatu train --resume {shlex.quote(str(run_dir))}`" if resumable
                         else f"{what}; nothing to resume, so run the same `splatu train` command again")
         super().__init__(self.message)
         self.what = what

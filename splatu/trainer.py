@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import random
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -424,7 +425,8 @@ def train_run(config: TrainConfig, scene: Scene, run_dir: Path, hooks: Sequence[
     if ensemble is not None:
         raise SplatuError(f"this folder is a member of the ensemble {ensemble}, which train_run would train outside "
                           "its record of wall time", f"in {run_dir}",
-                          f"resume it with `splatu train --resume {run_dir}` (from Python: splatu.train_command.train "
+                          f"resume it with `splatu train --resume {shlex.quote(str(run_dir))}` "
+                          "(from Python: splatu.train_command.train "
                           "with resume set), which counts it")
     with training_lock(run_dir):
         return train_locked_run(config, scene, run_dir, hooks, checkpoint, wall_start)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -113,7 +114,8 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
         for member in record.members:
             if not member.is_dir():
                 raise SplatuError("an ensemble member that ensemble.json lists is missing", f"at {member}",
-                                  f"train it again with `splatu train --resume {run_dir}` (trained members are kept)")
+                                  f"train it again with `splatu train --resume {shlex.quote(str(run_dir))}` "
+                                  "(trained members are kept)")
         unfinished = unfinished_members(run_dir)  # asked first: a member finishing meanwhile is then loaded final
         checkpoints = [resolve_checkpoint(member) for member in record.members]
         loaded = [load_run(checkpoint) for checkpoint in checkpoints]
@@ -126,7 +128,7 @@ def load_any_run(run_dir: Path, head: str | None = None) -> LoadedRun:
                          steps, wall, compiling)
     if (run_dir / "members").is_dir() and not (run_dir / "checkpoints").is_dir():
         raise SplatuError("this ensemble is unfinished (it has members but no ensemble.json yet)", f"in {run_dir}",
-                          f"finish it with `splatu train --resume {run_dir}`")
+                          f"finish it with `splatu train --resume {shlex.quote(str(run_dir))}`")
     config, model, frame = load_run(run_dir, head)
     train, compiling, wall = _summary_seconds(run_dir)
     return LoadedRun(run_dir, config, [model], train, [frame], wall_seconds=wall, train_compile_seconds=compiling)
