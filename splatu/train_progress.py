@@ -49,13 +49,24 @@ def _clock(seconds: float) -> str:
     return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 
+class StepFigures(ProgressColumn):
+    """loss, PSNR, #G and it/s of the last step; dashes where a session has no step yet (its first compiles the
+    kernels for up to a minute, and `loss 0.0000 PSNR 0.00` read as figures the run had)."""
+
+    def render(self, task: Task) -> Text:
+        loss, psnr, rate = (task.fields[key] for key in ("loss", "psnr", "rate"))
+        shown_loss, shown_psnr, shown_rate = (("     -", "    -", "   -") if loss is None
+                                              else (f"{loss:.4f}", f"{psnr:5.2f}", f"{rate:4.1f}"))
+        return Text(f"loss {shown_loss} PSNR {shown_psnr} #G {task.fields['gaussians']:>6} {shown_rate} it/s")
+
+
 def progress_bar(enabled: bool) -> Progress:
     """The live bar of a terminal run (disabled off one: see PLAIN_PROGRESS_LINES). Its figures fit 80 columns with
-    a few cells of bar: a wider layout lost it/s and the ETA off the end of such a terminal."""
+    a few cells of bar: a wider layout lost it/s and the ETA off the end of such a terminal. A task's figures start
+    as None, shown as dashes until its first step."""
     return Progress(
         TextColumn("step {task.completed:>6.0f}/{task.total:.0f}"),
-        TextColumn("loss {task.fields[loss]:.4f} PSNR {task.fields[psnr]:5.2f} #G {task.fields[gaussians]:>6}"
-                   " {task.fields[rate]:4.1f} it/s"),
+        StepFigures(),
         ElapsedAndRemaining(table_column=Column(min_width=15)),  # never squeezed to "…"
         BarColumn(bar_width=None, table_column=Column(ratio=1)),
         console=console,

@@ -200,8 +200,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
     with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:
-        task = progress.add_task("train", total=config.steps, completed=state.step, loss=0.0, psnr=0.0,
-                                 gaussians=len(state.model), rate=0.0)
+        task = progress.add_task("train", total=config.steps, completed=state.step, loss=None, psnr=None,
+                                 gaussians=len(state.model), rate=None)
         in_step = False
         try:
             while state.step < config.steps:
