@@ -205,7 +205,7 @@ def _lens_model(frame: Mapping[str, Any], top: Mapping[str, Any], distorted: boo
         return ("OPENCV_FISHEYE", "is_fisheye true (OPENCV_FISHEYE)") if fisheye else ("OPENCV", "camera_model OPENCV")
     model = str(given)
     if model not in (*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS):
-        raise SplatuError(f"unknown camera model {model!r}", where,
+        raise SplatuError(f"unknown camera model {model!r} ({_owner(frame, 'camera_model')}'s camera_model)", where,
                           f"use one of {', '.join((*DISTORTION_KEYS, *PINHOLE_MODELS, *RADIAL_MODELS))}")
     if distorted and fisheye is not None and fisheye != (model == "OPENCV_FISHEYE"):
         raise SplatuError(f"is_fisheye {str(fisheye).lower()} contradicts camera_model {model}", where,

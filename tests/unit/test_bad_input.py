@@ -1604,6 +1604,11 @@ def test_a_mask_or_depth_map_turned_on_its_side_says_to_turn_it_not_to_swap_the_
      "of the 80x60 image, but at the centre of a 60x80 one"),
     (lambda c: c.update(k5=0.01), "the file's k5 = 0.01 belongs to OpenCV's rational lens model (COLMAP FULL_OPENCV), "
      "which splatu does not model"),
+    # named as the frame's alone, a model the file gives was looked for in that frame, which has none
+    (lambda c: c.update(camera_model="OPENCV_FISHEY"), "unknown camera model 'OPENCV_FISHEY' (the file's "
+     "camera_model)"),
+    (lambda c: c["frames"][0].update(camera_model="FISHEYE"), "unknown camera model 'FISHEYE' (the frame's "
+     "camera_model)"),
 ])
 def test_a_render_uncertainty_camera_file_s_bad_camera_names_the_file(tmp_path, edit, what):
     """--views cameras reads its --cameras file as the loader reads a scene's, no image needed: a candidate's K for
