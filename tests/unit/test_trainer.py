@@ -61,6 +61,7 @@ from splatu.train_config import (
     option_value,
     preset_config,
     preset_path,
+    save_config,
     splatfacto_schedule,
 )
 from splatu.world_frame import model_to_world
@@ -2454,3 +2455,22 @@ def test_a_python_caller_without_a_command_line_has_its_flags_told_by_value():
     assert flags_off_preset(config) == {"--downscale", "--max-image-size"}
     with pytest.raises(SplatuError, match="--max-image-size 400 is not used beside --downscale 2"):
         train_command.check_options(config, flags_off_preset(config))
+
+
+def test_a_checkpoint_copied_in_from_another_run_is_refused_before_it_rewrites_the_run(tmp_path, scene):
+    """`--resume` of another run's checkpoint put in this run's checkpoints/ resumed that other run here: it rewrote
+    the run's config.yml with the other's options and logged the other scene's evaluations in its metrics."""
+    source = train_command.train(tiny_config(tmp_path / "a"))
+    target = tmp_path / "b" / "run"
+    own = dataclasses.replace(load_config(source / "config.yml"), seed=1)  # the same run but for its seed
+    save_config(own, target / "config.yml")
+    (target / "checkpoints").mkdir()
+    foreign = shutil.copy(list_checkpoints(source)[0], target / "checkpoints" / "step-0000009.pt")
+    before = (target / "config.yml").read_bytes()
+    for resume in (foreign, target):
+        with pytest.raises(SplatuError) as caught:
+            train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=resume))
+        assert caught.value.what.startswith("this checkpoint was not written by this run (its seed is 0, the run's "
+                                             "config.yml has 1)")
+        assert caught.value.where == f"in {foreign}"
+    assert (target / "config.yml").read_bytes() == before and not (target / "metrics.jsonl").exists()
