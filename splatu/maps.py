@@ -12,6 +12,7 @@ the stored render is faithful to 1/65535; 8-bit PNGs from other tools read just 
 
 from __future__ import annotations
 
+import shlex
 import shutil
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -128,7 +129,8 @@ def entry_names(root: Path) -> list[str]:
     stems = {}
     for folder, suffix in (("rgb", ".png"), ("gt", ".png"), ("uncertainty", ".npy")):
         if not (root / folder).is_dir():
-            fix = (f"pass --maps {root / 'maps'}, the maps of this render" if (root / "maps" / folder).is_dir()
+            fix = (f"pass --maps {shlex.quote(str(root / 'maps'))}, the maps of this render"
+                   if (root / "maps" / folder).is_dir()
                    else "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy")
             raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}", fix)
         stems[folder] = {p.stem for p in (root / folder).glob(f"*{suffix}")}

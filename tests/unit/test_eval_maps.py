@@ -143,6 +143,14 @@ def test_maps_pointed_at_a_render_folder_names_its_maps_folder(tmp_path, capsys)
     line = _one_line_error(capsys, "--maps", str(tmp_path / "render"))
     assert "has no rgb/ folder" in line and f"pass --maps {tmp_path / 'render' / 'maps'}" in line
 
+
+def test_the_maps_folder_a_render_folder_names_is_quoted_for_a_shell(tmp_path, capsys):
+    """A render under a path with a space ("my runs") was named bare, and `--maps` pasted from it took only the part
+    before the space."""
+    _tiny_maps(tmp_path / "my runs" / "render" / "maps", n=1)
+    line = _one_line_error(capsys, "--maps", str(tmp_path / "my runs" / "render"))
+    assert f"pass --maps '{tmp_path / 'my runs' / 'render' / 'maps'}', the maps of this render" in line
+
 def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, capsys):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
