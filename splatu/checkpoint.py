@@ -19,11 +19,12 @@ import numpy as np
 import torch
 
 from splatu.atomic import atomic_write
+from splatu.config_values import changed_options
 from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
 from splatu.run_dir import still_training
-from splatu.train_config import TrainConfig, from_dict
+from splatu.train_config import TrainConfig, from_dict, load_config, option_value
 from splatu.world_frame import WorldTransform
 
 CHECKPOINT_DIR = "checkpoints"
@@ -228,12 +229,35 @@ class TrainedRun(NamedTuple):
     frame: WorldTransform | None
 
 
+RUN_CHANGES = ("data.data", "steps", "optim.means_lr_steps", "model.sh_degree", "model.u_sh_degree", "uncertainty.",
+               "degree_choice.")
+"""Options a run's own life changes, so that its checkpoints may differ from its config.yml there: the scene's move
+(--data beside --resume), --extend-to, and the mid-run degree choice."""
+
+
+def refuse_foreign_checkpoint(checkpoint: TrainConfig, run: TrainConfig, path: Path, run_dir: Path, flag: str) -> None:
+    """Refuse a checkpoint copied in from another run: resuming it rewrote this run's config.yml and records with
+    the other run's, and rendering or exporting it filed the other model's outputs under this run's name. Told by an
+    option that no resume of this run could have changed."""
+    foreign = [name for name in changed_options(checkpoint, run)
+               if not any(name == key or name.startswith(key) for key in RUN_CHANGES)]
+    if foreign:
+        name = foreign[0]
+        raise SplatuError(f"this checkpoint was not written by this run (its {name} is "
+                          f"{option_value(checkpoint, name)!r}, the run's config.yml has {option_value(run, name)!r})",
+                          f"in {path}",
+                          f"pass the run it came from, or {run_dir} or one of its own checkpoints, to {flag}")
+
+
 def load_run(run_dir: Path, head: str | None = None) -> TrainedRun:
     """A run's config, trained model (its newest checkpoint) and frame, for rendering and evaluation; with
     `head`, as if the run had trained only that extra uncertainty head (see `select_head`)."""
-    run_dir = Path(run_dir)
-    state = read_checkpoint(resolve_checkpoint(run_dir), MODEL_KEYS)  # an ensemble run is refused there
+    path = resolve_checkpoint(Path(run_dir))  # an ensemble run is refused there
+    state = read_checkpoint(path, MODEL_KEYS)
     config = from_dict(state["config"], str(run_dir))
+    saved = run_dir_of(path) / "config.yml"
+    if saved.is_file():
+        refuse_foreign_checkpoint(config, load_config(saved), path, run_dir_of(path), "--load")
     model = model_from_state(state, config)
     if head is not None:
         config, model = select_head(config, model, head, run_dir)

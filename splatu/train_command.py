@@ -18,6 +18,7 @@ from splatu.checkpoint import (
     RESUME_KEYS,
     list_checkpoints,
     read_checkpoint,
+    refuse_foreign_checkpoint,
     resolve_checkpoint,
     run_dir_of,
     saved_frame,
@@ -317,25 +318,6 @@ def check_restart(saved: TrainConfig, run_dir: Path) -> None:
                               "stopped before its first checkpoint)") from None
 
 
-RUN_CHANGES = ("data.data", "steps", "optim.means_lr_steps", "model.sh_degree", "model.u_sh_degree", "uncertainty.",
-               "degree_choice.")
-"""Options a run's own life changes, so that its checkpoints may differ from its config.yml there: the scene's move
-(--data beside --resume), --extend-to, and the mid-run degree choice."""
-
-
-def refuse_foreign_checkpoint(checkpoint: TrainConfig, run: TrainConfig, path: Path, run_dir: Path) -> None:
-    """Refuse a checkpoint copied in from another run: resuming it rewrote this run's config.yml and records with
-    the other run's, under this run's name. Told by an option that no resume of this run could have changed."""
-    foreign = [name for name in changed_options(checkpoint, run)
-               if not any(name == key or name.startswith(key) for key in RUN_CHANGES)]
-    if foreign:
-        name = foreign[0]
-        raise SplatuError(f"this checkpoint was not written by this run (its {name} is "
-                          f"{option_value(checkpoint, name)!r}, the run's config.yml has {option_value(run, name)!r})",
-                          f"in {path}",
-                          f"resume the run it came from, or pass {run_dir} or one of its own checkpoints to --resume")
-
-
 def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble: Path | None, wall_start: float,
                 hooks: Sequence[StepHook], typed: Collection[str] | None) -> Path:
     """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None;
@@ -343,7 +325,7 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
     if checkpoint is not None and (run_dir / "config.yml").is_file():
         refuse_foreign_checkpoint(from_dict(checkpoint["config"], str(path)), load_config(run_dir / "config.yml"),
-                                  path, run_dir)
+                                  path, run_dir, "--resume")
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
                            else from_dict(checkpoint["config"], str(path)), run_dir, typed)
     step = 0 if checkpoint is None else int(checkpoint["step"])

@@ -222,7 +222,7 @@ def _moved_scene_run(tiny_run, tmp_path):
     """A copy of the tiny run whose recorded scene is a copy of the stand-in, with a recorded every-6th split."""
     from splatu.checkpoint import list_checkpoints, read_checkpoint
     from splatu.data.resolve import scene_path
-    from splatu.train_config import from_dict
+    from splatu.train_config import from_dict, save_config
 
     run = tmp_path / "run"
     shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("uncertainty", "ause_*"))
@@ -233,6 +233,7 @@ def _moved_scene_run(tiny_run, tmp_path):
     shutil.copytree(scene_path(config.data), scene)
     state["config"]["data"].update(data=str(scene), eval_split="every-n", eval_every=6)
     torch.save(state, path)
+    save_config(from_dict(state["config"]), run / "config.yml")  # a run records its options in both
     return run, scene
 
 

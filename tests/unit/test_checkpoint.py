@@ -208,3 +208,19 @@ def test_an_ensemble_run_is_named_as_one_wherever_a_single_run_is_expected(tmp_p
     with pytest.raises(SystemExit):
         entrypoint(["export", "--load", str(tmp_path)])
     assert "this is an ensemble run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("load", ["run", "checkpoint"])
+def test_a_checkpoint_copied_in_from_another_run_is_refused_by_render_eval_and_export(tmp_path, load):
+    """render-uncertainty, eval-ause and export load through load_run: another run's checkpoint put in this run's
+    checkpoints/ rendered or exported the other model and filed it under this run's name."""
+    from splatu.train_config import save_config
+    save_config(TrainConfig(seed=1), tmp_path / "config.yml")
+    path = ckpt.save_checkpoint(tmp_path, 5, _state(TrainConfig(seed=0), 0))
+    with pytest.raises(SplatuError) as caught:
+        ckpt.load_run(tmp_path if load == "run" else path)
+    assert caught.value.what == ("this checkpoint was not written by this run (its seed is 0, the run's config.yml "
+                                 "has 1)")
+    assert caught.value.where == f"in {path}" and caught.value.fix.endswith("to --load")
+    save_config(TrainConfig(seed=0, steps=9), tmp_path / "config.yml")  # only what a run's own life changes differs
+    assert ckpt.load_run(path).config.seed == 0
