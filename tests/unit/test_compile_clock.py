@@ -138,3 +138,18 @@ def test_a_compile_that_failed_is_not_tried_again_by_a_later_session(clock, monk
     told = [str(w.message).split(" failed")[0] for w in said if "rasterizer kernel" in str(w.message)]
     assert told == ["torch.compile of rasterizer kernel doubled"]
     assert not kernels.kernels_compiled() and not kernels.compile_pending()
+
+
+def test_a_kernel_called_again_compiles_nothing_and_the_clock_runs_on(clock, monkeypatch):
+    """Only a kernel's first call with new dtypes compiles: a call that compiles nothing must neither stop the clock
+    (taken for a compile the callbacks missed, every run warned and recorded a null compile time) nor add to it (a
+    callback registered again, or the compiler's load counted again, at every call of every step)."""
+    monkeypatch.setattr(torch, "compile", timed_compile)
+    run = kernels.compiled(doubled)
+    run(torch.ones(3))
+    timed = kernels.compile_seconds()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        for _ in range(3):
+            assert torch.equal(run(torch.ones(3)), torch.full((3,), 2.0))
+    assert kernels.compile_seconds() == timed
