@@ -113,6 +113,7 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["render-uncertainty", "--gif-fps", "0"], ["render-uncertainty", "--fisher-probes", "0"],
     ["render-uncertainty", "--max-views", "-1"], ["render-uncertainty", "--orbit-frames", "0"],
     ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
+    ["render-uncertainty", "--views", "orbit", "--orbit-radius-scale", "0"],
     ["train", "--seed", "-1"], ["train", "--seed", str(2**44)], ["train", "--ssim-lambda", "2"],
     ["train", "--model.screen-blur", "0"], ["train", "--model.screen-blur", "nan"],
     ["train", "--model.u-init-logit", "inf"], ["train", "--model.u-init-logit", "nan"],
@@ -462,6 +463,16 @@ def test_help_beside_a_flag_that_replaces_a_bad_preset_value_prints(capsys, tmp_
     assert exc.value.code == 0
     flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
     assert re.search(r"--resolution-interval INT [^│]*?\(default: (\d+)\)", flat).group(1) == "100"
+
+
+@pytest.mark.parametrize("steps", ["0", "-3"])
+def test_help_beside_a_steps_below_one_prints(capsys, steps):
+    """A run refuses it (one line, from its option checks); --help beside it must still print the help, not that
+    error: the schedule shown for a typed --steps is rescaled only for a length a run can take."""
+    with pytest.raises(SystemExit) as exc:
+        entrypoint(["train", "--steps", steps, "--help"])
+    assert exc.value.code == 0
+    assert "--resolution-interval" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("spelling", ["render_uncertainty", "eval_ause", "process_images"])
