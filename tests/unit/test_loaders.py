@@ -413,6 +413,8 @@ def test_the_chosen_downscale_never_shrinks_a_side_below_the_smallest_usable(tmp
     """A panorama strip 8,000 px long and 40 px high: 1/8 would bring it to 1000 px, but its short side to 5."""
     write_transforms(tmp_path / "transforms.json", ring_cameras(3, 8000, 40), ["a.png", "b.png", "c.png"])
     assert chosen_for(config(tmp_path, tmp_path)).downscale == 4  # 2000x10: still 8 px or more a side
+    write_transforms(tmp_path / "transforms.json", ring_cameras(3, 8000, 64), ["a.png", "b.png", "c.png"])
+    assert chosen_for(config(tmp_path, tmp_path)).downscale == 8  # 1000x8: a side of 8 px is usable
 
 
 def test_a_saved_config_without_a_downscale_loads_at_full_size_as_it_trained(tmp_path):
