@@ -186,6 +186,10 @@ def test_file_splits_depths_and_observed_masks(tmp_path):
     assert other.eval.names == [names[0], names[4]]
     assert other.eval.observed is None and other.eval.depths is not None  # observed is relative to the file's split
 
+    half = load_scene(config(root, tmp_path, downscale=2))  # each file shrunk with its image: none has an images_2
+    assert half.train.images.shape[1:3] == half.train.object_masks.shape[1:] == (15, 20)
+    assert half.eval.depths.shape[1:] == half.eval.observed.shape[1:] == (15, 20)
+
 
 def _smooth_pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """A colour that is a smooth function of the normalised ray (x, y): the ground truth of a pinhole image."""
