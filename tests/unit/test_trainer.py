@@ -1882,6 +1882,8 @@ def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(t
      "edit uncertainty.threshold in that file: use e.g. 0.05"),
     ({"model": {"u_init_logit": 45.0}}, "model.u_init_logit 45.0 is not a number within ±30",
      "edit model.u_init_logit in that file: use e.g. 2.0"),
+    ({"densify": {"refine_every": 0}}, "densify.refine_every must be at least 1 (got 0)",  # a range, by hand
+     "set densify.refine_every to at least 1 in that file"),
 ])
 def test_a_resume_before_the_first_checkpoint_refuses_what_a_new_run_may_not_use(tmp_path, scene, monkeypatch,
                                                                                   capsys, older, said, edit):
