@@ -1186,23 +1186,18 @@ def test_a_colmap_line_that_is_bad_but_not_for_an_id_is_quoted(tmp_path, file, e
     assert error.what == f"cannot parse {file} line {line} ({shown})"
 
 
-def test_a_colmap_track_past_an_images_2d_points_names_the_point(tmp_path):
-    """An images.txt points line holds X Y POINT3D_ID triples: one point is three fields, not three points."""
-    sparse = write_colmap(tmp_path / "scene", points="1 0.5 0.5 2 255 0 0 0.1 1 1\n")
+@pytest.mark.parametrize("track, points2d, what", [
+    # an images.txt points line holds X Y POINT3D_ID triples: one point is three fields, not three points
+    ("1", "1.5 2.5 -1", "point 1's track names 2D point 1 of image 1, which has 1 in images.txt"),
+    # pycolmap refused it as "Check failed: point2D.point3D_id == point3D_id (8 vs. 1)", naming no file or line
+    ("0", "1.5 2.5 8", "point 1's track names 2D point 0 of image 1, which images.txt gives to point 8"),
+])
+def test_a_colmap_track_naming_a_2d_point_it_cannot_have_names_the_point(tmp_path, track, points2d, what):
+    sparse = write_colmap(tmp_path / "scene", points=f"1 0.5 0.5 2 255 0 0 0.1 1 {track}\n")
     images = sparse / "images.txt"
-    images.write_text(images.read_text().replace("a.png\n\n", "a.png\n1.5 2.5 -1\n"))
+    images.write_text(images.read_text().replace("a.png\n\n", f"a.png\n{points2d}\n"))
     error = load_error(tmp_path / "scene", tmp_path)
-    assert error.what == "point 1's track names 2D point 1 of image 1, which has 1 in images.txt"
-    assert error.where == f"in {sparse / 'points3D.txt'} line 1"
-
-
-def test_a_colmap_track_naming_a_2d_point_of_another_3d_point_names_the_point(tmp_path):
-    """pycolmap refused it as "Check failed: point2D.point3D_id == point3D_id (8 vs. 1)", naming no file or line."""
-    sparse = write_colmap(tmp_path / "scene", points="1 0.5 0.5 2 255 0 0 0.1 1 0\n")
-    images = sparse / "images.txt"
-    images.write_text(images.read_text().replace("a.png\n\n", "a.png\n1.5 2.5 8\n"))
-    error = load_error(tmp_path / "scene", tmp_path)
-    assert error.what == "point 1's track names 2D point 0 of image 1, which images.txt gives to point 8"
+    assert error.what == what
     assert error.where == f"in {sparse / 'points3D.txt'} line 1"
 
 
