@@ -341,9 +341,10 @@ def _with_eager_fallback(fn: Callable) -> Callable:
     is per code object otherwise, so float32 training and float64 renders shared one limit). If compiling fails, warn
     once and run eager torch, which gives the same results: past RECOMPILE_LIMIT graphs, for this kernel and these
     dtypes from then on (dynamo itself would run them eager with only a log line); for any other failure (no C++
-    compiler, an unsupported backend), every kernel for the rest of the process (`_compile_failed`). Either way what
-    failed is never tried again, so a later session of the process (an ensemble's next member) neither warns nor
-    fails again."""
+    compiler, an unsupported backend), every kernel for the rest of the process (`_compile_failed`). A call that fails
+    eager too (out of memory) raises eager's error and keeps the compiled version: its inputs failed, not the
+    compiler. Either way what failed is never tried again, so a later session of the process (an ensemble's next
+    member) neither warns nor fails again."""
     by_dtypes: dict[tuple[torch.dtype, ...], Callable] = {}
 
     def run(*args):
@@ -360,6 +361,7 @@ def _with_eager_fallback(fn: Callable) -> Callable:
                 result = by_dtypes[key](*args)
         except Exception as error:  # torch.compile raises many exception types; eager gives the same results
             # (a backward that compiles lazily, at its first call, fails in loss.backward() instead, outside this)
+            eager = fn(*args)  # raising too (out of memory, bad inputs), the fault is not the compiler's: no fallback
             by_dtypes[key] = fn
             if _recompile_limit_hit(error):
                 warnings.warn(f"rasterizer kernel {fn.__name__} needed more than {RECOMPILE_LIMIT} compiled graphs "
@@ -368,7 +370,7 @@ def _with_eager_fallback(fn: Callable) -> Callable:
                 warnings.warn(f"torch.compile of rasterizer kernel {fn.__name__} failed ({error!r}); using eager "
                               "torch", stacklevel=2)
                 _compile_failed = True
-            return fn(*args)
+            return eager
         if first and _compiles_begun == begun:  # a new torch.compile compiles at its first call
             _stop_clock("dynamo compiled a kernel without calling its compile callbacks")
         return result

@@ -153,3 +153,22 @@ def test_a_kernel_called_again_compiles_nothing_and_the_clock_runs_on(clock, mon
         for _ in range(3):
             assert torch.equal(run(torch.ones(3)), torch.full((3,), 2.0))
     assert kernels.compile_seconds() == timed
+
+
+def out_of_memory(x: torch.Tensor) -> torch.Tensor:
+    """A kernel whose inputs fail it compiled or not, as a render too large for memory does."""
+    raise MemoryError(f"cannot allocate {x.numel()} elements")
+
+
+def test_a_kernel_that_fails_eager_too_raises_its_error_and_stays_compiled(clock, monkeypatch):
+    """A compiled kernel that ran out of memory was taken for a failed compile: it warned 'torch.compile ... failed',
+    turned every kernel eager for the rest of the process, and, the eager retry failing too, raised from inside the
+    handler. The fault is the inputs', so their error is raised, with no warning, and compiling stays on."""
+    monkeypatch.setattr(torch, "compile", timed_compile)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        with pytest.raises(MemoryError, match="cannot allocate 3 elements"):
+            kernels.compiled(out_of_memory)(torch.ones(3))
+        assert torch.equal(kernels.compiled(doubled)(torch.ones(3)), torch.full((3,), 2.0))
+    assert kernels.kernels_compiled()
+    assert kernels.compiled(doubled) is not doubled
