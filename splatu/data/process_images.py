@@ -302,14 +302,34 @@ def _stale_staging(output: Path) -> list[Path]:
             and _unlocked(entry)]
 
 
+UNNAMED_GRACE_SECONDS = 60.0
+"""How old an unnamed staging folder must be to count as a killed run's: a live run names its own within a
+microsecond of making it (`_locked_staging`)."""
+
+
+def _removed_unnamed(output: Path) -> list[Path]:
+    """Remove the empty unnamed staging folders that a run killed between making one and naming it left. rmdir
+    removes only an empty folder, so nothing a run staged is lost."""
+    removed = []
+    for entry in sorted(output.iterdir()):
+        if not entry.name.startswith(_UNNAMED) or entry.is_symlink() or not entry.is_dir():
+            continue
+        with contextlib.suppress(OSError):
+            if time.time() - entry.stat().st_mtime > UNNAMED_GRACE_SECONDS:
+                entry.rmdir()
+                removed.append(entry)
+    return removed
+
+
 def _remove_stale_staging(output: Path, console: Console) -> None:
     """Delete the staging folders killed runs left in `output` (each may hold a database of hundreds of MB)."""
     stale = _stale_staging(output)
     for folder in stale:
         shutil.rmtree(folder, ignore_errors=True)
+    stale += _removed_unnamed(output)
     if stale:
-        console.print(f"  removed {len(stale)} staging folder{'s' if len(stale) > 1 else ''} that a killed run left in "
-                      f"{output}", highlight=False, soft_wrap=True)
+        left = "staging folder that a killed run" if len(stale) == 1 else "staging folders that killed runs"
+        console.print(f"  removed {len(stale)} {left} left in {output}", highlight=False, soft_wrap=True)
 
 
 def _swap_in(staging: Path, output: Path) -> None:

@@ -13,6 +13,7 @@ import shlex
 import signal
 import socket
 import subprocess
+import time
 from pathlib import Path
 
 import cv2
@@ -778,13 +779,22 @@ def test_process_images_removes_the_staging_folders_killed_runs_left(tmp_path, m
     for name in names.values():
         (out / name).mkdir(parents=True)
         (out / name / "database.db").write_text("staged")
+    # a run killed between making its folder and naming it left it empty; a live run names its own at once
+    unnamed = {"killed": ".process-images-new-k1lled00", "just made": ".process-images-new-justmade",
+               "not empty": ".process-images-new-notempty"}
+    for key, name in unnamed.items():
+        (out / name).mkdir()
+        if key != "just made":
+            os.utime(out / name, (time.time() - 120, time.time() - 120))
+    (out / unnamed["not empty"] / "database.db").write_text("not ours to lose")
     seen: list = []
     stop_at_the_sfm(monkeypatch, seen)
     with pytest.raises(SplatuError, match="stopped"):
         process_images(ProcessImagesConfig(images=photos, output=out))
-    assert sorted(p.name for p in out.iterdir()) == sorted(names[k] for k in ("live", "elsewhere", "older"))
+    kept = [names[k] for k in ("live", "elsewhere", "older")] + [unnamed[k] for k in ("just made", "not empty")]
+    assert sorted(p.name for p in out.iterdir()) == sorted(kept)
     assert seen[0][3].startswith(f".process-images-{os.getpid()}@{host}-")  # this run's own: gone, as it failed
-    assert f"removed 1 staging folder that a killed run left in {out}" in capfd.readouterr().err
+    assert f"removed 2 staging folders that killed runs left in {out}" in capfd.readouterr().err
 
 
 def test_process_images_keeps_a_staging_folder_whose_lock_is_held(tmp_path, monkeypatch):
