@@ -90,8 +90,9 @@ class RenderUncertaintyConfig:
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """Which uncertainty to render, and the options that change its maps."""
     views: ViewSet = "eval"
-    """eval / train: the scene's cameras (with ground truth); orbit: a generated circle that also looks from below;
-    cameras: the candidate cameras of --cameras (render.json gives each view's mean uncertainty, to rank them by)."""
+    """eval / train: the scene's cameras (with ground truth); orbit: generated views round the capture (a circle, or
+    an arc over the side a one-sided capture was taken from: --orbit-shape) that also look from below; cameras:
+    the candidate cameras of --cameras (render.json gives each view's mean uncertainty, to rank them by)."""
     cameras: Path | None = None
     """With --views cameras: a transforms.json-style file of cameras in the data's own frame (the scene's poses and
     splat.ply's): per frame a file_path naming the view (no file need exist) and an OpenGL camera-to-world

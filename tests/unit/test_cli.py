@@ -453,6 +453,16 @@ def test_help_beside_steps_shows_the_schedule_the_run_trains_with(capsys):
     assert shown("--resume", "RUN", "--steps", "4000") == ["2000", "200", "7", "1000"]
 
 
+def test_views_help_describes_the_orbit_of_every_shape(capsys):
+    """--views' help called the orbit a circle, which --orbit-shape auto replaces with an arc for a capture taken from
+    one side (lund_door, fox): the help must name both, and the option that chooses."""
+    with pytest.raises(SystemExit):
+        entrypoint(["render-uncertainty", "--help"])
+    flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    views = re.search(r"--views \{eval,train,orbit,cameras\} (.*?)\(default: eval\)", flat).group(1)
+    assert "circle" in views and "arc" in views and "--orbit-shape" in views
+
+
 def test_help_beside_a_flag_that_replaces_a_bad_preset_value_prints(capsys, tmp_path):
     """The run takes the flag in place of the file's bad value (test_a_flag_replaces_a_bad_value_of_the_preset_file),
     but --help beside it refused the value, with the fix of overriding it by the flag that was typed."""
