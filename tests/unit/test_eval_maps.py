@@ -292,6 +292,18 @@ def test_view_names_become_file_stems_and_two_that_would_share_files_are_refused
             file_stems(clash)
 
 
+@pytest.mark.parametrize(("name", "problem"), [("", "has no file name"), (".", "has no file name"),
+                                               ("/", "has no file name"), ("a\0b", "NUL"),
+                                               ("x" * 240, "longer than the 239 bytes")])
+def test_a_view_name_no_file_can_take_is_one_line_naming_the_camera_file(name, problem):
+    # a --cameras file_path of "" or "." was a pathlib ValueError traceback, a NUL one open()'s, and one of 300
+    # characters an OSError whose advice was to free disk space
+    with pytest.raises(SplatuError, match=problem) as raised:
+        file_stems(["candidate", name], "in cams.json")
+    assert raised.value.where == "in cams.json" and "file_path" in raised.value.fix
+    assert file_stems(["x" * 239]) == ["x" * 239]
+
+
 def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     def label(**options) -> str:
         return UncertaintyOptions(**options).label()
