@@ -109,7 +109,7 @@ class RenderUncertaintyConfig:
     """Output folder; default <run>/uncertainty/<label>-<views>, the label being the method and the options that change
     its maps (e.g. ensemble-density-aware)."""
     max_views: int = 0
-    """Render at most this many views (evenly spaced); 0 renders all."""
+    """Render at most this many views (evenly spaced; an orbit's round its loop); 0 renders all."""
     orbit_frames: int = 24
     """Frames of the orbit (--views orbit)."""
     orbit_elevation: float = DEFAULT_ELEVATION_DEGREES
@@ -168,9 +168,14 @@ class ViewSpec:
     """The orbit's shape and size (`OrbitPlan.record`), for render.json; None for other views."""
 
 
-def _evenly(count: int, limit: int) -> list[int]:
+def _evenly(count: int, limit: int, closed: bool = False) -> list[int]:
+    """`limit` indices (all for 0) spread over `count` views: from the first to the last, or, round a `closed` loop
+    (the orbit), a step of count / limit apart, as the last frame is next to the first: 4 of 24 orbit frames were
+    0, 8, 15 and 23, two of them 15° apart, where 0, 6, 12 and 18 go round the loop."""
     if limit <= 0 or limit >= count:
         return list(range(count))
+    if closed:
+        return [round(i * count / limit) for i in range(limit)]
     return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)}) if limit > 1 else [0]
 
 
@@ -189,7 +194,7 @@ def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertai
     if which == "orbit":
         plan = plan_orbit(scene.train.cameras, config.orbit_shape, config.orbit_radius_scale)
         frames = orbit_along(plan, scene.train.cameras[0], config.orbit_frames, config.orbit_elevation)
-        keep = _evenly(len(frames), config.max_views)
+        keep = _evenly(len(frames), config.max_views, closed=True)
         return ViewSpec([frames[i].camera for i in keep], [frames[i].camera.name for i in keep],
                         elevations=[frames[i].elevation_degrees for i in keep], depth_unit=frame.scale,
                         note=orbit_note(plan, config), orbit=plan.record(config.orbit_elevation))

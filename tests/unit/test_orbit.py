@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from splatu.data.scene import CameraScene, CameraViews
 from splatu.errors import SplatuError
 from splatu.orbit import (
     ARC_MARGIN_DEGREES,
@@ -16,7 +17,7 @@ from splatu.orbit import (
     orbit_cameras,
     plan_orbit,
 )
-from splatu.render_uncertainty import RenderUncertaintyConfig, orbit_note
+from splatu.render_uncertainty import RenderUncertaintyConfig, orbit_note, view_spec
 from tests.synthetic_scenes import look_at_camera, ring_cameras
 
 
@@ -168,3 +169,14 @@ def test_the_orbit_record_says_which_path_the_frames_were_taken_on():
     circle = plan_orbit(ring_cameras(8, 32, 24)).record(60.0)
     assert circle["shape"] == "circle" and circle["radius_scale"] == CIRCLE_RADIUS_SCALE
     assert circle["arc_degrees"] is None and circle["covered_azimuth_degrees"] > 180.0
+
+
+@pytest.mark.parametrize(("frames", "limit", "kept"), [(24, 4, [0, 6, 12, 18]), (24, 3, [0, 8, 16]),
+                                                       (5, 2, [0, 2])])
+def test_max_views_of_an_orbit_spreads_them_round_its_loop(frames, limit, kept):
+    """The orbit is a closed loop: its last frame is next to its first, so --max-views 4 of 24 frames took 0, 8, 15
+    and 23, two views 15° apart, and --max-views 2 of 5 two neighbours."""
+    cameras = ring_cameras(8, 32, 24)
+    scene = CameraScene(torch.zeros(3), 1.0, CameraViews(cameras, [c.name for c in cameras]))
+    spec = view_spec(scene, "orbit", RenderUncertaintyConfig(views="orbit", orbit_frames=frames, max_views=limit))
+    assert spec.names == [f"orbit_{k:03d}" for k in kept]
