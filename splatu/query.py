@@ -238,9 +238,12 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     w2c = torch.from_numpy(checked_matrix(world_to_camera, "in RunQuery.render's world_to_camera",
                                           "pass an OpenCV world-to-camera pose without scale"))
     intrinsics = _numbers(K, "K")
-    if intrinsics.shape != (3, 3) or not intrinsics.isfinite().all():
-        raise SplatuError(f"K must be a finite (3, 3) matrix, got shape {tuple(intrinsics.shape)}",
+    if intrinsics.shape != (3, 3):
+        raise SplatuError(f"K must be a (3, 3) matrix, got shape {tuple(intrinsics.shape)}",
                           "in RunQuery.render", "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels")
+    if not intrinsics.isfinite().all():  # said apart from the shape: "got shape (3, 3)" read as no fault at all
+        raise SplatuError(f"K has non-finite entries (NaN or Inf): {intrinsics.tolist()}", "in RunQuery.render",
+                          "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in finite pixels")
     sizes = (width, height)  # any whole number (np.int64 from an array of sizes), but not a bool (True is 1)
     # no larger than the loaders take: a 10⁶ × 10⁶ image would need terabytes, and fail in torch's allocator
     if not all(isinstance(n, Integral) and not isinstance(n, bool) and 0 < n <= MAX_IMAGE_SIDE for n in sizes):
