@@ -42,6 +42,7 @@ from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import CameraScene, Scene, Views
 from splatu.errors import (
     FREE_AND_RERUN,
+    OptionError,
     SplatuError,
     creatable_dir,
     no_empty_folders_left,
@@ -79,6 +80,11 @@ if TYPE_CHECKING:
     from splatu.baselines.load import LoadedRun  # at run time imported where used: it pulls in the trainer stack
 
 ViewSet = Literal["eval", "train", "orbit", "cameras"]
+
+
+MAX_GIF_FPS = 50
+"""A GIF stores each frame's delay in hundredths of a second, and browsers play a delay under 0.02 s as 0.1 s: at
+--gif-fps 1000 the orbit GIF held no delay and played at 10 frames per second, slower than at --gif-fps 20."""
 
 
 @dataclass
@@ -123,12 +129,16 @@ class RenderUncertaintyConfig:
     (the from-below views stay above the floor of a capture walked around an object: see splatu.orbit), 1 for the
     arc (at half the radius the cameras of a one-sided capture sit among its surfaces)."""
     gif_fps: int = 6
-    """Frames per second of the orbit GIF."""
+    """Frames per second of the orbit GIF, at most 50."""
 
     def __post_init__(self) -> None:
         for flag, value, minimum in (("--max-views", self.max_views, 0), ("--orbit-frames", self.orbit_frames, 1),
                                      ("--gif-fps", self.gif_fps, 1)):
             require_at_least(value, minimum, flag)
+        if self.gif_fps > MAX_GIF_FPS:
+            raise OptionError(f"--gif-fps must be at most {MAX_GIF_FPS} (got {self.gif_fps})", "in the options",
+                              f"pass --gif-fps of at most {MAX_GIF_FPS}", flag="--gif-fps", value=self.gif_fps,
+                              problem=f"must be at most {MAX_GIF_FPS}", allowed=f"at most {MAX_GIF_FPS}")
         if self.orbit_radius_scale is not None:
             require_at_least(self.orbit_radius_scale, 1e-3, "--orbit-radius-scale")
 

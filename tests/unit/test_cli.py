@@ -110,7 +110,8 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
 
 
 @pytest.mark.parametrize("argv", [
-    ["render-uncertainty", "--gif-fps", "0"], ["render-uncertainty", "--fisher-probes", "0"],
+    ["render-uncertainty", "--gif-fps", "0"], ["render-uncertainty", "--views", "orbit", "--gif-fps", "1000"],
+    ["render-uncertainty", "--fisher-probes", "0"],
     ["render-uncertainty", "--max-views", "-1"], ["render-uncertainty", "--orbit-frames", "0"],
     ["render-uncertainty", "--orbit-radius-scale", "0"], ["eval-ause", "--fisher-probes", "0"],
     ["render-uncertainty", "--views", "orbit", "--orbit-radius-scale", "0"],
@@ -128,7 +129,8 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["render-uncertainty", "--method", "random", "--seed", str(MAX_SEED)],
 ])
 def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tmp_path, argv):
-    """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a NaN blamed on
+    """These used to fail late: a ZeroDivisionError after every view was rendered (--gif-fps 0), a GIF with no frame
+    delay, which browsers play slower than at 20 fps (--gif-fps 1000), a NaN blamed on
     the model (--fisher-probes 0), an overflow in the camera shuffle (a huge seed); or to be ignored silently
     (an orbit option without --views orbit, a method option with another method)."""
     with pytest.raises(SystemExit) as exc:
