@@ -141,6 +141,7 @@ class RunQuery:
         return scene_cameras(self.config.data, self.frame, data, training_only=True)
 
 
+@torch.no_grad()  # as `render`: a pose being optimised (requires_grad) reads as its values, not a RuntimeError
 def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mapping[str, SceneCamera]) -> NearestView:
     """The training camera whose viewing direction is closest to this pose's (in the data's frame, OpenCV axes): its
     name, the angle between the two directions in degrees and the distance between the centres in the data's units,

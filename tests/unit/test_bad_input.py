@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
+import torch
 
 from splatu.cli import entrypoint
 from splatu.data.assemble import assemble, refuse_split_flags_the_scene_overrides, scene_normalization
@@ -1643,3 +1644,17 @@ def test_a_candidate_tile_camera_is_told_how_to_render_it(tmp_path):
                                 "cameras too), pass --off-centre-ok")
     (camera,) = read_cameras(tmp_path, off_centre_ok=True)
     assert (camera.width, camera.height) == (24, 40) and camera.K[:2, 2].tolist() == [0.0, 40.0]
+
+
+def test_a_pose_being_optimised_names_its_nearest_training_view_as_render_takes_it():
+    """A planner refining a candidate pose by gradient passes a tensor that requires grad: `RunQuery.render` took it
+    (it runs without gradients), while `nearest_training_view` raised torch's RuntimeError with a traceback."""
+    from splatu.query import SceneCamera, nearest_training_view
+
+    K = np.array([[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]])
+    moved = np.eye(4)  # looking along +x rather than +z
+    moved[:3, :3] = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
+    training = {"a.png": SceneCamera(np.eye(4), K, 64, 48), "b.png": SceneCamera(moved, K, 64, 48)}
+    pose = torch.tensor(moved, requires_grad=True)
+    name, angle, distance = nearest_training_view(pose, training)
+    assert name == "b.png" and angle == pytest.approx(0.0, abs=1e-6) and distance == pytest.approx(0.0, abs=1e-9)
