@@ -2,9 +2,10 @@
 
 The layout is the one 3DGS viewers read: x y z, nx ny nz (zeros), f_dc_0..2, f_rest_* channel-major
 (all red coefficients, then green, then blue), opacity (logit), scale_0..2 (log), rot_0..3 (wxyz);
-every property a little-endian float32. Viewers ignore the extra `u_*` properties. A run trained without the
-uncertainty loss writes none: its u_sh never left the initial value, which a reader would take for a measured,
-uniform uncertainty; such a PLY, or any plain 3DGS one, loads as a model with no uncertainty head.
+every property a little-endian float32. Viewers ignore the extra `u_*` properties: a Gaussian's uncertainty seen from
+a camera at c is sigmoid(Σ_k u_k·Y_k(d)), d = normalize(xyz − c), Y_k the colour SH's basis (no 0.5 offset). A run
+trained without the uncertainty loss writes none: its u_sh never left the initial value, which a reader would take
+for a measured, uniform uncertainty; such a PLY, or any plain 3DGS one, loads as a model with no uncertainty head.
 
 Exports are in the data's own frame (`splatu.world_frame`), so the splats line up with the source
 cameras and points; `load_ply` reads a file back as it is stored, in that frame.

@@ -160,6 +160,31 @@ def test_a_model_with_extra_uncertainty_heads_exports_only_its_own(tmp_path):
     assert torch.equal(loaded.u_sh, model.u_sh[..., :1])
 
 
+def test_the_u_properties_give_the_uncertainty_by_the_formula_the_readme_states(tmp_path):
+    """A reader with the PLY alone computes U = sigmoid(Σ_k u_k·Y_k(d)), d from a camera in the data's frame to the
+    Gaussian's x y z (README, Outputs): the same U the model renders, the file being in the data's frame (rotated,
+    moved and scaled here) and the model in its normalised one."""
+    from splatu.sh import sh_basis
+
+    model = _random_model(2, 2)
+    angle = 0.7
+    rotation = torch.tensor([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0],
+                             [0.0, 0.0, 1.0]], dtype=torch.float64)
+    frame = WorldTransform(rotation, torch.tensor([3.0, -1.0, 2.0], dtype=torch.float64), 2.5)
+    save_ply(model, tmp_path / "u.ply", frame, uncertainty=True)
+    head, body = (tmp_path / "u.ply").read_bytes().split(b"end_header\n", 1)
+    names = [line.split()[-1] for line in head.decode().splitlines() if line.startswith("property")]
+    rows = np.frombuffer(body, dtype=np.dtype([(n, "<f4") for n in names]))
+    camera_normalised = torch.tensor([0.3, -2.0, 1.1], dtype=torch.float64)
+    camera_data = frame.points(camera_normalised[None])[0]
+    xyz = torch.from_numpy(np.stack([rows["x"], rows["y"], rows["z"]], axis=1)).double()
+    d = torch.nn.functional.normalize(xyz - camera_data, dim=1)
+    u = torch.from_numpy(np.stack([rows[f"u_{k}"] for k in range(9)], axis=1)).double()
+    from_file = torch.sigmoid((u * sh_basis(d, 2)).sum(dim=1))
+    rendered = model.uncertainty(model.means.detach().double() - camera_normalised).double()
+    assert torch.allclose(from_file, rendered, atol=1e-5)
+
+
 def _with_element_before_vertices(raw: bytes) -> bytes:
     """The same PLY with a 2-record `camera` element (two floats each) declared, and stored, before the vertices."""
     head, body = raw.split(b"end_header\n", 1)
