@@ -27,7 +27,7 @@ class ExportConfig:
 def export_path(load: Path, checkpoint: Path, output: Path | None) -> Path:
     """Where the PLY goes, refused in one line before anything is read if it cannot be written there."""
     path = output or run_folder(load) / "exports" / f"splat-{checkpoint.stem}.ply"
-    if path.suffix != ".ply" or path.is_dir():
+    if path.suffix.lower() != ".ply" or path.is_dir():  # X.PLY too, as viewers and file pickers take it
         raise SplatuError("--output must name a .ply file", f"in {path}",
                           f"pass a path such as {path.with_suffix('.ply')}")
     creatable_dir(path.parent, "--output (a .ply path in a writable folder)")

@@ -711,6 +711,8 @@ def test_export_of_the_last_checkpoint_is_the_runs_own_ply_and_an_earlier_one_go
     with pytest.raises(SystemExit) as exc:
         entrypoint(["export", "--load", str(tiny_run), "--output", str(tmp_path / "model.txt")])
     assert exc.value.code == 2 and "--output must name a .ply file" in capsys.readouterr().err
+    entrypoint(["export", "--load", str(tiny_run), "--output", str(tmp_path / "FINAL.PLY")])  # was refused
+    assert (tmp_path / "FINAL.PLY").read_bytes() == out.read_bytes()
     copy = tmp_path / "best (copy).pt"  # a checkpoint a user renamed: its name is not a step
     shutil.copy(checkpoints[-1], copy)
     entrypoint(["export", "--load", str(copy), "--output", str(tmp_path / "best.ply")])
