@@ -758,7 +758,7 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     (lambda w2c, K: (w2c * 2.0, K), "pose's last row is [0.0, 0.0, 0.0, 2.0]"),
     (lambda w2c, K: (w2c[:2], K), "pose is not a 3x4 or 4x4 matrix"),
     (lambda w2c, K: (w2c, K[:2]), "K must be a (3, 3) matrix, got shape (2, 3)"),
-    (lambda w2c, K: (w2c, K * np.array([[np.inf], [1.0], [1.0]])), "K has non-finite entries (NaN or Inf)"),
+    (lambda w2c, K: (w2c, np.where(np.eye(3) == 1, K, np.nan)), "K has non-finite entries (NaN or Inf)"),
     (lambda w2c, K: (w2c, -K), "focal lengths must be positive"),
     (lambda w2c, K: (w2c, K * 1e9), "longer than any camera"),
     (lambda w2c, K: (np.concatenate([np.eye(4)[:, :3], [[1e39], [0.0], [0.0], [1.0]]], axis=1), K),
