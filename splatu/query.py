@@ -141,7 +141,6 @@ class RunQuery:
         return scene_cameras(self.config.data, self.frame, data, training_only=True)
 
 
-@torch.no_grad()  # as `render`: a pose being optimised (requires_grad) reads as its values, not a RuntimeError
 def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mapping[str, SceneCamera]) -> NearestView:
     """The training camera whose viewing direction is closest to this pose's (in the data's frame, OpenCV axes): its
     name, the angle between the two directions in degrees and the distance between the centres in the data's units,
@@ -151,7 +150,7 @@ def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mappin
     if not training:
         raise SplatuError("no training cameras to compare with", "in nearest_training_view",
                           "pass run.training_cameras()")
-    pose = torch.from_numpy(checked_matrix(world_to_camera, "in nearest_training_view's world_to_camera",
+    pose = torch.from_numpy(checked_matrix(_on_host(world_to_camera), "in nearest_training_view's world_to_camera",
                                            "pass an OpenCV world-to-camera pose without scale"))
     names = list(training)
     (nearest,) = nearest_training_views([pose], [torch.as_tensor(training[n].world_to_camera) for n in names], names)
@@ -236,9 +235,9 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     that is not a rigid motion, a bad size, or a K of another image size or orientation (unless `off_centre_ok`
     vouches for a tile's principal point) would otherwise render a wrong or blank image without a word."""
     # the loaders' own check of a pose (finite, rigid within their tolerance, last row 0 0 0 1; 3x4 or 4x4)
-    w2c = torch.from_numpy(checked_matrix(world_to_camera, "in RunQuery.render's world_to_camera",
+    w2c = torch.from_numpy(checked_matrix(_on_host(world_to_camera), "in RunQuery.render's world_to_camera",
                                           "pass an OpenCV world-to-camera pose without scale"))
-    intrinsics = _numbers(K, "K")
+    intrinsics = _numbers(_on_host(K), "K")
     if intrinsics.shape != (3, 3):
         raise SplatuError(f"K must be a (3, 3) matrix, got shape {tuple(intrinsics.shape)}",
                           "in RunQuery.render", "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels")
@@ -274,6 +273,13 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
                           f"{fix}; for a tile or crop of a larger photo (a tile scene's own cameras too), pass "
                           "off_centre_ok=True")
     return w2c, intrinsics, width, height
+
+
+def _on_host(value: object) -> object:
+    """A tensor as a float64 numpy array on the CPU, anything else as given: numpy reads no CUDA tensor (its TypeError
+    read as "pose is not a 3x4 or 4x4 matrix"), nor one that requires grad (a pose being optimised: torch's
+    RuntimeError), and reads any other through torch's `__array__`, which numpy 2 warns is deprecated."""
+    return value.detach().to("cpu", torch.float64).numpy() if isinstance(value, Tensor) else value
 
 
 def _numbers(value: object, name: str) -> Tensor:

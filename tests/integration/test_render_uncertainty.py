@@ -8,6 +8,7 @@ import os
 import re
 import shutil
 import signal
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -746,6 +747,11 @@ def test_a_candidate_view_in_the_data_frame_renders_as_render_uncertainty_render
     assert np.allclose(view.depth, expected.depth.detach().double().numpy() * run.frame.scale, rtol=1e-5, atol=1e-6)
     assert view.uncertainty.min() >= 0 and view.uncertainty.max() <= 1 and view.alpha.max() > 0.5
     assert view.mean_uncertainty == pytest.approx(float(view.uncertainty.mean()))
+    with warnings.catch_warnings():  # tensors (a planner's, on any device) were read through numpy's deprecated path
+        warnings.simplefilter("error")
+        as_tensors = run.render(torch.from_numpy(_data_frame_camera(camera, run.frame)), camera.K, camera.width,
+                                camera.height)
+    assert np.array_equal(as_tensors.uncertainty, view.uncertainty)
     away = _data_frame_camera(dataclasses.replace(camera, world_to_camera=look_at(
         torch.tensor([0.0, 0.0, -50.0]), torch.tensor([0.0, 0.0, -100.0]), torch.tensor([0.0, 1.0, 0.0]))), run.frame)
     empty = run.render(away, camera.K.numpy(), camera.width, camera.height)  # looking into empty space

@@ -1648,13 +1648,19 @@ def test_a_candidate_tile_camera_is_told_how_to_render_it(tmp_path):
 
 def test_a_pose_being_optimised_names_its_nearest_training_view_as_render_takes_it():
     """A planner refining a candidate pose by gradient passes a tensor that requires grad: `RunQuery.render` took it
-    (it runs without gradients), while `nearest_training_view` raised torch's RuntimeError with a traceback."""
+    (it runs without gradients), while `nearest_training_view` raised torch's RuntimeError with a traceback; and any
+    tensor went through torch's `__array__`, which numpy 2 warns is deprecated (a CUDA one, which numpy cannot read,
+    was "not a 3x4 or 4x4 matrix")."""
+    import warnings
+
     from splatu.query import SceneCamera, nearest_training_view
 
     K = np.array([[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]])
     moved = np.eye(4)  # looking along +x rather than +z
     moved[:3, :3] = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
     training = {"a.png": SceneCamera(np.eye(4), K, 64, 48), "b.png": SceneCamera(moved, K, 64, 48)}
-    pose = torch.tensor(moved, requires_grad=True)
-    name, angle, distance = nearest_training_view(pose, training)
-    assert name == "b.png" and angle == pytest.approx(0.0, abs=1e-6) and distance == pytest.approx(0.0, abs=1e-9)
+    for pose in (torch.tensor(moved, requires_grad=True), torch.tensor(moved, dtype=torch.float32)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            name, angle, distance = nearest_training_view(pose, training)
+        assert name == "b.png" and angle == pytest.approx(0.0, abs=1e-3) and distance == pytest.approx(0.0, abs=1e-6)
