@@ -16,10 +16,10 @@ per cent, and --downscale N rounds each image side, so K scales by new side / ol
 from __future__ import annotations
 
 import dataclasses
+import operator
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
-from numbers import Integral
 from pathlib import Path
 from typing import Literal, NamedTuple, get_args
 
@@ -244,15 +244,15 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if not intrinsics.isfinite().all():  # said apart from the shape: "got shape (3, 3)" read as no fault at all
         raise SplatuError(f"K has non-finite entries (NaN or Inf): {intrinsics.tolist()}", "in RunQuery.render",
                           "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in finite pixels")
-    sizes = (width, height)  # any whole number (np.int64 from an array of sizes), but not a bool (True is 1)
+    sizes = [_pixels(n) for n in (width, height)]
     # no larger than the loaders take: a 10⁶ × 10⁶ image would need terabytes, and fail in torch's allocator
-    if not all(isinstance(n, Integral) and not isinstance(n, bool) and 0 < n <= MAX_IMAGE_SIDE for n in sizes):
+    if not all(n is not None and 0 < n <= MAX_IMAGE_SIDE for n in sizes):
         raise SplatuError(f"the image size must be positive integers up to {MAX_IMAGE_SIDE}, got {width}×{height}",
                           "in RunQuery.render", "pass width and height in pixels")
     fix = "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels of this image size"
     if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)
-    width, height = int(width), int(height)
+    width, height = sizes
     refuse_implausible_focal(intrinsics.numpy(), width, height, "in RunQuery.render", fix)
     # the rasterizer reads fx, fy, cx and cy alone, so any other entry would be dropped without a word
     if float((intrinsics[2] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).abs().max()) > 1e-9:
@@ -273,6 +273,17 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
                           f"{fix}; for a tile or crop of a larger photo (a tile scene's own cameras too), pass "
                           "off_centre_ok=True")
     return w2c, intrinsics, width, height
+
+
+def _pixels(n: object) -> int | None:
+    """`n` as an int if it is a whole number: a Python, numpy or torch integer (a nerfstudio `Cameras`' width is a
+    one-element tensor, which was refused as not one), but not a bool (True is 1) nor a float; else None."""
+    if isinstance(n, bool) or (isinstance(n, Tensor) and n.dtype == torch.bool):
+        return None
+    try:
+        return operator.index(n)  # type: ignore[arg-type]
+    except TypeError:
+        return None
 
 
 def _on_host(value: object) -> object:
