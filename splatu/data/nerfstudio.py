@@ -316,7 +316,9 @@ def read_cameras(path: Path, downscale: int = 1, off_centre_ok: bool = False) ->
     image need exist; file_path only names the view. A principal point that a mistake explains is refused, unless
     `off_centre_ok` (render-uncertainty's --off-centre-ok) says the file holds tiles or crops of larger photos."""
     path = transforms_file(path)
-    top = read_json(path)
+    # a COLMAP images.txt or a camera list of another tool is the likely mistake here
+    top = read_json(path, "pass a nerfstudio-style transforms.json: \"frames\" with a camera-to-world "
+                          "\"transform_matrix\" each, and fl_x, fl_y, cx, cy, w, h at the top or per frame")
     refuse_misspelt_keys(top, TOP_KEYS, f"in {path}")
     frames_json = top.get("frames")
     if not isinstance(frames_json, list) or not frames_json:

@@ -1368,6 +1368,19 @@ def test_a_misspelt_key_in_a_cameras_file_is_refused_too(tmp_path):
         read_cameras(tmp_path / "transforms.json")
 
 
+@pytest.mark.parametrize("content", ["# Image list with two lines of data per image:\n1 1 0 0 0 0 0 0 1 a.png\n\n",
+                                     '[{"transform_matrix": [[1, 0, 0, 0]]}]'])
+def test_a_cameras_file_of_another_kind_says_what_cameras_takes(tmp_path, content):
+    """A COLMAP images.txt (or a bare list of frames) passed as --cameras was told only "fix or regenerate the file",
+    as if it were a broken transforms.json; the fix now says what the file must hold."""
+    path = tmp_path / "images.txt"
+    path.write_text(content)
+    with pytest.raises(SplatuError) as raised:
+        read_cameras(path)
+    assert raised.value.where == f"in {path}"
+    assert raised.value.fix.startswith('pass a nerfstudio-style transforms.json: "frames" with a camera-to-world')
+
+
 def test_a_second_spelling_with_the_same_value_passes_and_with_another_is_refused(tmp_path):
     root = tmp_path / "scene"
     write_nerfstudio_scene(root, n=4)
