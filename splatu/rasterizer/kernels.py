@@ -23,6 +23,7 @@ weighted sum yields the colour, Σ w·z and Σ w = alpha together.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import time
@@ -103,6 +104,30 @@ def blend(
     return transmittance, weight, weight.sum(0, dtype=torch.float64), weight.amax(0), (transmittance > 0).sum(0)
 
 
+def _pixel_by_pixel(
+    body: Callable[..., tuple[list[Tensor], list[Tensor]]], dtype: torch.dtype, *per_pixel: Tensor,
+) -> tuple[list[Tensor], list[Tensor]]:
+    """Run `body(x, *rows)` over the block's pixels x: it returns the pixel's outputs and its terms of sums over the
+    block's pixels, and this returns the outputs as (..., B, Q) and the sums as (..., Q). `per_pixel` tensors have
+    the pixel at dim -2; `body` indexes them along their last dim only.
+
+    Compiled, the B pixels are unrolled, each a row along q, and the sums added in order (as inductor sums over B):
+    inductor then makes one loop along q for every output of the kernel (see PER_PIXEL_KERNELS). Eager, `body` runs
+    once on the whole tensors, with x a (B, 1) column of `dtype` (unrolled, an eager render took 1.4x the time), and
+    the sums are still added pixel after pixel: torch's `sum` orders its additions by size, so the two differed in the
+    last bit, and a kernel that dynamo leaves eager (past its recompile limit) must give what compiling off gives."""
+    if not torch.compiler.is_compiling():
+        x = torch.arange(per_pixel[0].shape[-2], dtype=dtype, device=per_pixel[0].device)[:, None]
+        outputs, terms = body(x, *per_pixel)
+        return outputs, [functools.reduce(torch.add, term.unbind(-2)) for term in terms]
+    rows, sums = [], []
+    for x in range(per_pixel[0].shape[-2]):
+        outputs, terms = body(x, *(tensor.select(-2, x) for tensor in per_pixel))
+        rows.append(outputs)
+        sums = terms if x == 0 else [total + term for total, term in zip(sums, terms, strict=True)]
+    return [torch.stack(pixels, -2) for pixels in zip(*rows, strict=True)], sums
+
+
 def upstream_per_weight(
     up_planes: Tensor, block: Tensor, transmittance: Tensor, alpha_raw: Tensor, features_ext: Tensor
 ) -> tuple[Tensor, Tensor, Tensor]:
@@ -112,14 +137,20 @@ def upstream_per_weight(
     plane per channel, so that the products below run along q. With the channels last, torch.compile vectorised
     along the C+2 = 5 channels with masked loads, and this kernel cost more than the blend.
     """
-    weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
-    per_weight = torch.zeros_like(weight)
-    grad_features_ext = []
-    for channel in range(up_planes.shape[0]):
-        up = up_planes[channel].index_select(1, block)  # (B, Q)
-        per_weight = per_weight + up * features_ext[:, channel]
-        grad_features_ext.append((weight * up).sum(0))
-    return per_weight, (weight * per_weight).to(torch.float64), torch.stack(grad_features_ext)
+    features = features_ext.t().contiguous()  # (C+2, Q): loads along q
+
+    def pixel(_: object, up_planes: Tensor, transmittance: Tensor, alpha_raw: Tensor) -> tuple[list, list]:
+        weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
+        per_weight, grad_features_ext = torch.zeros_like(weight), []
+        for up_plane, feature in zip(up_planes, features, strict=True):
+            up = up_plane.index_select(-1, block)
+            per_weight = per_weight + up * feature
+            grad_features_ext.append(weight * up)
+        return [per_weight, (weight * per_weight).to(torch.float64)], grad_features_ext
+
+    (per_weight, weighted), grad_features_ext = _pixel_by_pixel(pixel, alpha_raw.dtype, up_planes, transmittance,
+                                                                alpha_raw)
+    return per_weight, weighted, torch.stack(grad_features_ext)
 
 
 def entry_gradients(
@@ -139,22 +170,26 @@ def entry_gradients(
     and per pair A·t, Q·w): for a footprint seen from 1e18 px away A is ~1e-38, and t0·Σ gσ·t alone could exceed
     float32, then meet an A that underflowed to 0 (inf·0 = NaN).
     """
-    behind = (weighted_cumulative.index_select(1, last) - weighted_cumulative
-              + carried_behind.index_select(1, block)).to(alpha_raw.dtype)
-    alpha = alpha_raw.clamp(max=ALPHA_MAX)
-    grad_alpha = transmittance * per_weight - behind / (1.0 - alpha)
-    live = (transmittance > 0) & (alpha_raw < ALPHA_MAX)
-    grad_alpha = torch.where(live, grad_alpha, 0.0)
-    grad_opacity = (grad_alpha * alpha_raw).sum(0) / opacity
-    grad_sigma = -grad_alpha * alpha_raw
     A, S, Q = sheared_conic.unbind(0)
     at0, ap, qw0, qr = A * t0, A * p, Q * w0, Q * r
-    at, qw = _sheared_offsets(at0, qw0, ap, qr, alpha_raw.shape[0])  # A·t and Q·w at each pixel
-    abs_v = (grad_sigma * at).abs().sum(0)  # Σ|gσ ∂σ/∂mean_v|
-    abs_w = (grad_sigma * (S * at - qw)).abs().sum(0)
-    # the signed moments from Σ gσ·xᵏ (k ≤ 2): t and w are linear in x
-    x = torch.arange(alpha_raw.shape[0], dtype=t0.dtype, device=t0.device)[:, None]
-    m0, m1, m2 = grad_sigma.sum(0), (grad_sigma * x).sum(0), (grad_sigma * x * x).sum(0)
+
+    def pixel(x: int | Tensor, weighted_cumulative: Tensor, carried_behind: Tensor, transmittance: Tensor,
+              alpha_raw: Tensor, per_weight: Tensor) -> tuple[list, list]:
+        behind = (weighted_cumulative.index_select(-1, last) - weighted_cumulative
+                  + carried_behind.index_select(-1, block)).to(alpha_raw.dtype)
+        alpha = alpha_raw.clamp(max=ALPHA_MAX)
+        grad_alpha = transmittance * per_weight - behind / (1.0 - alpha)
+        live = (transmittance > 0) & (alpha_raw < ALPHA_MAX)
+        grad_alpha = torch.where(live, grad_alpha, 0.0)
+        grad_sigma = -grad_alpha * alpha_raw
+        at, qw = at0 + ap * x, qw0 + qr * x  # A·t and Q·w at each pixel
+        # Σ|gσ ∂σ/∂mean_v|, Σ|gσ ∂σ/∂mean_w|, and the signed moments Σ gσ·xᵏ (k ≤ 2): t and w are linear in x
+        return [], [grad_alpha * alpha_raw, (grad_sigma * at).abs(), (grad_sigma * (S * at - qw)).abs(),
+                    grad_sigma, grad_sigma * x, grad_sigma * x * x]
+
+    _, (grad_alpha_alpha, abs_v, abs_w, m0, m1, m2) = _pixel_by_pixel(
+        pixel, t0.dtype, weighted_cumulative, carried_behind, transmittance, alpha_raw, per_weight)
+    grad_opacity = grad_alpha_alpha / opacity
     g_at, g_qw = at0 * m0 + ap * m1, qw0 * m0 + qr * m1  # Σ gσ·A·t, Σ gσ·Q·w
     swapped = r > 0
     grad_v, grad_w = -g_at, S * g_at - g_qw
@@ -195,6 +230,15 @@ _EAGER: dict[str, Callable] = {
                row_block_spans)
 }
 _compiled: dict[Callable, Callable] = {}
+
+PER_PIXEL_KERNELS = frozenset({"upstream_per_weight", "entry_gradients"})
+"""Kernels written pixel by pixel of the block, on rows of (Q,), with their sums over the block's pixels unrolled.
+As (B, Q) tensors summed over B, inductor made each of them two loops: a reduction along B and an elementwise pass,
+each gathering every upstream value again (`upstream_per_weight`'s second pass scalar), or storing (B, Q)
+intermediates for the other (`entry_gradients`). Per pixel, all of a kernel's outputs come out of one loop along q.
+That loop has more gathers than inductor's CPU tiling heuristic vectorises (35 non-contiguous loads), so these
+kernels compile with the heuristic off: scalar, `upstream_per_weight` took 1.7x the time of the (B, Q) form.
+Same arithmetic in the same order, so bit-identical results (docs/results.md, "Rasterizer")."""
 
 RECOMPILE_LIMIT = 16
 """Graphs dynamo may compile for one kernel and one set of input dtypes (its default is 8 per function, shared by all
@@ -354,8 +398,9 @@ def _with_eager_fallback(fn: Callable) -> Callable:
         first, begun = key not in by_dtypes, _compiles_begun
         try:
             if first:
+                options = {"cpp.enable_tiling_heuristics": False} if fn.__name__ in PER_PIXEL_KERNELS else None
                 by_dtypes[key] = torch.compile(fn, dynamic=True, isolate_recompiles=True,
-                                               recompile_limit=RECOMPILE_LIMIT)
+                                               recompile_limit=RECOMPILE_LIMIT, options=options)
             # a model's parameters change length as it densifies: without this, each new length recompiles
             with torch._dynamo.config.patch(force_parameter_static_shapes=False, fail_on_recompile_limit_hit=True):
                 result = by_dtypes[key](*args)
