@@ -124,10 +124,9 @@ class ChunkState:
 
 @dataclass
 class Segments:
-    """For a block-sorted entry list: each entry's first and last same-block entry, and the blocks present."""
+    """For a block-sorted entry list: each entry's run of equal blocks (segment), and the blocks present."""
 
-    first: Tensor  # (Q,) index of the first entry of the same block
-    last: Tensor  # (Q,) index of the last entry of the same block
+    segment: Tensor  # (Q,) index of each entry's run of equal blocks, into the (K,) fields
     blocks: Tensor  # (K,) the distinct blocks, in order
     block_first: Tensor  # (K,) index of each block's first entry
     block_last: Tensor  # (K,) index of each block's last entry
@@ -141,8 +140,7 @@ def segments(block: Tensor) -> Segments:
     sizes = torch.diff(block_first, append=block_first.new_tensor([block.numel()]))
     block_last = block_first + sizes - 1
     which = torch.repeat_interleave(torch.arange(block_first.numel(), device=block.device), sizes)
-    return Segments(block_first.index_select(0, which), block_last.index_select(0, which),
-                    block.index_select(0, block_first), block_first, block_last)
+    return Segments(which, block.index_select(0, block_first), block_first, block_last)
 
 
 def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int) -> Iterator[slice | Tensor]:
@@ -222,10 +220,10 @@ def forward_chunk(
     )
     cumulative = running_sum(log_one_minus)
     seg = segments(v.block)
-    transmittance, weight, weight_sum, weight_max, kept_pairs = kernel("blend")(
-        log_one_minus, cumulative, seg.first, log_t, v.block, alpha_raw
-    )
     exclusive_at_first = columns(cumulative, seg.block_first) - columns(log_one_minus, seg.block_first)
+    transmittance, weight, weight_sum, weight_max, kept_pairs = kernel("blend")(
+        log_one_minus, cumulative, seg.segment, log_t.index_select(1, seg.blocks) - exclusive_at_first, alpha_raw
+    )
     block_total = columns(cumulative, seg.block_last) - exclusive_at_first
     log_t.index_add_(1, seg.blocks, block_total)
     live = torch.nonzero(weight_max > 0).squeeze(1)
@@ -299,7 +297,9 @@ def backward_chunk(
     weighted_cumulative = running_sum(weighted)
     seg = segments(v.block)
     per_entry = kernel("entry_gradients")(
-        weighted_cumulative, seg.last, v.block, behind, state.transmittance, state.alpha_raw, per_weight,
+        weighted_cumulative, seg.segment,
+        columns(weighted_cumulative, seg.block_last) + behind.index_select(1, seg.blocks),
+        state.transmittance, state.alpha_raw, per_weight,
         v.t0, v.w0, v.p, v.r, v.sheared_conic, v.opacity, grad_features_ext,
     )
     grads.packed.index_add_(1, v.gaussian, per_entry)

@@ -83,21 +83,22 @@ def alpha_and_log_one_minus(
 
 
 def blend(
-    log_one_minus: Tensor, cumulative: Tensor, first: Tensor, carried_log_t: Tensor, block: Tensor, alpha_raw: Tensor
+    log_one_minus: Tensor, cumulative: Tensor, segment: Tensor, offset: Tensor, alpha_raw: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """Transmittance of kept pairs (0 elsewhere), weight w = T·α (B, Q), and Σ_x w (float64, for the summed
     contributions), max_x w and the number of kept pairs per entry (counted here, fused, rather than by a pass over
     the chunk afterwards).
 
-    `cumulative` is the inclusive running sum of `log_one_minus` along q; subtracting its exclusive
-    value at the first entry of the same block in this chunk, and adding the log T each pixel carries
-    from earlier chunks (B, num_blocks), gives log T before each pair. Kept = valid and T·(1 − α) ≥ 1e-4.
+    `cumulative` is the inclusive running sum of `log_one_minus` along q, and `offset` (B, K) holds per pixel of each
+    of the chunk's block runs (`segment` per entry) the log T that pixel carries from earlier chunks minus the
+    exclusive running sum at the run's first entry: their sum, with the exclusive running sum, is log T before each
+    pair. One gather per pair: gathering the running sums at the run's first entry and the carried log T apart, three
+    per pair, took twice the time of the blend without them (a scratch timing). Kept = valid and T·(1 − α) ≥ 1e-4.
     The kept pairs are counted as T > 0, which is the same (a kept pair has T > 1e-4), from the stored T: counting
     `kept` itself made the compiled kernel recompute it from the two float64 sums and the gathers in its reduction
     loop, 9.6 against 5.7 ms per trained-model render (a scratch timing).
     """
-    exclusive = cumulative - log_one_minus
-    log_t = exclusive - exclusive.index_select(1, first) + carried_log_t.index_select(1, block)
+    log_t = cumulative - log_one_minus + offset.index_select(1, segment)
     kept = (log_one_minus < 0) & (log_t + log_one_minus >= LOG_T_MIN)
     transmittance = torch.where(kept, torch.exp(log_t.to(alpha_raw.dtype)), 0.0)
     weight = transmittance * alpha_raw.clamp(max=ALPHA_MAX)
@@ -154,29 +155,29 @@ def upstream_per_weight(
 
 
 def entry_gradients(
-    weighted_cumulative: Tensor, last: Tensor, block: Tensor, carried_behind: Tensor,
+    weighted_cumulative: Tensor, segment: Tensor, behind_offset: Tensor,
     transmittance: Tensor, alpha_raw: Tensor, per_weight: Tensor,
     t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, sheared_conic: Tensor, opacity: Tensor, grad_features_ext: Tensor,
 ) -> Tensor:
     """Per entry, one packed column (C+2 + 8, Q): dL/df_ext | dL/do | dL/d(ln A, S, ln Q) | dL/dmean2d (2) |
     Σ|dL/dmean2d| per axis (2), so that the caller scatters into the Gaussians once (channel-first: see GaussianGrads).
 
-    dL/dα = T g − (Σ_b + T_final h)/(1 − α), Σ_b = Σ of w g over the pairs behind this one in the pixel:
-    those of this chunk (a suffix sum up to the block's `last` entry) plus `carried_behind`, which
-    holds per pixel (B, num_blocks) the later chunks' Σ w g plus T_final h. With σ = ½A t² + ½Q w², t = v − S w,
-    ∂σ/∂S = −A t w, ∂σ/∂mean_v = −A t and ∂σ/∂mean_w = A S t − Q w, so every gradient is a moment of gσ over the
-    block's pixels; r = 1 (swapped) maps (mean_v, mean_w) back to (mean_y, mean_x). A and Q enter as their logs:
-    dL/d ln A = Σ gσ·½A·t², dL/d ln Q = Σ gσ·½Q·w². Every product takes A or Q with the offsets first (A·t0, Q·w0,
-    and per pair A·t, Q·w): for a footprint seen from 1e18 px away A is ~1e-38, and t0·Σ gσ·t alone could exceed
-    float32, then meet an A that underflowed to 0 (inf·0 = NaN).
+    dL/dα = T g − (Σ_b + T_final h)/(1 − α), Σ_b = Σ of w g over the pairs behind this one in the pixel: those of this
+    chunk (a suffix sum up to the block's last entry) plus the later chunks' Σ w g plus T_final h. `behind_offset` (B,
+    K) holds per pixel of each of the chunk's block runs (`segment` per entry) the inclusive running sum at the run's
+    last entry plus those later terms, so that one gather per pair gives them. With σ = ½A t² + ½Q w², t = v − S w,
+    ∂σ/∂S = −A t w, ∂σ/∂mean_v = −A t and ∂σ/∂mean_w = A S t − Q w, so every gradient is a moment of gσ over the block's
+    pixels; r = 1 (swapped) maps (mean_v, mean_w) back to (mean_y, mean_x). A and Q enter as their logs: dL/d ln A = Σ
+    gσ·½A·t², dL/d ln Q = Σ gσ·½Q·w². Every product takes A or Q with the offsets first (A·t0, Q·w0, and per pair A·t,
+    Q·w): for a footprint seen from 1e18 px away A is ~1e-38, and t0·Σ gσ·t alone could exceed float32, then meet an A
+    that underflowed to 0 (inf·0 = NaN).
     """
     A, S, Q = sheared_conic.unbind(0)
     at0, ap, qw0, qr = A * t0, A * p, Q * w0, Q * r
 
-    def pixel(x: int | Tensor, weighted_cumulative: Tensor, carried_behind: Tensor, transmittance: Tensor,
+    def pixel(x: int | Tensor, weighted_cumulative: Tensor, behind_offset: Tensor, transmittance: Tensor,
               alpha_raw: Tensor, per_weight: Tensor) -> tuple[list, list]:
-        behind = (weighted_cumulative.index_select(-1, last) - weighted_cumulative
-                  + carried_behind.index_select(-1, block)).to(alpha_raw.dtype)
+        behind = (behind_offset.index_select(-1, segment) - weighted_cumulative).to(alpha_raw.dtype)
         alpha = alpha_raw.clamp(max=ALPHA_MAX)
         grad_alpha = transmittance * per_weight - behind / (1.0 - alpha)
         live = (transmittance > 0) & (alpha_raw < ALPHA_MAX)
@@ -188,7 +189,7 @@ def entry_gradients(
                     grad_sigma, grad_sigma * x, grad_sigma * x * x]
 
     _, (grad_alpha_alpha, abs_v, abs_w, m0, m1, m2) = _pixel_by_pixel(
-        pixel, t0.dtype, weighted_cumulative, carried_behind, transmittance, alpha_raw, per_weight)
+        pixel, t0.dtype, weighted_cumulative, behind_offset, transmittance, alpha_raw, per_weight)
     grad_opacity = grad_alpha_alpha / opacity
     g_at, g_qw = at0 * m0 + ap * m1, qw0 * m0 + qr * m1  # Σ gσ·A·t, Σ gσ·Q·w
     swapped = r > 0

@@ -16,6 +16,7 @@ import torch
 from torch._dynamo.utils import counters
 
 from splatu.rasterizer import RasterInputError, kernels, rasterize
+from splatu.rasterizer.composite import segments
 from splatu.rasterizer.footprint import block_entries
 from splatu.rasterizer.function import CompositeFunction
 from splatu.rasterizer.kernels import ALPHA_MIN, kernels_compiled, set_compile
@@ -381,3 +382,14 @@ def test_per_pixel_kernels_compile_with_inductors_tiling_heuristic_off(monkeypat
         "upstream_per_weight", "entry_gradients"}
     assert {"sheared_entry_offsets", "alpha_and_log_one_minus", "blend"} <= {
         name for name, options in options_of.items() if options is None}
+
+
+def test_segments_give_each_entry_its_block_run():
+    """The blend and entry_gradients gather one per-run offset per pair through `segment` (three and two gathers
+    per pair before: the running sums at the run's first or last entry, and the carried log T or later chunks' sums)."""
+    block = torch.tensor([3, 3, 5, 8, 8, 8, 9])
+    seg = segments(block)
+    assert seg.segment.tolist() == [0, 0, 1, 2, 2, 2, 3]
+    assert seg.blocks.tolist() == [3, 5, 8, 9]
+    assert seg.block_first.tolist() == [0, 2, 3, 6]
+    assert seg.block_last.tolist() == [1, 2, 5, 6]
