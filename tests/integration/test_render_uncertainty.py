@@ -1073,13 +1073,16 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
 
     scene = load_scene(run_data(load_any_run(tiny_run)))
     source = json.loads(Path(scene.source).read_text())
-    chosen = set(scene.train.names[::6])
+    # three training views, spread over the path: those --max-views picks, so the train render draws them alone
+    _render(tiny_run, "--views", "train", "--max-views", "3", "--output", str(tmp_path / "train"))
+    chosen = {v["source_name"] for v in json.loads((tmp_path / "train" / "render.json").read_text())["per_view"]}
+    assert chosen <= set(scene.train.names)
     candidates = tmp_path / "candidates.json"
     candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"},
                                       "frames": [f for f in source["frames"] if frame_name(f["file_path"]) in chosen]}))
+    capsys.readouterr()
     _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "cameras"))
     assert "the most uncertain is" in capsys.readouterr().out
-    _render(tiny_run, "--views", "train", "--output", str(tmp_path / "train"))
     record = json.loads((tmp_path / "cameras" / "render.json").read_text())
     assert record["cameras"] == str(candidates.resolve())  # which file's cameras it ranks: every file shares a folder
     per_view = record["per_view"]
