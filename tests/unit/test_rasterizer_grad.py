@@ -239,25 +239,6 @@ def test_mismatched_sizes_raise_a_clear_error():
                   background=s["background"][:2])
 
 
-@pytest.mark.slow
-def test_compiled_kernels_match_eager():
-    """torch.compile'd kernels (≈1 min to compile cold) give the eager results and gradients."""
-    s = tiny_scene(13, n=40)
-    results = []
-    for compiled in (False, True):
-        previous = set_compile(compiled)
-        try:
-            leaves = {k: v.detach().clone().requires_grad_(True) for k, v in s.items()}
-            out = render_all(*leaves.values())
-            sum(o.sum() for o in out).backward()
-            results.append([o.detach() for o in out] + [v.grad for v in leaves.values()])
-            assert kernels_compiled() == compiled  # else eager is compared with itself (a failed compile, dynamo off)
-        finally:
-            set_compile(previous)
-    for eager, compiled in zip(*results, strict=True):
-        torch.testing.assert_close(compiled, eager, atol=1e-12, rtol=1e-10)
-
-
 @pytest.mark.skipif(not any(shutil.which(c) for c in ("c++", "g++", "clang++")),
                     reason="torch.compile's CPU backend needs a C++ compiler (without one splatu runs eager)")
 def test_compiled_projection_takes_parameters_of_any_length_without_recompiling():
@@ -316,6 +297,27 @@ def test_compiled_kernels_stay_compiled_across_dtypes_and_channel_widths():
     finally:
         set_compile(previous)
     assert not [reason for reason in counters["unimplemented"] if "recompile limit" in reason]
+
+
+@pytest.mark.slow
+def test_compiled_kernels_match_eager():
+    """torch.compile'd kernels (≈1 min to compile cold) give the eager results and gradients. Placed after the test
+    above, which compiles the float64 kernels of every channel width and leaves them compiled: run in one session,
+    this one compares the same compiled kernels with eager torch without compiling them again."""
+    s = tiny_scene(13, n=40)
+    results = []
+    for compiled in (False, True):
+        previous = set_compile(compiled)
+        try:
+            leaves = {k: v.detach().clone().requires_grad_(True) for k, v in s.items()}
+            out = render_all(*leaves.values())
+            sum(o.sum() for o in out).backward()
+            results.append([o.detach() for o in out] + [v.grad for v in leaves.values()])
+            assert kernels_compiled() == compiled  # else eager is compared with itself (a failed compile, dynamo off)
+        finally:
+            set_compile(previous)
+    for eager, compiled in zip(*results, strict=True):
+        torch.testing.assert_close(compiled, eager, atol=1e-12, rtol=1e-10)
 
 
 def test_a_kernel_past_its_recompile_limit_runs_eager_for_those_dtypes_saying_so_once(monkeypatch):
