@@ -323,7 +323,7 @@ def test_a_render_stopped_while_writing_its_files_leaves_the_earlier_one_whole(t
     import splatu.render_uncertainty as render_uncertainty
 
     out = tmp_path / "stopped"
-    _render(tiny_run, "--output", str(out))
+    _render(tiny_run, "--max-views", "3", "--output", str(out))  # a view more than the stopped render has
     kept = {name: (out / name).read_bytes() for name in _folder_names(out)}
     save_panel = render_uncertainty.save_panel
 
@@ -424,7 +424,7 @@ def test_a_full_disk_while_files_are_written_is_one_line_and_keeps_the_earlier_r
                                                                                        monkeypatch, capsys):
     """np.save and matplotlib raise the disk's OSError as it is: both commands ended in a traceback."""
     out = tmp_path / "full"
-    _render(tiny_run, "--output", str(out))
+    _render(tiny_run, "--max-views", "2", "--output", str(out))
     kept = {name: (out / name).read_bytes() for name in _folder_names(out)}
 
     def disk_full(*args, **kwargs):
