@@ -58,12 +58,22 @@ def require_file(path: Path, what: str, fix: str) -> Path:
     return path
 
 
+def _out_of_range(flag: str, value: float, allowed: str) -> OptionError:
+    """The one line for option `flag` outside what it takes (`allowed`, e.g. "at least 1")."""
+    return OptionError(f"{flag} must be {allowed} (got {value})", "in the options", f"pass {flag} of {allowed}",
+                       flag=flag, value=value, problem=f"must be {allowed}", allowed=allowed)
+
+
 def require_at_least(value: float, minimum: float, flag: str) -> None:
     """Raise a one-line SplatuError unless option `flag` (a count, rate or size) is finite and at least `minimum`."""
     if not (value == value and abs(value) != float("inf") and value >= minimum):
-        raise OptionError(f"{flag} must be at least {minimum:g} (got {value})", "in the options",
-                          f"pass {flag} of at least {minimum:g}", flag=flag, value=value,
-                          problem=f"must be at least {minimum:g}", allowed=f"at least {minimum:g}")
+        raise _out_of_range(flag, value, f"at least {minimum:g}")
+
+
+def require_at_most(value: float, maximum: float, flag: str) -> None:
+    """Raise a one-line SplatuError if option `flag` exceeds `maximum` (a finite lower bound is checked apart)."""
+    if value > maximum:
+        raise _out_of_range(flag, value, f"at most {maximum:g}")
 
 
 def load_number_array(path: Path, what: str, fix: str) -> np.ndarray:

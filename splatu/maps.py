@@ -56,25 +56,27 @@ NAME_MAX = 255
 """Bytes in one file name on Linux, macOS and Windows file systems."""
 
 
-def _refuse_unwritable_name(name: str, where: str) -> None:
-    """One line for a view name no file can be named after: a --cameras file_path of "", "." or "/" (no stem: a
+def _unwritable(name: str) -> str | None:
+    """What keeps a view name from naming files, if anything: a --cameras file_path of "", "." or "/" (no stem: a
     ValueError deep in pathlib), one holding a NUL byte (a ValueError from open) or one too long for the file system
     (an OSError whose advice was to free disk space)."""
-    stem = PurePosixPath(name.replace("\\", "/").strip("/")).name
-    problem = ("has no file name" if not stem else "holds a NUL character" if "\0" in name else
-               f"is longer than the {NAME_MAX - LONGEST_SUFFIX} bytes a file name leaves for it"
-               if len(safe_name(name).encode("utf-8", "surrogateescape")) > NAME_MAX - LONGEST_SUFFIX else None)
-    if problem is not None:
-        raise SplatuError(f"view name {name[:60]!r}{'…' if len(name) > 60 else ''} {problem}, so its maps cannot "
-                          "be written", where, "name the view by a short file name (for --cameras, each frame's "
-                          "file_path, e.g. \"candidate_0\")")
+    if not PurePosixPath(name.replace("\\", "/").strip("/")).name:
+        return "has no file name"
+    if "\0" in name:
+        return "holds a NUL character"
+    if len(safe_name(name).encode("utf-8", "surrogateescape")) > NAME_MAX - LONGEST_SUFFIX:
+        return f"is longer than the {NAME_MAX - LONGEST_SUFFIX} bytes a file name leaves for it"
+    return None
 
 
 def file_stems(names: list[str], where: str = "in the scene's image names") -> list[str]:
     """`safe_name` of each view, refusing a name no file can take and two views that would share files (one would
     overwrite the other)."""
     for name in names:
-        _refuse_unwritable_name(name, where)
+        if (problem := _unwritable(name)) is not None:
+            raise SplatuError(f"view name {name[:60]!r}{'…' if len(name) > 60 else ''} {problem}, so its maps "
+                              "cannot be written", where, "name the view by a short file name (for --cameras, each "
+                              "frame's file_path, e.g. \"candidate_0\")")
     stems = [safe_name(name) for name in names]
     first_of: dict[str, str] = {}
     for name, stem in zip(names, stems, strict=True):

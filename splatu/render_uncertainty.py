@@ -42,12 +42,12 @@ from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import CameraScene, Scene, Views
 from splatu.errors import (
     FREE_AND_RERUN,
-    OptionError,
     SplatuError,
     creatable_dir,
     no_empty_folders_left,
     os_error_behind,
     require_at_least,
+    require_at_most,
     require_file,
     unwritable_folder,
 )
@@ -135,10 +135,7 @@ class RenderUncertaintyConfig:
         for flag, value, minimum in (("--max-views", self.max_views, 0), ("--orbit-frames", self.orbit_frames, 1),
                                      ("--gif-fps", self.gif_fps, 1)):
             require_at_least(value, minimum, flag)
-        if self.gif_fps > MAX_GIF_FPS:
-            raise OptionError(f"--gif-fps must be at most {MAX_GIF_FPS} (got {self.gif_fps})", "in the options",
-                              f"pass --gif-fps of at most {MAX_GIF_FPS}", flag="--gif-fps", value=self.gif_fps,
-                              problem=f"must be at most {MAX_GIF_FPS}", allowed=f"at most {MAX_GIF_FPS}")
+        require_at_most(self.gif_fps, MAX_GIF_FPS, "--gif-fps")
         if self.orbit_radius_scale is not None:
             require_at_least(self.orbit_radius_scale, 1e-3, "--orbit-radius-scale")
 
