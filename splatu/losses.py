@@ -19,6 +19,7 @@ from torch import Tensor
 
 from splatu.errors import SplatuError
 from splatu.model import head_coefficients
+from splatu.rasterizer.kernels import ALPHA_MAX
 from splatu.sh import MAX_SH_DEGREE, eval_sh, safe_normalize, sh_basis
 
 if TYPE_CHECKING:
@@ -121,8 +122,8 @@ class UncertaintyLossConfig:
     only where w > λ/(1−λ) (0.43 at λ = 0.3): seen from opposite sides (or at u-SH degree 0, where u has no
     direction), a Gaussian that never gives any pixel more than that ends up uncertain from both."""
     threshold: float = 0.05
-    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean); in (0, 1],
-    though a run saved with 0 still loads (see `validate`)."""
+    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean); in (0, 0.99]
+    (α is clamped at 0.99), though a run saved with 0 or above 0.99 still loads (see `validate`)."""
     num_dirs: int = 16
     """Number of random unit directions that estimate ū (kind = mean)."""
     weight: float = 1.0
@@ -143,9 +144,14 @@ class UncertaintyLossConfig:
         heads = [("", self), *((f" in uncertainty head {spec!r}", parse_head(spec, self, MAX_SH_DEGREE).loss)
                                for spec in self.extra_heads)]
         for named, loss in heads:
+            where = IN_HEADS if named else "in --uncertainty.threshold"
             if loss.threshold == 0.0:  # it would supervise Gaussians this view never drew as seen (19c6c8f)
                 raise SplatuError(f"uncertainty threshold = {loss.threshold} is not a blend weight in (0, 1]{named}",
-                                  IN_HEADS if named else "in --uncertainty.threshold", "use e.g. 0.05")
+                                  where, "use e.g. 0.05")
+            if loss.threshold > ALPHA_MAX:  # no blend weight reaches it: u_sh would silently never train
+                raise SplatuError(f"uncertainty threshold = {loss.threshold} is above {ALPHA_MAX}, the largest blend"
+                                  f" weight (α is clamped there), so it would supervise no Gaussian{named}", where,
+                                  "use e.g. 0.05")
 
     def check_loadable(self) -> None:
         """Raise a one-line SplatuError for settings the loss cannot use. Threshold 0 passes: runs trained with it

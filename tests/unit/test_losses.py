@@ -109,6 +109,22 @@ def test_a_new_run_may_not_use_threshold_0_which_a_saved_run_may_have():
             config.validate()
 
 
+def test_a_new_run_may_not_use_a_threshold_no_blend_weight_reaches():
+    """α is clamped at 0.99, so a threshold above it supervised no Gaussian and u_sh silently kept its initial value;
+    a saved config with one still loads."""
+    model, camera = _single_gaussian(u_degree=1)
+    with torch.no_grad():
+        model.opacity_logits.fill_(20.0)
+        model.log_scales.fill_(math.log(3.0))  # flat over the pixel nearest its centre: α reaches the clamp
+    assert float(model.render(camera, 0, torch.zeros(3)).raster.contrib_max.max()) == pytest.approx(0.99)
+    UncertaintyLossConfig(threshold=0.99).validate()
+    head = "threshold=0.995"
+    for config, where in ((UncertaintyLossConfig(threshold=1.0), "--uncertainty.threshold"),
+                          (UncertaintyLossConfig(extra_heads=(head,)), f"uncertainty head '{head}'")):
+        with pytest.raises(SplatuError, match=f"above 0.99, the largest blend weight.*{where}"):
+            config.validate()
+
+
 def _single_gaussian(u_degree: int) -> tuple[GaussianModel, Camera]:
     """One opaque Gaussian 3 units in front of a camera at the origin, seen along +z."""
     cfg = ModelConfig(sh_degree=0, u_sh_degree=u_degree, init_opacity=0.95)
