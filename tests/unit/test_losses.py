@@ -23,7 +23,7 @@ from splatu.losses import (
     uncertainty_loss,
 )
 from splatu.model import GaussianModel, ModelConfig
-from splatu.sh import eval_sh, safe_normalize
+from splatu.sh import eval_sh, safe_normalize, sh_basis
 
 
 def _image(seed: int, h: int = 24, w: int = 20) -> torch.Tensor:
@@ -65,6 +65,27 @@ def test_ssim_matches_a_direct_window_sum():
     cov = (window * px * py).sum() - mx * my
     expected = ((2 * mx * my + 1e-4) * (2 * cov + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (vx + vy + 9e-4))
     assert float(ssim_map(x, y)[7, 7, 0]) == pytest.approx(float(expected), abs=1e-5)
+
+
+def test_ssim_map_matches_3dgs_zero_padded_windows_at_every_pixel():
+    """Borders included, on an image narrower than the window: 3DGS's conv2d(padding=5) counts the pixels outside
+    the image as 0 in every moment; a float64 sum over each pixel's own 11×11 window, zero-padded, must agree."""
+    x = _image(4, 13, 7)
+    y = (x + 0.2 * torch.randn(x.shape, generator=torch.Generator().manual_seed(5))).clamp(0, 1)
+    coords = torch.arange(11, dtype=torch.float64) - 5
+    g = torch.exp(-coords**2 / (2 * 1.5**2))
+    window = torch.outer(g, g) / g.sum() ** 2
+    px, py = (torch.nn.functional.pad(t.double().permute(2, 0, 1), (5, 5, 5, 5)) for t in (x, y))
+    expected = torch.empty(13, 7, 3, dtype=torch.float64)
+    for i in range(13):
+        for j in range(7):
+            a, b = px[:, i:i + 11, j:j + 11], py[:, i:i + 11, j:j + 11]
+            mx, my = (window * a).sum((1, 2)), (window * b).sum((1, 2))
+            vx, vy = (window * a * a).sum((1, 2)) - mx**2, (window * b * b).sum((1, 2)) - my**2
+            cov = (window * a * b).sum((1, 2)) - mx * my
+            expected[i, j] = ((2 * mx * my + 1e-4) * (2 * cov + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (vx + vy + 9e-4))
+    torch.testing.assert_close(ssim_map(x.double(), y.double()), expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(ssim_map(x, y).double(), expected, rtol=0, atol=1e-5)
 
 
 def test_photometric_loss_combines_l1_and_ssim():
@@ -274,6 +295,27 @@ def test_the_one_basis_parity_evaluation_equals_evaluating_both_directions(kind,
     grad, = torch.autograd.grad(loss, model.u_sh)
     expected_grad, = torch.autograd.grad(expected, model.u_sh)
     torch.testing.assert_close(grad, expected_grad, rtol=1e-5, atol=1e-8)
+
+
+def test_the_mean_variant_is_the_seen_term_and_one_minus_the_mean_over_its_random_directions():
+    """(1−λ)·u(d) + λ·(1 − ū), ū over `num_dirs` directions drawn from the head's generator, in float64 by hand, with d
+    from the camera centre to the mean (the paper's pixel-ray direction, the one colour SH uses)."""
+    g = torch.Generator().manual_seed(11)
+    n, centre = 60, torch.tensor([0.1, 0.2, -3.0])
+    model = GaussianModel.empty_like_config(n, ModelConfig(u_sh_degree=3))
+    with torch.no_grad():
+        model.means.copy_(torch.randn(n, 3, generator=g))
+        model.u_sh.copy_(torch.randn(model.u_sh.shape, generator=g))
+    raster = SimpleNamespace(contrib_max=torch.rand(n, generator=g))
+    cfg = UncertaintyLossConfig(kind="mean", lam=0.2, threshold=0.3, num_dirs=7)
+    loss = uncertainty_loss(model, centre, raster, cfg, [torch.Generator().manual_seed(5)])
+    random_dirs = torch.randn(7, 3, generator=torch.Generator().manual_seed(5)).double()
+    chosen = raster.contrib_max >= 0.3
+    d = model.means.detach().double()[chosen] - centre.double()
+    coeffs = model.u_sh.detach().double()[chosen][..., 0]
+    seen = torch.sigmoid((sh_basis(d / d.norm(dim=-1, keepdim=True), 3) * coeffs).sum(-1))
+    mean_u = torch.sigmoid(sh_basis(random_dirs / random_dirs.norm(dim=-1, keepdim=True), 3) @ coeffs.T).mean(0)
+    assert float(loss.detach()) == pytest.approx(float((0.8 * seen + 0.2 * (1 - mean_u)).mean()), rel=1e-6)
 
 
 def test_each_uncertainty_head_reads_only_its_own_u_sh_channel():
