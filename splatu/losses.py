@@ -33,7 +33,8 @@ SSIM_C2 = 0.03**2
 PSNR_MSE_FLOOR = 1e-10
 """PSNR of a perfect match is reported as 100 dB instead of +inf."""
 MIN_VISIBLE_WEIGHT = 1.0 / 255.0
-"""The rasterizer skips α < 1/255, so a smaller blend weight means the Gaussian is not seen in this view."""
+"""The smallest α the rasterizer draws: a Gaussian whose blend weight T·α stays below it at every pixel gave no pixel
+of this view a share 3DGS counts (behind other Gaussians, T can take a drawn one below it too)."""
 
 
 def _check_pair(pred: Tensor, gt: Tensor) -> None:
@@ -146,8 +147,8 @@ class UncertaintyLossConfig:
         for named, loss in heads:
             where = IN_HEADS if named else "in --uncertainty.threshold"
             if loss.threshold == 0.0:  # it would supervise Gaussians this view never drew as seen (19c6c8f)
-                raise SplatuError(f"uncertainty threshold = {loss.threshold} is not a blend weight in (0, 1]{named}",
-                                  where, "use e.g. 0.05")
+                raise SplatuError(f"uncertainty threshold = {loss.threshold} is not a blend weight in "
+                                  f"(0, {ALPHA_MAX}]{named}", where, "use e.g. 0.05")
             if loss.threshold > ALPHA_MAX:  # no blend weight reaches it: u_sh would silently never train
                 raise SplatuError(f"uncertainty threshold = {loss.threshold} is above {ALPHA_MAX}, the largest blend"
                                   f" weight (α is clamped there), so it would supervise no Gaussian{named}", where,

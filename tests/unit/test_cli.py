@@ -149,12 +149,12 @@ def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tm
      "bad uncertainty head 'x': not key=value, in --uncertainty.extra-heads, write key=value pairs joined by commas, "
      "keys from kind, lam, threshold, num_dirs, degree"),
     (["--uncertainty.threshold", "0"],
-     "uncertainty threshold = 0.0 is not a blend weight in (0, 1], in --uncertainty.threshold, use e.g. 0.05"),
+     "uncertainty threshold = 0.0 is not a blend weight in (0, 0.99], in --uncertainty.threshold, use e.g. 0.05"),
     (["--uncertainty.threshold", "1"],
      "uncertainty threshold = 1.0 is above 0.99, the largest blend weight (α is clamped there), so it would supervise "
      "no Gaussian, in --uncertainty.threshold, use e.g. 0.05"),
     (["--uncertainty.extra-heads", "lam=0.1,threshold=0"],
-     "uncertainty threshold = 0.0 is not a blend weight in (0, 1] in uncertainty head 'lam=0.1,threshold=0', "
+     "uncertainty threshold = 0.0 is not a blend weight in (0, 0.99] in uncertainty head 'lam=0.1,threshold=0', "
      "in --uncertainty.extra-heads, use e.g. 0.05"),
     (["--degree-choice.on", "--ensemble", "2"],
      "an ensemble's members must differ only in seed, but each would choose its own degrees, in --degree-choice.on "

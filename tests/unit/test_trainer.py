@@ -666,7 +666,7 @@ def test_a_python_configs_preset_file_gone_since_is_not_needed_for_a_new_run(tmp
     with pytest.raises(SplatuError) as caught:
         train_command.train(config)
     assert caught.value.what == ("scene not found" if threshold else
-                                 "uncertainty threshold = 0.0 is not a blend weight in (0, 1]")
+                                 "uncertainty threshold = 0.0 is not a blend weight in (0, 0.99]")
 
 
 def test_a_python_resume_whose_preset_file_is_gone_since_resumes(tmp_path, capsys):
@@ -1878,7 +1878,7 @@ def test_a_run_saved_with_values_refused_since_still_loads_exports_and_resumes(t
 
 
 @pytest.mark.parametrize(("older", "said", "edit"), [
-    ({"uncertainty": {"threshold": 0.0}}, "uncertainty threshold = 0.0 is not a blend weight in (0, 1]",
+    ({"uncertainty": {"threshold": 0.0}}, "uncertainty threshold = 0.0 is not a blend weight in (0, 0.99]",
      "edit uncertainty.threshold in that file: use e.g. 0.05"),
     ({"model": {"u_init_logit": 45.0}}, "model.u_init_logit 45.0 is not a number within ±30",
      "edit model.u_init_logit in that file: use e.g. 2.0"),
@@ -1911,7 +1911,7 @@ def test_a_new_training_from_python_refuses_an_uncertainty_threshold_of_0(tmp_pa
     """Threshold 0 loads (a saved run may have it) but no new training may use it: train_run from Python, which
     skips the command's option checks, trained with it, while a u_init_logit beyond ±30 was refused there."""
     config = tiny_config(tmp_path, uncertainty=UncertaintyLossConfig(threshold=0.0))
-    with pytest.raises(SplatuError, match=re.escape("uncertainty threshold = 0.0 is not a blend weight in (0, 1]")):
+    with pytest.raises(SplatuError, match=re.escape("uncertainty threshold = 0.0 is not a blend weight in (0, 0.99]")):
         trainer.train_run(config, scene, tmp_path / "run")
 
 
