@@ -1,6 +1,8 @@
 """The ensemble baseline: per-pixel std of RGB across members that differ only in seed (REFERENCE §5).
 
-The std is the population std over members (ddof 0), averaged over the RGB channels. The
+The std is the population std over members (ddof 0), averaged over the RGB channels, of the colours each
+member shows: clipped to [0, 1], as every image eval-ause scores is, so disagreement past white (which no scored
+error can see) is not counted as uncertainty. The render is the mean of those clipped colours. The
 density-aware variant adds (1 − mean accumulated alpha)², so empty space, where members agree
 on "nothing", still reads as uncertain.
 """
@@ -62,7 +64,7 @@ class EnsembleSource:
 
     def render(self, camera: Camera) -> UncertaintyRender:
         outs = [m.render(camera, self.sh_degree, self.background) for m in self.members]
-        rgbs = torch.stack([o.rgb for o in outs])
+        rgbs = torch.stack([o.rgb for o in outs]).clamp(0.0, 1.0)
         alpha = torch.stack([o.alpha for o in outs]).mean(dim=0)
         uncertainty = rgbs.std(dim=0, correction=0).mean(dim=-1)
         if self.density_aware:

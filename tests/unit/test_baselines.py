@@ -32,6 +32,24 @@ def test_ensemble_uncertainty_is_the_population_std_of_the_members():
     assert float(out.uncertainty.max()) > 0.05  # the members really differ
 
 
+def test_ensemble_members_disagreeing_only_above_white_show_one_colour_and_no_uncertainty():
+    """Colours past 1 are clipped in every image eval-ause scores, so two members rendering 1.5 and 3 both show
+    white: their std over the unclipped values (0.75) called a pixel uncertain whose scored error is 0, and their
+    unclipped mean was clipped after averaging, not averaged over what each member shows."""
+    bright, brighter = overlapping_gaussians(), overlapping_gaussians()
+    with torch.no_grad():
+        bright.sh_dc.copy_(rgb_to_sh(torch.full((len(bright), 3), 1.5))[:, None])
+        brighter.sh_dc.copy_(rgb_to_sh(torch.full((len(brighter), 3), 3.0))[:, None])
+    camera = two_cameras()[0]
+    with torch.no_grad():
+        shown = [member.render(camera, 0, torch.zeros(3)).rgb for member in (bright, brighter)]
+        out = EnsembleSource([bright, brighter], 0, torch.zeros(3)).render(camera)
+    saturated = (shown[0] >= 1.0).all(-1)
+    assert bool(saturated.any()) and bool((shown[1][saturated] > shown[0][saturated] + 0.1).any())
+    assert float(out.uncertainty[saturated].abs().max()) == 0.0
+    torch.testing.assert_close(out.rgb, torch.stack(shown).clamp(0, 1).mean(0))
+
+
 def test_ensemble_depth_counts_only_the_members_that_drew_the_pixel():
     """A member that draws nothing at a pixel has depth 0 there; the plain mean over members halved the depth of a
     pixel only one of two members covers."""
