@@ -37,6 +37,49 @@ def test_curves_follow_the_grid_definition():
     assert reversed_curves.sparsification[10] == pytest.approx(5.0)  # mean of 1..9
 
 
+def test_a_six_pixel_image_by_hand():
+    """u orders the errors 0, 5, 1, 2, 4, 3, so the kept means are 2.5, 2.4, 2, 2, 2.5, 0 against the oracle's 2.5,
+    2, 1.5, 1, 0.5, 0; n_k = floor((100 - k)·6/100) keeps 6 pixels at k = 0, 5 for k ≤ 16, 4 to 33, 3 to 50, 2 to
+    66, then 1. M = 2.5, and the trapezoid over the 0.01 grid (both ends 0) is 0.01·Σ(S - O)/M
+    = 0.01·(16·0.4 + 17·0.5 + 17·1 + 16·2)/2.5 = 0.2556."""
+    errors = np.array([5.0, 0.0, 3.0, 1.0, 4.0, 2.0])
+    uncertainty = np.array([0.2, 0.1, 0.9, 0.3, 0.8, 0.4])
+    curves = A.sparsification_curves(errors, uncertainty)
+    steps = [0, 1, 16, 17, 33, 34, 50, 51, 66, 67, 99]
+    np.testing.assert_allclose(curves.sparsification[steps], [2.5, 2.4, 2.4, 2, 2, 2, 2, 2.5, 2.5, 0, 0])
+    np.testing.assert_allclose(curves.oracle[steps], [2.5, 2, 2, 1.5, 1.5, 1, 1, 0.5, 0.5, 0, 0])
+    assert A.ause(curves) == pytest.approx(0.2556, abs=1e-12)
+    assert A.ause_start_normalised(curves) == pytest.approx(0.2556, abs=1e-12)
+
+
+def _brute_force_ause(errors: np.ndarray, uncertainty: np.ndarray, metric: A.Metric) -> float:
+    """REFERENCE §4 step by step in plain Python: ties in u go by each pixel's place in the fixed permutation."""
+    place = {int(p): i for i, p in enumerate(np.random.default_rng(A.TIE_SEED).permutation(errors.size))}
+    by_u = sorted(range(errors.size), key=lambda p: (uncertainty[p], place[p]))
+    by_e = sorted(range(errors.size), key=lambda p: errors[p])
+
+    def value(kept: list[int]) -> float:
+        mean = sum(errors[p] for p in kept) / len(kept)
+        return mean**0.5 if metric == "rmse" else mean
+
+    n = [max((100 - k) * errors.size // 100, 1) for k in range(100)]
+    oracle = [value(by_e[:n_k]) for n_k in n]
+    sparsification = [value(by_u[:n_k]) for n_k in n]
+    top = max(max(oracle), max(sparsification))
+    gap = [(s - o) / top for s, o in zip(sparsification, oracle, strict=True)] if top > 0 else [0.0] * 100
+    return sum((gap[k] + gap[k + 1]) / 2 * 0.01 for k in range(99))
+
+
+@pytest.mark.parametrize("metric", ["mae", "mse", "rmse"])
+def test_ause_agrees_with_a_brute_force_on_small_images_with_ties(metric):
+    rng = _rng(5)
+    for size in (1, 2, 7, 99, 101, 257):
+        errors = rng.integers(0, 4, size).astype(float)  # tied errors
+        uncertainty = rng.integers(0, 3, size).astype(float)  # tied uncertainties
+        curves = A.sparsification_curves(errors, uncertainty, metric)
+        assert A.ause(curves) == pytest.approx(_brute_force_ause(errors, uncertainty, metric), abs=1e-12)
+
+
 def test_rmse_and_mse_curves():
     rendered = np.zeros((1, 4, 3))
     target = np.zeros((1, 4, 3))
@@ -112,6 +155,16 @@ def test_auroc_perfect_inverted_random_and_ties():
     # small case by hand: pos {2, 1}, neg {1, 0}: pairs (2>1),(2>0),(1=1 → ½),(1>0) = 3.5/4
     assert A.auroc(np.array([2.0, 1.0, 1.0, 0.0]), np.array([1, 1, 0, 0], bool)) == pytest.approx(0.875)
     assert A.auroc(scores, np.zeros(10_000, bool)) is None
+
+
+def test_auroc_agrees_with_counting_pairs():
+    """AUROC = P(u of an unobserved pixel > u of an observed one) + ½ P(equal), over every pair."""
+    rng = _rng(9)
+    for _ in range(20):
+        scores = rng.integers(0, 4, 40).astype(float)
+        positives = rng.random(40) < 0.3
+        pairs = [(1.0 if a > b else 0.5 if a == b else 0.0) for a in scores[positives] for b in scores[~positives]]
+        assert A.auroc(scores, positives) == pytest.approx(float(np.mean(pairs)), abs=1e-12)
 
 
 def test_score_image_and_mean():
