@@ -102,6 +102,8 @@ class DensityController:
         self.visible_count: Tensor | None = None
         self.max_screen_size: Tensor | None = None
         self.steps_without_contribution: Tensor | None = None  # persists across windows, edited with the rows
+        self.views_per_epoch: int | None = None
+        """The rotation the contribution counts were made in (`refine`'s views_per_epoch); None before any."""
 
     def observe(self, raster: RasterOutput, width: int, height: int) -> None:
         """Accumulate one view's statistics; call after backward, before `refine`."""
@@ -141,6 +143,7 @@ class DensityController:
         """
         cfg = self.cfg
         counts = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+        self._follow_rotation(views_per_epoch)
         if step <= cfg.warmup_length or step % cfg.refine_every != 0:
             return counts
         if self.grad_norm_sum is None or self.grad_norm_sum.shape[0] != len(model):
@@ -168,6 +171,15 @@ class DensityController:
                 counts["reset"] = self._reset_opacity(model, optimizers)
         self._reset(len(model))
         return counts
+
+    def _follow_rotation(self, views_per_epoch: int) -> None:
+        """Restart the contribution counts when the training views change in number (the degree choice adds its
+        held-out block): camera_index's epochs restart at the new length, so a view drawn early in the old rotation
+        can go undrawn for more than 2N − 1 steps across the change, and only counts from it keep that floor."""
+        changed = self.views_per_epoch is not None and views_per_epoch != self.views_per_epoch
+        if changed and self.steps_without_contribution is not None:
+            self.steps_without_contribution = torch.zeros_like(self.steps_without_contribution)
+        self.views_per_epoch = views_per_epoch
 
     def _edit_rows(self, keep: Tensor, appended: int) -> None:
         """Mirror a row edit on the statistics that outlive a window; new rows start fresh."""
@@ -243,6 +255,7 @@ class DensityController:
         return {
             "grad_norm_sum": self.grad_norm_sum, "visible_count": self.visible_count,
             "max_screen_size": self.max_screen_size, "steps_without_contribution": self.steps_without_contribution,
+            "views_per_epoch": self.views_per_epoch,
         }
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
@@ -250,6 +263,7 @@ class DensityController:
         self.visible_count = d["visible_count"]
         self.max_screen_size = d["max_screen_size"]
         self.steps_without_contribution = d["steps_without_contribution"]
+        self.views_per_epoch = d.get("views_per_epoch")  # absent in checkpoints written before it was kept
 
 
 def _rotate(quats: Tensor, vectors: Tensor) -> Tensor:

@@ -360,3 +360,21 @@ def test_size_culling_starts_after_the_first_opacity_reset_not_at_it():
         controller.observe(_raster(torch.full((N,), LOW), radii, torch.full((N,), 0.5)), SIZE, SIZE)
         pruned[step] = controller.refine(step, model, optimizers, views_per_epoch=1)["pruned"]
     assert pruned == {20: 0, 30: 2}
+
+
+def test_a_gaussian_is_not_pruned_when_the_views_it_cycles_through_grow_mid_run():
+    """The degree choice adds its held-out block to the rotation mid-run (here 5 views, then 8), which restarts
+    camera_index's epochs at another length: a view drawn early in the old rotation can then go undrawn for more than
+    2N − 1 steps in all. A Gaussian only one view sees must still not be pruned, for any draw order."""
+    fit, everyone_views, switch, seen_by = 5, 8, 12, 0
+    for seed in range(20):
+        model, optimizers = _tagged_model()
+        controller = DensityController(DensifyConfig(warmup_length=0, refine_every=1, contribution_window=1), 1.0)
+        for step in range(40):
+            views = fit if step < switch else everyone_views
+            contrib = torch.zeros(len(model))
+            contrib[_row_of(model, 0)] = 0.5 if camera_index(step, views, seed) == seen_by else 0.0
+            n = len(model)
+            controller.observe(_raster(torch.full((n,), LOW), torch.full((n,), 2), contrib), SIZE, SIZE)
+            controller.refine(step, model, optimizers, views_per_epoch=views)
+            assert _row_of(model, 0) == [0], f"seed {seed}: pruned at step {step}"
