@@ -44,7 +44,7 @@ class DensifyConfig:
     """Cull Gaussians whose opacity is below this."""
     cull_scale_thresh: float = 0.5
     """Cull Gaussians whose largest world scale exceeds this fraction of the scene extent (after the first
-    opacity reset, as splatfacto)."""
+    opacity reset, as splatfacto); one that is split instead stays when its children are below it."""
     reset_alpha_every: int = 30
     """Reset opacities every this many refinements."""
     stop_split_at: int = 15000
@@ -153,9 +153,13 @@ class DensityController:
         reset_interval = cfg.refine_every * cfg.reset_alpha_every
         with torch.no_grad():
             cull = self._cull_mask(step, model, views_per_epoch)
+            oversized = self._oversized(step, model, 1.0)
             densifying = step < cfg.stop_split_at and step % reset_interval >= cfg.refine_every + cfg.pause_after_reset
             if densifying:
-                clone, split = self._densify_masks(step, model, cull)
+                # splatfacto culls after densifying: an oversized parent stays if split into children small enough
+                children_oversized = self._oversized(step, model, SPLIT_SCALE_DIVISOR)
+                clone, split = self._densify_masks(step, model, cull | children_oversized)
+                cull |= oversized & ~split
                 append = self._new_rows(model, clone, split)
                 keep = ~(cull | split)
                 optimizers.replace_rows(model, keep, append)
@@ -163,9 +167,11 @@ class DensityController:
                 counts["cloned"], counts["split"] = int(clone.sum()), int(split.sum())
             elif step < cfg.stop_split_at:  # the pause after an opacity reset: no edit at all, as splatfacto
                 cull = torch.zeros_like(cull)
-            elif cull.any():
-                optimizers.replace_rows(model, ~cull, None)
-                self._edit_rows(~cull, 0)
+            else:
+                cull |= oversized
+                if cull.any():
+                    optimizers.replace_rows(model, ~cull, None)
+                    self._edit_rows(~cull, 0)
             counts["pruned"] = int(cull.sum())
             if step < cfg.stop_split_at and step % reset_interval == 0:
                 counts["reset"] = self._reset_opacity(model, optimizers)
@@ -190,14 +196,20 @@ class DensityController:
         cfg = self.cfg
         assert self.max_screen_size is not None and self.steps_without_contribution is not None
         cull = torch.sigmoid(model.opacity_logits) < cfg.cull_alpha_thresh
-        if step > cfg.refine_every * cfg.reset_alpha_every:
-            cull |= model.log_scales.exp().amax(-1) > cfg.cull_scale_thresh * self.scene_extent
-            if step < cfg.stop_screen_size_at:
-                cull |= self.max_screen_size > cfg.cull_screen_size
+        if step > cfg.refine_every * cfg.reset_alpha_every and step < cfg.stop_screen_size_at:
+            cull |= self.max_screen_size > cfg.cull_screen_size
         if cfg.prune_never_contributing:
             window = max(cfg.contribution_window, 2 * views_per_epoch - 1)
             cull |= self.steps_without_contribution >= window
         return cull
+
+    def _oversized(self, step: int, model: GaussianModel, shrink: float) -> Tensor:
+        """Rows whose largest world scale, divided by `shrink` (a split's), exceeds cull_scale_thresh × extent; none
+        until the first opacity reset. Apart from `_cull_mask` because a split child is judged at its own scale."""
+        cfg = self.cfg
+        if step <= cfg.refine_every * cfg.reset_alpha_every:
+            return torch.zeros(len(model), dtype=torch.bool)
+        return model.log_scales.exp().amax(-1) / shrink > cfg.cull_scale_thresh * self.scene_extent
 
     def _densify_masks(self, step: int, model: GaussianModel, cull: Tensor) -> tuple[Tensor, Tensor]:
         """Clone and split masks over the current rows, trimmed to the Gaussian budget.

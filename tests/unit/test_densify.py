@@ -378,3 +378,27 @@ def test_a_gaussian_is_not_pruned_when_the_views_it_cycles_through_grow_mid_run(
             controller.observe(_raster(torch.full((n,), LOW), torch.full((n,), 2), contrib), SIZE, SIZE)
             controller.refine(step, model, optimizers, views_per_epoch=views)
             assert _row_of(model, 0) == [0], f"seed {seed}: pruned at step {step}"
+
+
+def test_a_large_gaussian_is_split_when_its_children_are_small_enough_to_keep():
+    """splatfacto (and gsplat) densify first and cull what results: a high-gradient Gaussian above cull_scale_thresh
+    × extent = 0.5 is replaced by children 1.6× smaller, which stay when they are below it (0.6 → 0.375) and go when
+    they are not (0.9 → 0.5625); a low-gradient one is culled."""
+    model, optimizers = _tagged_model()
+    with torch.no_grad():
+        model.log_scales[0] = math.log(0.6)
+        model.log_scales[1] = math.log(0.9)
+        model.log_scales[2] = math.log(0.6)
+    grads = torch.full((N,), LOW)
+    grads[:2] = HIGH
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=2)  # size culling from step 21
+    controller = DensityController(cfg, 1.0, torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, torch.full((N,), 2), torch.full((N,), 0.5)), SIZE, SIZE)
+
+    counts = controller.refine(30, model, optimizers, views_per_epoch=1)
+
+    assert (counts["split"], counts["pruned"]) == (1, 2)
+    children = _row_of(model, 0)
+    assert len(children) == 2 and _row_of(model, 1) == [] and _row_of(model, 2) == []
+    assert torch.allclose(model.log_scales[children].exp(), torch.full((2, 3), 0.6 / SPLIT_SCALE_DIVISOR))
+    _assert_aligned(model, optimizers)
