@@ -38,11 +38,13 @@ def normalization(centers: Tensor) -> tuple[Tensor, float]:
 
 
 def normalize_camera(camera: Camera, center: Tensor, scale: float) -> Camera:
-    """The same camera in normalised world coordinates: rotation kept, centre moved and scaled."""
+    """The same camera in normalised world coordinates: rotation kept, p_cam = scale · (R·x_world + t) for
+    x_world = x_norm / scale + center, so every pixel stays and depths scale. The translation is moved directly,
+    not through the centre −Rᵀt: a file's rotation (few decimals, float32) is orthonormal only to ~1e-4 to 1e-7,
+    and R·Rᵀ ≠ I shifted every point in the camera's frame by (R·Rᵀ − I)·t, pixels at map coordinates."""
     rotation = camera.world_to_camera[:3, :3]
-    new_center = (camera.center() - center.to(rotation)) * scale
     world_to_camera = camera.world_to_camera.clone()
-    world_to_camera[:3, 3] = -rotation @ new_center
+    world_to_camera[:3, 3] = (camera.world_to_camera[:3, 3] + rotation @ center.to(rotation)) * scale
     return replace(camera, world_to_camera=world_to_camera)
 
 

@@ -19,7 +19,7 @@ import torch
 from splatu.cli import entrypoint
 from splatu.data import colmap, images
 from splatu.data.config import DataConfig
-from splatu.data.frames import downscaled
+from splatu.data.frames import downscaled, world_to_camera_from_opengl
 from splatu.data.images import (
     Distortion,
     ImageCache,
@@ -103,6 +103,38 @@ def test_a_camera_scene_is_the_scenes_training_cameras_and_masks_without_decodin
     assert load_camera_scene(cfg).train.mask_files is None  # not asked for: not read
     with pytest.raises(SplatuError):
         load_camera_scene(cfg, masks=True)
+
+
+def test_normalisation_keeps_every_pixel_of_a_pose_written_to_four_decimals(tmp_path):
+    """Rotations written to 4 decimals are orthonormal to ~1e-4 only (the loader accepts 1e-3): normalising through
+    the centre −Rᵀt moved each point by (R·Rᵀ − I)·t in the camera's frame: 0.01 px here at f = 140, ten times that at
+    a phone's f = 1400. The loaded cameras must project the loaded points where the file's cameras put the file's."""
+    root = tmp_path / "scene"
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(40, 3)) * 0.5
+    root.mkdir()
+    write_ply_points(root / "points.ply", points, np.full((40, 3), 0.5))
+    frames, originals = [], []
+    for i in range(6):
+        c2w = np.eye(4)
+        c2w[:3, :3] = np.round(cv2.Rodrigues(rng.normal(size=3))[0], 4)
+        c2w[:3, 3] = c2w[:3, 2] * 4 + rng.normal(size=3) * 0.3  # OpenGL: looks along −z, at the origin
+        write_rgb(root / f"{i}.png", noise_image(i, 108, 192))
+        frames.append({"file_path": f"{i}.png", "transform_matrix": c2w.tolist()})
+        originals.append(torch.tensor(world_to_camera_from_opengl(c2w)))
+    (root / "transforms.json").write_text(json.dumps({
+        "fl_x": 140.0, "fl_y": 140.0, "cx": 54.0, "cy": 96.0, "w": 108, "h": 192, "ply_file_path": "points.ply",
+        "frames": frames}))
+    scene = load_scene(config(root, tmp_path, eval_split="every-n", eval_every=3))
+    loaded = dict(zip([*scene.train.names, *scene.eval.names], [*scene.train.cameras, *scene.eval.cameras],
+                      strict=True))
+    normalised = (torch.tensor(points) - scene.center.double()) * scene.scale
+    for i, world_to_camera in enumerate(originals):
+        camera = loaded[f"{i}.png"].to(dtype=torch.float64)
+        expected, depth = dataclasses.replace(camera, world_to_camera=world_to_camera).project(torch.tensor(points))
+        projected, normalised_depth = camera.project(normalised)
+        assert (projected - expected).abs().max() < 1e-3, (projected - expected).abs().max()  # float32 cameras
+        assert torch.allclose(normalised_depth, depth * scene.scale, rtol=1e-5)
 
 
 def test_nerfstudio_round_trip_gives_identical_cameras_points_and_pixels(tmp_path):
