@@ -12,6 +12,7 @@ import torch
 
 from splatu.rasterizer import rasterize
 from tests.benchmark_scripts import BENCHMARKS, benchmark_script
+from tests.reference_rasterizer import reference_rasterize as brute_force
 
 
 @pytest.fixture(scope="module")
@@ -33,6 +34,18 @@ def test_the_baseline_renders_our_image_and_counts_whole_tiles_of_candidates(ras
     assert candidates >= ours.num_contributing_pairs > 0
 
 
+@pytest.mark.parametrize("opacity", [None, 0.99])  # 0.99: α ≥ 1/255 reaches 3.3σ, past the baseline's 3σ boxes
+def test_the_pair_count_is_the_brute_force_reference_s_not_our_rasterizer_s(rasterizer_benchmark, opacity) -> None:
+    case = rasterizer_benchmark.Case("small", 400, 40, 36, seed=3)
+    means, quats, log_scales, opacities, *camera = rasterizer_benchmark.make_scene(case)
+    if opacity is not None:
+        opacities = torch.full_like(opacities, opacity)
+    scene = (means, quats, log_scales, opacities, *camera)
+    expected = brute_force(*(t.double() for t in scene), case.width, case.height, log_scales=True)
+    assert rasterizer_benchmark.count_contributing_pairs(*scene, case.width, case.height) \
+        == expected.num_contributing_pairs > 0
+
+
 def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
     output = tmp_path / "quick.json"
     run = subprocess.run([sys.executable, str(BENCHMARKS / "rasterizer.py"), "--quick", "--json", str(output)],
@@ -45,6 +58,7 @@ def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
         assert key in case, key
     total = case["ms_forward"] + case["ms_backward"]
     assert case["contributing_pairs"] > 0 and case["speedup_vs_reference"] > 0
+    assert case["ours_contributing_pairs"] == case["contributing_pairs"]  # counted apart, and they agree
     assert case["ns_per_pair"] == pytest.approx(1e6 * total / case["contributing_pairs"], rel=0.01)
     assert written["measured_on"]["torch"] == torch.__version__
     assert case["name"] in run.stdout and "ns_per_pair" in run.stdout  # the same figures as a table
