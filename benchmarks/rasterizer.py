@@ -26,7 +26,6 @@ import argparse
 import importlib
 import json
 import math
-import resource
 import statistics
 import subprocess
 import sys
@@ -190,6 +189,15 @@ def record_footprint_times(package: str = "splatu") -> list[float]:
     return spent
 
 
+def peak_rss_mb() -> float:
+    """This process's own peak resident set, MB (Linux's VmHWM): ru_maxrss would also hold the peak of the
+    parent that spawned it, which Linux carries across fork and exec."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError("no VmHWM line in /proc/self/status")
+
+
 def time_runs(case: Case, implementation: str, runs: int) -> dict:
     """Median forward/backward (and, for ours, footprint) wall times of `runs` renders after one warm-up
     (runs=0: the one render itself), and this process's peak RSS."""
@@ -218,7 +226,7 @@ def time_runs(case: Case, implementation: str, runs: int) -> dict:
         "ms_backward": statistics.median(backward_ms),
         "ms_footprint": 1e3 * statistics.median(timed_footprints) if timed_footprints else None,
         "pairs": pairs,  # ours: contributing pairs; the baseline: the candidate pairs it evaluates
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mb": peak_rss_mb(),
     }
 
 
