@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from splatu.rasterizer import rasterize
+from splatu.rasterizer.projection import project_gaussians
 from tests.benchmark_scripts import BENCHMARKS, benchmark_script
 from tests.reference_rasterizer import reference_rasterize as brute_force
 
@@ -44,6 +45,18 @@ def test_the_pair_count_is_the_brute_force_reference_s_not_our_rasterizer_s(rast
     expected = brute_force(*(t.double() for t in scene), case.width, case.height, log_scales=True)
     assert rasterizer_benchmark.count_contributing_pairs(*scene, case.width, case.height) \
         == expected.num_contributing_pairs > 0
+
+
+@pytest.mark.parametrize("case_index", [0, 1])
+def test_the_scenes_spread_radii_and_opacities_as_the_docstring_says(rasterizer_benchmark, case_index) -> None:
+    case = rasterizer_benchmark.CASES[case_index]
+    means, quats, log_scales, opacities, _, world_to_camera, K = rasterizer_benchmark.make_scene(case)
+    proj = project_gaussians(means, quats, log_scales, world_to_camera, K, case.width, case.height, 0.01, 1e10, True)
+    radii = proj.radii[proj.visible].float()
+    low, p5, median, p95, high = torch.quantile(radii, torch.tensor([0.0, 0.05, 0.5, 0.95, 1.0])).tolist()
+    assert (low, p5, median) == (2, 3, 8) and 31 <= p95 <= 32 and high == 50
+    assert 0.05 < float((radii > 30).float().mean()) < 0.07
+    assert 0.005 <= float(opacities.min()) < 0.01 and 0.99 < float(opacities.max()) <= 0.995
 
 
 def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
