@@ -267,3 +267,17 @@ def test_without_specular_only_the_highlights_go():
     assert (highlight >= -1e-6).all() and highlight.max() > 0.05  # highlights only add light, and there are some
     assert (highlight.abs().amax(-1) < 1e-6).float().mean() > 0.3  # matte surfaces are unchanged
     assert torch.equal(full.depth, matte.depth) and torch.equal(full.box, matte.box)
+
+
+def test_interp_frames_lie_between_training_frames_except_next_to_the_block_or_a_path_end():
+    """What standin_splits says of the every-8th `interp` frames: each neighbour on the path is a training frame,
+    but for a neighbour in the eval block or past the path's end (141 and 149 of the default 150 frames)."""
+    cfg = PosterConfig()
+    train, val, test = standin_splits(cfg)
+    one_sided = []
+    for frame in test:
+        neighbours = [n for n in (frame - 1, frame + 1) if 0 <= n < cfg.frames]
+        assert all(n in train or n in val for n in neighbours)
+        if len(neighbours) < 2 or any(n in val for n in neighbours):
+            one_sided.append(frame)
+    assert len(test) == 15 and one_sided == [141, 149]

@@ -59,7 +59,9 @@ def validate(cfg: PosterConfig) -> None:
 
 def standin_splits(cfg: PosterConfig) -> tuple[list[int], list[int], list[int]]:
     """(train, val, test) frame indices: val is the seeded contiguous block (an unseen angle); of the
-    rest, every interp_every-th frame, starting mid-stride so each is flanked by training frames, is test."""
+    rest, every interp_every-th frame, counted from mid-stride, is test. Most test frames lie between two training
+    frames; one next to the block or at an end of the path has a training frame on one side only (141 and 149 of the
+    default 150 frames: 2 of the 15 `interp` views)."""
     remaining, val = contiguous_split(cfg.frames, cfg.eval_block, cfg.seed, "--poster.eval-block",
                                       "in the poster stand-in settings")
     offset = cfg.interp_every // 2
