@@ -8,7 +8,10 @@ camera at full resolution; refinement is switched off during measurement so the 
 Gaussians stays fixed. The ratio of the median step times is the overhead (target ≤ 1.05);
 because step times on a shared machine are noisy, the script also times the uncertainty loss's
 forward + backward alone and reports (median off + that) / median off.
-Kernels are compiled when the preset compiles them (as in training; --eager for eager ones).
+Kernels are compiled when the preset compiles them (as in training; --eager for eager ones), and glibc malloc's
+thresholds are fixed as `splatu train` fixes them (splatu.allocator): with glibc's defaults the full-resolution
+measured steps page-faulted ~22,000 times each (the warm-up, at lower resolution, almost never), a cost training
+does not pay that lengthened on and off alike and so pulled the ratio towards 1.
 Writes benchmarks/results/overhead.json (compiled) or overhead_eager.json.
 """
 
@@ -25,6 +28,7 @@ import torch
 import tyro
 
 from splatu import trainer, training_step
+from splatu.allocator import keep_freed_memory
 from splatu.data.resolve import load_scene
 from splatu.densify import DensityController
 from splatu.losses import uncertainty_loss
@@ -52,6 +56,7 @@ def measure(args: Args) -> dict:
     base = preset_config(args.preset)  # its data options (--max-image-size) with the scene swapped in
     config = dataclasses.replace(base, data=dataclasses.replace(base.data, data=args.data), progress=False)
     set_compile(config.compile_kernels and not args.eager)
+    malloc_fixed = keep_freed_memory()  # as `splatu train` does before its first step
     scene = load_scene(config.data)
     state = trainer.fresh_state(config, scene)
     images = training_step.TrainImages(scene.train)
@@ -79,6 +84,7 @@ def measure(args: Args) -> dict:
     return {
         "scene": scene.name, "preset": args.preset, "gaussians": len(state.model), "warmup_steps": args.warmup,
         "pairs": args.pairs, "threads": torch.get_num_threads(), "compiled_kernels": kernels_compiled(),
+        "malloc": "splatu.allocator" if malloc_fixed else "glibc defaults",
         "median_step_seconds_on": median["on"], "median_step_seconds_off": median["off"],
         "ratio_on_over_off": median["on"] / median["off"],
         "median_uncertainty_loss_seconds": loss_seconds,
