@@ -6,8 +6,9 @@ One model is first trained for `warmup` steps (so it has a realistic, densified 
 Gaussians), then measured steps alternate on/off on that same state, each pair on the same
 camera at full resolution; refinement is switched off during measurement so the number of
 Gaussians stays fixed. The ratio of the median step times is the overhead (target ≤ 1.05);
-because step times on a shared machine are noisy, the script also times the uncertainty loss's
-forward + backward alone and reports (median off + that) / median off.
+because step times on a shared machine are noisy, the script also times alone the work a step does
+only with the loss on (its forward + backward, then the Adam step of `u_sh` and the finiteness check
+of its gradient) and reports (median off + that) / median off.
 Kernels are compiled when the preset compiles them (as in training; --eager for eager ones), and glibc malloc's
 thresholds are fixed as `splatu train` fixes them (splatu.allocator): with glibc's defaults the full-resolution
 measured steps page-faulted ~22,000 times each (the warm-up, at lower resolution, almost never), a cost training
@@ -80,7 +81,8 @@ def measure(args: Args) -> dict:
             times[name].append(time.perf_counter() - started)
         state.step = step + 1
     median = {name: statistics.median(values) for name, values in times.items()}
-    loss_seconds = statistics.median(isolated_loss_seconds(state, variants["on"], images, repeats=5 * args.pairs))
+    loss_times, update_times = isolated_extra_seconds(state, variants["on"], images, repeats=5 * args.pairs)
+    loss_seconds, update_seconds = statistics.median(loss_times), statistics.median(update_times)
     return {
         "scene": scene.name, "preset": args.preset, "gaussians": len(state.model), "warmup_steps": args.warmup,
         "pairs": args.pairs, "threads": torch.get_num_threads(), "compiled_kernels": kernels_compiled(),
@@ -88,14 +90,16 @@ def measure(args: Args) -> dict:
         "median_step_seconds_on": median["on"], "median_step_seconds_off": median["off"],
         "ratio_on_over_off": median["on"] / median["off"],
         "median_uncertainty_loss_seconds": loss_seconds,
-        "isolated_ratio": (median["off"] + loss_seconds) / median["off"],
+        "median_u_sh_update_seconds": update_seconds,
+        "isolated_ratio": (median["off"] + loss_seconds + update_seconds) / median["off"],
         "step_seconds_on": times["on"], "step_seconds_off": times["off"],
     }
 
 
-def isolated_loss_seconds(state: training_step.TrainState, config: TrainConfig, images: training_step.TrainImages,
-                          repeats: int) -> list[float]:
-    """Forward + backward of the uncertainty loss alone on one render: the whole extra work of a step.
+def isolated_extra_seconds(state: training_step.TrainState, config: TrainConfig, images: training_step.TrainImages,
+                           repeats: int) -> tuple[list[float], list[float]]:
+    """Times of the work only a step with the loss on does, on one render: the loss's forward + backward, and the
+    update of `u_sh` (its Adam step and the finiteness check of its gradient, which the loss off skips).
 
     Step times on a shared machine are noisy; this cost is small and stable, so (off + it) / off
     estimates the overhead independently of the interleaved ratio.
@@ -103,14 +107,20 @@ def isolated_loss_seconds(state: training_step.TrainState, config: TrainConfig, 
     camera, _ = images.get(0, 0)
     with torch.no_grad():
         raster = state.model.render(camera, config.model.sh_degree, torch.zeros(3)).raster
-    seconds = []
+    u_sh_adam = state.optimizers.optimizers["u_sh"]
+    loss_seconds, update_seconds = [], []
     for _ in range(repeats):
+        state.optimizers.zero_grad()  # each backward allocates its gradient, as after a step's zero_grad
         started = time.perf_counter()
         uncertainty_loss(state.model, camera.center(), raster, config.uncertainty,
                          state.uncertainty_generators).backward()
-        seconds.append(time.perf_counter() - started)
+        between = time.perf_counter()
+        bool(torch.isfinite(state.model.u_sh.grad.sum()))
+        u_sh_adam.step()
+        update_seconds.append(time.perf_counter() - between)
+        loss_seconds.append(between - started)
     state.optimizers.zero_grad()
-    return seconds
+    return loss_seconds, update_seconds
 
 
 def main(args: Args) -> None:
@@ -119,10 +129,11 @@ def main(args: Args) -> None:
     name = "overhead.json" if result["compiled_kernels"] else "overhead_eager.json"
     (RESULTS / name).write_text(json.dumps(result, indent=2))
     print(f"{'scene':<10}{'gaussians':>10}{'pairs':>7}{'median on (s)':>15}{'median off (s)':>16}{'on/off':>8}"
-          f"{'L_u fwd+bwd (ms)':>18}{'(off+L_u)/off':>15}")
+          f"{'L_u fwd+bwd (ms)':>18}{'u_sh update (ms)':>18}{'(off+both)/off':>16}")
     print(f"{result['scene']:<10}{result['gaussians']:>10}{result['pairs']:>7}{result['median_step_seconds_on']:>15.4f}"
           f"{result['median_step_seconds_off']:>16.4f}{result['ratio_on_over_off']:>8.3f}"
-          f"{1000 * result['median_uncertainty_loss_seconds']:>18.2f}{result['isolated_ratio']:>15.4f}")
+          f"{1000 * result['median_uncertainty_loss_seconds']:>18.2f}"
+          f"{1000 * result['median_u_sh_update_seconds']:>18.2f}{result['isolated_ratio']:>16.4f}")
 
 
 if __name__ == "__main__":

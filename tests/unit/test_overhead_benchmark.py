@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
+from splatu import trainer, training_step
 from tests.benchmark_scripts import benchmark_script
+from tests.unit.test_trainer import tiny_config, tiny_scene
 
 
 @pytest.fixture(scope="module")
@@ -30,3 +33,17 @@ def test_measure_fixes_malloc_s_thresholds_before_any_step(overhead_benchmark, m
     with pytest.raises(_Stop):
         overhead_benchmark.measure(overhead_benchmark.Args())
     assert calls == ["malloc", "load"]
+
+
+def test_the_isolated_extra_work_is_the_loss_and_the_u_sh_update_only(overhead_benchmark, tmp_path) -> None:
+    # the loss off skips both: timing the loss alone left the Adam step of u_sh out of (off + extra) / off
+    scene = tiny_scene(n_train=1)
+    config = tiny_config(tmp_path, resolution_levels=0)
+    state = trainer.fresh_state(config, scene)
+    before = {name: getattr(state.model, name).detach().clone() for name in state.model.PARAM_NAMES}
+    loss_times, update_times = overhead_benchmark.isolated_extra_seconds(
+        state, config, training_step.TrainImages(scene.train), repeats=3)
+    assert len(loss_times) == len(update_times) == 3 and min(update_times) > 0
+    changed = {name for name, value in before.items() if not torch.equal(value, getattr(state.model, name))}
+    assert changed == {"u_sh"}
+    assert all(getattr(state.model, name).grad is None for name in state.model.PARAM_NAMES)
