@@ -156,23 +156,46 @@ def _mean_loss(config: TrainConfig) -> TrainConfig:
 
 
 def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path, scene):
-    full_dir = train_command.train(_mean_loss(tiny_config(tmp_path / "a")))
+    """Stopped after step 5, every schedule changes after the resume: full resolution from step 7, a split after step
+    7 that the density statistics of step 5 (in the checkpoint) count towards, colour SH degree 2 from step 9, the
+    opacity reset (capping every Gaussian, and zeroing its Adam moments) after step 10. The stop after step 7 this
+    test had, right after a window's end, passed with no density statistics restored."""
+    def config(folder: str, **changes) -> TrainConfig:
+        densify = DensifyConfig(warmup_length=1, refine_every=3, stop_split_at=10, reset_alpha_every=3,
+                                densify_grad_thresh=1e-6, max_gaussians=2000)
+        model = ModelConfig(sh_degree=2, sh_degree_interval=4, init_opacity=0.5)
+        return _mean_loss(tiny_config(tmp_path / folder, model=model, densify=densify, **changes))
 
-    def ctrl_c_at_7(step, state):
-        if step == 7:
+    def record(into: dict[int, dict[str, torch.Tensor]]) -> Callable[[int, trainer.TrainState], None]:
+        def hook(step: int, state: trainer.TrainState) -> None:
+            into[step] = {n: getattr(state.model, n).detach().clone() for n in GaussianModel.PARAM_NAMES}
+        return hook
+
+    full_params: dict[int, dict[str, torch.Tensor]] = {}
+    full_dir = train_command.train(config("a"), hooks=[record(full_params)])
+
+    def ctrl_c_at_5(step, state):
+        if step == 5:
             raise KeyboardInterrupt
 
     with pytest.raises(interrupts.TrainingInterrupted, match="resume with"):
-        train_command.train(_mean_loss(tiny_config(tmp_path / "b", checkpoint_every=0)), hooks=[ctrl_c_at_7])
+        train_command.train(config("b", checkpoint_every=0), hooks=[ctrl_c_at_5])
     interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
-    assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000007.pt"]
+    assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000005.pt"]
 
-    resumed_dir = train_command.train(dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")),
-                                                          resume=interrupted_dir))
+    resumed_params: dict[int, dict[str, torch.Tensor]] = {}
+    resumed_dir = train_command.train(dataclasses.replace(config("c"), resume=interrupted_dir),
+                                      hooks=[record(resumed_params)])
     assert resumed_dir == interrupted_dir
     full, resumed = losses_of(full_dir), losses_of(resumed_dir)
     assert sorted(resumed) == list(range(1, 13))
     assert resumed == full  # bit-identical losses, step for step
+    assert sorted(resumed_params) == list(range(6, 13))
+    for step, params in resumed_params.items():  # the model after every resumed step, not only the last
+        for name in GaussianModel.PARAM_NAMES:
+            assert torch.equal(params[name], full_params[step][name]), (step, name)
+    refined = {r["step"]: r["refined"] for r in logged_events(full_dir) if "refined" in r}
+    assert refined[7].get("split") and refined[10].get("reset")
     model_a, model_b = load_run(full_dir).model, load_run(resumed_dir).model
     assert len(model_a) != len(scene.points)  # densification happened, so its state was resumed too
     for name in GaussianModel.PARAM_NAMES:
