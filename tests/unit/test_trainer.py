@@ -386,6 +386,25 @@ def test_too_many_nonfinite_steps_in_a_row_stop_with_the_last_checkpoint_intact(
     assert all(torch.isfinite(v).all() for v in state["model"].values())
 
 
+def test_only_nonfinite_steps_in_a_row_stop_the_training(tmp_path, scene, monkeypatch):
+    """The streak restarts at every good step: with K = 2, single skips one step apart never stop the run."""
+    render = GaussianModel.render
+    done: list[int] = []
+
+    def render_poisoned_every_other_step(self, camera, *args, **kwargs):
+        out = render(self, camera, *args, **kwargs)
+        if out.rgb.requires_grad and len(done) % 2 == 1:
+            out.rgb.register_hook(lambda grad: grad * float("nan"))
+        return out
+
+    monkeypatch.setattr(GaussianModel, "render", render_poisoned_every_other_step)
+    config = tiny_config(tmp_path, steps=8, max_nonfinite_steps=2, densify=DensifyConfig(warmup_length=100))
+    run_dir = train_command.train(config, [lambda step, state: done.append(step)])
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if r["event"] == "nonfinite_skipped"] == [2, 4, 6, 8]
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 8
+
+
 def test_an_update_that_overflows_a_parameter_stops_before_any_checkpoint_holds_it(tmp_path, scene):
     """Finite gradients times a learning rate past float32's range: the update is applied before anything could skip
     it, so training stops at once. It used to write that step's checkpoint with Inf, which no resume can read, and
