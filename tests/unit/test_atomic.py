@@ -1,3 +1,5 @@
+import os
+
 import pytest
 import torch
 
@@ -55,3 +57,26 @@ def test_a_killed_writers_temporary_is_found_and_nothing_else_is(tmp_path):
     for path in (leftover, tmp_path / "step-1.pt", tmp_path / ".step-1.pt.bak", tmp_path / ".step-1.pt-swapping"):
         path.write_text("x")
     assert leftover_temporaries(tmp_path, "step-*.pt") == [leftover]
+
+
+def test_the_data_is_fsynced_before_the_rename_and_the_rename_before_returning(tmp_path, monkeypatch):
+    """Without the first fsync a machine crash can persist the rename but not the data (an empty or torn checkpoint
+    under the real name, the previous one gone); without the second, the rename may be lost after older checkpoints
+    are pruned. Told apart by inode: the temporary file's, then the folder's."""
+    events: list[tuple[str, int]] = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd: int) -> None:
+        events.append(("fsync", os.fstat(fd).st_ino))
+        real_fsync(fd)
+
+    def replace(src, dst) -> None:
+        events.append(("replace", os.stat(src).st_ino))
+        real_replace(src, dst)
+
+    monkeypatch.setattr("splatu.atomic.os.fsync", fsync)
+    monkeypatch.setattr("splatu.atomic.os.replace", replace)
+    path = tmp_path / "step-0000001.pt"
+    atomic_write(path, lambda f: f.write(b"checkpoint"))
+    written, folder = path.stat().st_ino, tmp_path.stat().st_ino
+    assert events == [("fsync", written), ("replace", written), ("fsync", folder)]
