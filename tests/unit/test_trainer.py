@@ -16,6 +16,7 @@ import yaml
 from torch._dynamo.callback import CallbackTrigger, callback_handler
 
 from splatu import (
+    checkpoint,
     evaluation,
     interrupts,
     render_uncertainty,
@@ -2056,6 +2057,47 @@ def test_a_second_stop_during_a_periodic_save_aborts_it_instead_of_saving_again(
     assert saves == [3, 6]
     assert stop.value.message.startswith(f"aborted after step 6; the last checkpoint is {run_dir}/checkpoints/"
                                          "step-0000003.pt; resume with")
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_ctrl_c_in_the_middle_of_writing_a_checkpoint_never_leaves_a_torn_one(tmp_path, scene, monkeypatch, signals):
+    """Real SIGINTs sent from inside torch.save's writes of the step-6 checkpoint, not before the save starts: one
+    lets the write finish and then stops, saved; a second aborts the write, leaving step 3 the newest and whole."""
+    real_save = torch.save
+
+    class SignallingFile:
+        def __init__(self, f):
+            self.f, self.writes = f, 0
+
+        def write(self, data):
+            self.writes += 1
+            if self.writes == 3:
+                for _ in range(signals):
+                    os.kill(os.getpid(), signal.SIGINT)
+            return self.f.write(data)
+
+        def flush(self):
+            self.f.flush()
+
+    signalled: list[int] = []
+
+    def save(obj, f):  # only the first write of step 6: the resume from step 3 writes it again
+        if obj["step"] != 6 or signalled:
+            return real_save(obj, f)
+        signalled.append(6)
+        return real_save(obj, SignallingFile(f))
+
+    monkeypatch.setattr("splatu.checkpoint.torch.save", save)
+    with pytest.raises(interrupts.TrainingInterrupted) as stop:
+        train_command.train(tiny_config(tmp_path, checkpoint_every=3))
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    newest = 6 if signals == 1 else 3
+    assert stop.value.message.startswith("interrupted at step 6, saved" if signals == 1 else "aborted after step 6")
+    left = sorted(p.name for p in (run_dir / "checkpoints").iterdir())  # no temporary file either
+    assert left == (["step-0000003.pt", "step-0000006.pt"] if signals == 1 else ["step-0000003.pt"])
+    assert read_checkpoint(run_dir / "checkpoints" / f"step-{newest:07d}.pt", checkpoint.RESUME_KEYS)["step"] == newest
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
+    assert json.loads((run_dir / "summary.json").read_text())["steps"] == 12
 
 
 def test_a_new_training_into_a_folder_with_an_old_final_checkpoint_replaces_it(tmp_path, scene):
