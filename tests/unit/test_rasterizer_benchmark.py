@@ -78,9 +78,9 @@ def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
 
 
 def test_peak_rss_is_the_worker_s_own_not_its_parent_s_peak() -> None:
-    ballast = bytearray(1 << 31)  # 2 GB touched in this process, then freed: its peak stays above 2 GB
-    ballast[::4096] = b"\x01" * len(range(0, 1 << 31, 4096))
+    ballast = bytearray(1 << 30)  # 1 GB touched in this process, then freed: its peak stays above 1 GB (the suite's
+    ballast[::4096] = b"\x01" * len(range(0, 1 << 30, 4096))  # own peak rose to 3.1 GB with 2 GB here)
     del ballast
     code = f"import runpy; print(runpy.run_path({str(BENCHMARKS / 'rasterizer.py')!r})['peak_rss_mb']())"
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
-    assert 10 < float(run.stdout) < 1500  # importing torch takes a few hundred MB
+    assert 10 < float(run.stdout) < 1000  # importing torch takes a few hundred MB
