@@ -2018,24 +2018,31 @@ def test_scene_extent_is_1_1_times_the_largest_camera_distance_from_the_mean_cen
     assert training_step.scene_extent(cameras) == pytest.approx(1.1 * 3.0)
 
 
+class FileActingAtItsThirdWrite:
+    """A file torch.save writes to that calls `act` (a Ctrl-C, raised or signalled) at its third write, mid-save."""
+
+    def __init__(self, f, act):
+        self.f, self.act, self.writes = f, act, 0
+
+    def write(self, data):
+        self.writes += 1
+        if self.writes == 3:
+            self.act()
+        return self.f.write(data)
+
+    def flush(self):
+        self.f.flush()
+
+
 def test_a_ctrl_c_inside_torch_save_stays_a_ctrl_c(tmp_path):
     """torch.save turns an exception raised by the file it writes into a RuntimeError; a second Ctrl-C arriving
     there must still stop the command as Ctrl-C (exit 130 and the resume line), not as a traceback."""
-    class InterruptedFile:
-        def __init__(self, f):
-            self.f, self.writes = f, 0
-
-        def write(self, data):
-            self.writes += 1
-            if self.writes == 3:
-                raise KeyboardInterrupt
-            return self.f.write(data)
-
-        def flush(self):
-            self.f.flush()
+    def ctrl_c():
+        raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        atomic_write(tmp_path / "step-0000001.pt", lambda f: torch.save({"w": torch.ones(1000)}, InterruptedFile(f)))
+        atomic_write(tmp_path / "step-0000001.pt",
+                     lambda f: torch.save({"w": torch.ones(1000)}, FileActingAtItsThirdWrite(f, ctrl_c)))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -2065,19 +2072,9 @@ def test_ctrl_c_in_the_middle_of_writing_a_checkpoint_never_leaves_a_torn_one(tm
     lets the write finish and then stops, saved; a second aborts the write, leaving step 3 the newest and whole."""
     real_save = torch.save
 
-    class SignallingFile:
-        def __init__(self, f):
-            self.f, self.writes = f, 0
-
-        def write(self, data):
-            self.writes += 1
-            if self.writes == 3:
-                for _ in range(signals):
-                    os.kill(os.getpid(), signal.SIGINT)
-            return self.f.write(data)
-
-        def flush(self):
-            self.f.flush()
+    def ctrl_cs():
+        for _ in range(signals):
+            os.kill(os.getpid(), signal.SIGINT)
 
     signalled: list[int] = []
 
@@ -2085,7 +2082,7 @@ def test_ctrl_c_in_the_middle_of_writing_a_checkpoint_never_leaves_a_torn_one(tm
         if obj["step"] != 6 or signalled:
             return real_save(obj, f)
         signalled.append(6)
-        return real_save(obj, SignallingFile(f))
+        return real_save(obj, FileActingAtItsThirdWrite(f, ctrl_cs))
 
     monkeypatch.setattr("splatu.checkpoint.torch.save", save)
     with pytest.raises(interrupts.TrainingInterrupted) as stop:
