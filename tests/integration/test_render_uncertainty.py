@@ -926,7 +926,8 @@ def test_a_tile_scenes_own_cameras_render_with_off_centre_ok_as_their_part_of_th
         tile = run.render(*tiles[name], off_centre_ok=True)
         full = run.render(*whole[photo])
         assert tile.rgb.shape == (40, 24, 3)
-        # its own part of the photo, not another, up to the Gaussians its narrower clamp range bends (README: Data)
+        # its own part of the photo, not another, up to the Gaussians its narrower clamp range bends
+        # (docs/usage.md, Data)
         error = {(x, y): float(np.abs(tile.rgb - full.rgb[y:y + 40, x:x + 24]).mean())
                  for x in (0, 24) for y in (0, 40)}
         assert min(error, key=error.__getitem__) == (left, top) and error[left, top] < 5e-3, error
