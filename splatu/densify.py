@@ -208,7 +208,7 @@ class DensityController:
         until the first opacity reset. Apart from `_cull_mask` because a split child is judged at its own scale."""
         cfg = self.cfg
         if step <= cfg.refine_every * cfg.reset_alpha_every:
-            return torch.zeros(len(model), dtype=torch.bool)
+            return torch.zeros(len(model), dtype=torch.bool, device=model.log_scales.device)
         return model.log_scales.exp().amax(-1) / shrink > cfg.cull_scale_thresh * self.scene_extent
 
     def _densify_masks(self, step: int, model: GaussianModel, cull: Tensor) -> tuple[Tensor, Tensor]:
