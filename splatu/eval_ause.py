@@ -165,13 +165,13 @@ def run(config: EvalAuseConfig) -> None:
     else:
         from splatu.render_uncertainty import pinned_load, render_eval_maps
 
-        options = config.uncertainty
-        options.check()
+        config.uncertainty.check()
         config = dataclasses.replace(config, load=pinned_load(config.load, "the report"))
         maps_root = None
         if config.output is not None:  # before the render, so a bad --output costs nothing
             maps_root = maps_beside(checked_output(config.output))
-        maps_dir, entries, stand_in, label = render_eval_maps(config.load, options, maps_root)
+        # options: the method resolved for the run (`UncertaintyOptions.for_run`), as the report records it
+        maps_dir, entries, stand_in, label, options = render_eval_maps(config.load, config.uncertainty, maps_root)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
         report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},
                                entries, stand_in)

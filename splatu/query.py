@@ -2,10 +2,10 @@
 
 `open_run(path).render(world_to_camera, K, width, height)` renders a candidate camera given in the data's own
 frame (the frame of the scene's poses and of the run's splat.ply, OpenCV axes), with the run's own uncertainty
-(or an ensemble's, or a baseline's: `open_run(path, method=...)`), without decoding the scene's images unless the
-method compares renders with the training images (the residuals). The model lives in the normalised frame it was
-trained in; the camera is moved there rather than the model moved out, so the render is exactly what `splatu
-render-uncertainty --method ...` computes for that view.
+(ours, or an ensemble run's std) or a baseline's (`open_run(path, method=...)`), without decoding the scene's
+images unless the method compares renders with the training images (the residuals). The model lives in the
+normalised frame it was trained in; the camera is moved there rather than the model moved out, so the render is
+exactly what `splatu render-uncertainty --method ...` computes for that view.
 
 K is the pinhole the model saw, not the lens's: a distorted capture (COLMAP SIMPLE_RADIAL or OPENCV, nerfstudio
 OPENCV) trained on images undistorted to OpenCV's alpha=0 pinhole, which differs from the file's K by up to a few
@@ -33,6 +33,7 @@ from splatu.baselines import (
     METHODS_WITH_OURS,
     UncertaintySource,
     method_list,
+    own_method,
 )
 from splatu.baselines.ensemble import ENSEMBLE_FILE
 from splatu.baselines.load import build_method, load_any_run, method_scene, run_data
@@ -157,14 +158,18 @@ def nearest_training_view(world_to_camera: np.ndarray | Tensor, training: Mappin
     return nearest
 
 
-def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "ours", data: str | Path | None = None,
-             density_aware: bool = False) -> RunQuery:
+def open_run(path: str | Path, head: str | None = None, method: QueryMethod | None = None,
+             data: str | Path | None = None, density_aware: bool = False) -> RunQuery:
     """A run's folder (or one of its checkpoints), to render with `method`: ours (optionally one of the run's extra
     uncertainty heads), an ensemble run's member disagreement (`density_aware` as in `splatu eval-ause`), or a
-    baseline. The baselines that look at the training views first (visibility, fisher, angle and the residuals) read
+    baseline; by default the run's own, as render-uncertainty's (`own_method`): the ensemble's for an ensemble run,
+    else ours. The baselines that look at the training views first (visibility, fisher, angle and the residuals) read
     the scene here, once (only the residuals decode its images: they compare renders with them); `data` is the
     scene's new location if it has moved, for those methods alone (the others never read the scene here)."""
     target = Path(path).expanduser()
+    is_ensemble = (target / ENSEMBLE_FILE).is_file()
+    if method is None:
+        method = own_method(is_ensemble)
     if method not in QUERY_METHODS:
         raise SplatuError(f"unknown method {method!r}", "in open_run",
                           f"pass method= one of {method_list(QUERY_METHODS)}")
@@ -178,11 +183,10 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod = "o
         raise SplatuError(f'data= is where the scene is, which method="{method}" never reads', "in open_run",
                           "drop data= here, and pass it to run.scene_cameras() and run.training_cameras(), which "
                           f"read the scene, or pass method= one of {method_list(METHODS_FROM_TRAINING_VIEWS)}")
-    is_ensemble = (target / ENSEMBLE_FILE).is_file()
     if is_ensemble != (method == "ensemble"):  # an ensemble's members trained without the loss: they have no U
         raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement" if is_ensemble
                           else "method=\"ensemble\" needs an ensemble run (with ensemble.json)", f"in {path}",
-                          "pass method=\"ensemble\"" if is_ensemble else
+                          "drop method=, or pass method=\"ensemble\"" if is_ensemble else
                           "open one trained with `splatu train --method ensemble`, or pass another method=")
     pinned, note = pinned_unless_finished(target)
     if note is not None:  # a ranking of an intermediate model, not the finished run's

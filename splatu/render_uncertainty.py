@@ -92,7 +92,8 @@ class RenderUncertaintyConfig:
     """Options of `splatu render-uncertainty`."""
 
     load: Path = Path("outputs/poster/splatu/latest")
-    """A training run directory, or one of its checkpoint files (an ensemble run for --method ensemble)."""
+    """A training run directory, or one of its checkpoint files, or an ensemble run (rendered with --method ensemble
+    by default)."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """Which uncertainty to render, and the options that change its maps."""
     views: ViewSet = "eval"
@@ -388,21 +389,25 @@ def pinned_load(load: Path, written: str) -> Path:
     return pinned
 
 
-def _load(load: Path, options: UncertaintyOptions):
-    """The run, checked against the method (imports kept here: they pull in the whole trainer stack); the
-    options themselves are checked by each command first (`UncertaintyOptions.check`)."""
+def _load(load: Path, options: UncertaintyOptions) -> tuple[LoadedRun, UncertaintyOptions]:
+    """The run, and the options with the method resolved for it (`UncertaintyOptions.for_run`), checked against it
+    (imports kept here: they pull in the whole trainer stack); the options typed are checked by each command first
+    (`UncertaintyOptions.check`). Everything after it uses these options, never the method as typed."""
     from splatu.baselines.load import check_method, load_any_run
 
     run = load_any_run(load, options.head)
+    options = options.for_run(len(run.models) > 1)
+    assert options.method is not None  # for_run resolved it
     check_method(options.method, run)
-    return run
+    return run, options
 
 
 def _setup(run, options: UncertaintyOptions, views: ViewSet):
     """The run's scene, its images decoded only when the views' ground truth or the method needs them
-    (`method_scene`), and the method's renderer."""
+    (`method_scene`), and the method's renderer; `options` as `_load` resolved them."""
     from splatu.baselines.load import build_method, method_scene, run_data
 
+    assert options.method is not None  # _load resolved it
     scene = method_scene(options.method, run_data(run, options.data), ground_truth=views in ("eval", "train"))
     return scene, build_method(options.method, run, scene, options.density_aware, options.fisher_probes,
                                options.seed)
@@ -410,18 +415,20 @@ def _setup(run, options: UncertaintyOptions, views: ViewSet):
 
 class EvalMaps(NamedTuple):
     """What `render_eval_maps` wrote: where, the views as stored there (see write_maps_dir), whether the scene is the
-    built-in stand-in (`Scene.stand_in`), and the label of what was loaded (`UncertaintyOptions.label`)."""
+    built-in stand-in (`Scene.stand_in`), the label of what was loaded (`UncertaintyOptions.label`), and the options
+    that rendered it, the method resolved for the run (`UncertaintyOptions.for_run`)."""
 
     root: Path
     entries: list[MapEntry]
     stand_in: bool
     label: str
+    options: UncertaintyOptions
 
 
 def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None = None) -> EvalMaps:
     """Render the eval split into the maps layout only (what `eval-ause --load` scores), at `root` (default: the
     run's <run>/uncertainty/<label>-eval/maps, beside render-uncertainty's files)."""
-    run = _load(load, options)
+    run, options = _load(load, options)
     label = options.label(load, run.member_steps)
     if root is None:
         root = run_folder(load) / "uncertainty" / f"{label}-eval" / "maps"
@@ -440,7 +447,8 @@ def render_eval_maps(load: Path, options: UncertaintyOptions, root: Path | None 
     timing = {**train_timing(run), "setup_seconds": built.setup_seconds,
               "render_seconds_per_view": float(np.median(seconds))}
     # in place of an earlier render's, whose stale views must not be scored
-    return EvalMaps(root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in, label)
+    return EvalMaps(root, write_maps_dir(root, entries, {"timing.json": json.dumps(timing)}), scene.stand_in, label,
+                    options)
 
 
 def train_timing(run: LoadedRun) -> dict[str, float | None]:
@@ -479,10 +487,10 @@ def run(config: RenderUncertaintyConfig) -> None:
     if config.cameras is not None:
         require_file(transforms_file(config.cameras), "camera file",
                      "pass the path of a transforms.json-style file of cameras, or of the folder holding it")
-    options = config.uncertainty
-    options.check()
+    config.uncertainty.check()
     config = dataclasses.replace(config, load=pinned_load(config.load, "what is written"))
-    run_info = _load(config.load, options)
+    run_info, options = _load(config.load, config.uncertainty)
+    config = dataclasses.replace(config, uncertainty=options)  # render.json records the method resolved
     # after loading the run, so a mistyped --load creates no folder; before the scene, so a bad --output costs nothing
     label = options.label(config.load, run_info.member_steps)
     out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",

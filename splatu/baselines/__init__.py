@@ -47,6 +47,11 @@ METHODS_FROM_TRAINING_IMAGES: tuple[UncertaintyMethod, ...] = ("residual", "ours
 mask files), so a render that needs no ground truth decodes no image for them (`CameraScene`)."""
 
 
+def own_method(ensemble: bool) -> UncertaintyMethod:
+    """The uncertainty a run renders when no method is named: an ensemble run's std, a single run's ours."""
+    return "ensemble" if ensemble else "ours"
+
+
 def method_list(methods: tuple[str, ...] = UNCERTAINTY_METHODS) -> str:
     """'a, b or c', for messages and help texts."""
     return ", ".join(methods[:-1]) + " or " + methods[-1]

@@ -170,7 +170,7 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
     """Refuse a method the run cannot provide, before any scene is loaded."""
     if method != "ensemble" and len(run.models) > 1:
         raise SplatuError(f"--method {method} needs a single run, this is an ensemble", f"in {run.run_dir}",
-                          "pass one member (members/<k>) or use --method ensemble")
+                          "pass one member (members/<k>), or drop --method for the ensemble's std (its default)")
     if method == "ensemble" and len(run.models) < 2:
         raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
                           "train one with `splatu train --method ensemble --ensemble 10`")

@@ -640,6 +640,57 @@ def test_wrong_method_for_the_run_is_one_line(tiny_run, capsys):
     assert len(err) == 1 and "ensemble" in err[0]
 
 
+def test_without_method_a_run_renders_and_scores_its_own_uncertainty(tiny_run, tmp_path, capsys):
+    """An ensemble run was refused without --method ensemble ("--method ours needs a single run"): with no --method
+    it renders and scores its std, under the names --method ensemble writes; a single run still gives ours."""
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    _render(ensemble, "--max-views", "1")
+    entrypoint(["eval-ause", "--load", str(ensemble)])
+    assert "with ensemble" in capsys.readouterr().out
+    written = _folder_names(ensemble)
+    assert {"uncertainty/ensemble-eval/render.json", "ause_ensemble.json"} <= written
+    assert json.loads((ensemble / "uncertainty" / "ensemble-eval" / "render.json").read_text())["method"] == "ensemble"
+    report = json.loads((ensemble / "ause_ensemble.json").read_text())
+    assert (report["method"], report["options"]["method"]) == ("ensemble", "ensemble")
+    _render(ensemble, "--max-views", "1", "--method", "ensemble")
+    entrypoint(["eval-ause", "--load", str(ensemble), "--method", "ensemble"])
+    assert _folder_names(ensemble) == written
+    _render(tiny_run, "--max-views", "1", "--output", str(tmp_path / "single"))
+    assert json.loads((tmp_path / "single" / "render.json").read_text())["method"] == "ours"
+    entrypoint(["eval-ause", "--load", str(tiny_run), "--output", str(tmp_path / "single.json")])
+    report = json.loads((tmp_path / "single.json").read_text())
+    assert (report["method"], report["options"]["method"]) == ("ours", "ours")
+
+
+def test_an_option_of_one_method_without_method_follows_the_run(tiny_run, tmp_path, capsys):
+    """Without --method, --density-aware applies to an ensemble run (its default is the ensemble) and is refused for a
+    single run, in one line that says what that run renders with and suggests nothing it cannot render."""
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    _render(ensemble, "--density-aware", "--max-views", "1")
+    record = json.loads((ensemble / "uncertainty" / "ensemble-density-aware-eval" / "render.json").read_text())
+    assert (record["method"], record["density_aware"]) == ("ensemble", True)
+    for command in ("render-uncertainty", "eval-ause"):
+        line = _one_line(capsys, [command, "--load", str(tiny_run), "--density-aware"])
+        assert line == ("error: --density-aware only applies with --method ensemble; this is a single run, rendered "
+                        "with ours without --method, in the command's options, drop --density-aware (it applies to "
+                        "an ensemble run)")
+    assert not (tiny_run / "uncertainty" / "ours-density-aware-eval").exists()
+    line = _one_line(capsys, ["render-uncertainty", "--load", str(ensemble), "--seed", "1"])
+    assert "this is an ensemble run, rendered with ensemble" in line and line.endswith("(it applies to a single run)")
+    line = _one_line(capsys, ["eval-ause", "--load", str(ensemble), "--method", "ours"])  # typed: refused as before
+    assert "--method ours needs a single run, this is an ensemble" in line and "drop --method" in line
+
+
+def test_open_run_without_method_renders_the_runs_own_uncertainty(tiny_run, tmp_path):
+    """open_run refused an ensemble run without method="ensemble"; like render-uncertainty, it now takes the run's
+    own: the ensemble's std (with density_aware too), or ours for a single run."""
+    from splatu.query import open_run
+
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    assert [open_run(ensemble, density_aware=aware).method for aware in (False, True)] == ["ensemble"] * 2
+    assert open_run(tiny_run).method == "ours"
+
+
 def test_load_may_name_a_checkpoint_file_and_writes_beside_its_run_under_its_own_name(tiny_run):
     """The error messages offer `--load RUN_OR_CHECKPOINT`; a checkpoint used to make the default output folder a
     path under the .pt file, and then the run's own folder, where an earlier checkpoint's render and scores
@@ -967,7 +1018,7 @@ def test_open_run_errors_give_a_python_caller_a_way_on(tiny_run, tmp_path):
 
     (tmp_path / "ensemble.json").write_text("{}")
     with pytest.raises(SplatuError) as error:
-        open_run(tmp_path)
+        open_run(tmp_path, method="ours")
     assert "ensemble" in error.value.what and 'method="ensemble"' in error.value.fix and "ensemble.json" not in str(
         error.value)
     with pytest.raises(SplatuError, match='method="ensemble" needs an ensemble run'):

@@ -123,8 +123,9 @@ def test_sigterm_ends_the_cli_quietly_rather_than_through_glogs_crash_handler():
     ["train", "--densify.cull-alpha-thresh", "0"], ["train", "--densify.densify-grad-thresh", "nan"],
     ["train", "--densify.warmup-length", "-1"],
     ["render-uncertainty", "--orbit-frames", "4"], ["render-uncertainty", "--orbit-shape", "arc"],
-    ["render-uncertainty", "--orbit-radius-scale", "1"], ["render-uncertainty", "--density-aware"],
-    ["render-uncertainty", "--method", "random", "--fisher-probes", "4"], ["eval-ause", "--density-aware"],
+    ["render-uncertainty", "--orbit-radius-scale", "1"], ["render-uncertainty", "--method", "ours", "--density-aware"],
+    ["render-uncertainty", "--method", "random", "--fisher-probes", "4"],
+    ["eval-ause", "--method", "ours", "--density-aware"],
     ["eval-ause", "--method", "fisher", "--fisher-probes", "0"],
     ["render-uncertainty", "--method", "random", "--seed", str(MAX_SEED)],
 ])

@@ -155,7 +155,7 @@ def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, cap
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
     for args in (["--seed", "1"], ["--method", "random"], ["--fisher-probes", "4"], ["--density-aware"],
-                 ["--head", "degree=1"], ["--data", "poster"]):
+                 ["--head", "degree=1"], ["--data", "poster"], ["--method", "ours"]):
         line = _one_line_error(capsys, "--maps", str(root), *args)
         assert f"{args[0]} only applies with --load" in line and f"drop {args[0]}" in line
     assert "--fisher-probes --seed only apply" in _one_line_error(capsys, "--maps", str(root), "--fisher-probes", "3",
@@ -206,7 +206,7 @@ def test_eval_ause_says_so_when_every_eval_view_is_masked_out(tmp_path, monkeypa
     blank = R.RenderedView("v", {"rgb": np.zeros((4, 4, 3)), "uncertainty": np.zeros((4, 4))},
                            gt=np.zeros((4, 4, 3)), mask=np.zeros((4, 4), bool))
     scene = SimpleNamespace(eval=None, train=None)
-    monkeypatch.setattr(R, "_load", lambda load, options: SimpleNamespace(member_steps=None))
+    monkeypatch.setattr(R, "_load", lambda load, options: (SimpleNamespace(member_steps=None), options.for_run(False)))
     monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None)))
     monkeypatch.setattr(R, "view_spec", lambda *args: None)
     monkeypatch.setattr(R, "render_views", lambda source, spec: ([blank], [0.1]))
@@ -306,7 +306,7 @@ def test_a_view_name_no_file_can_take_is_one_line_naming_the_camera_file(name, p
 
 def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     def label(**options) -> str:
-        return UncertaintyOptions(**options).label()
+        return UncertaintyOptions(**options).for_run(ensemble=False).label()
 
     assert label() == "ours"
     assert label(head="degree=1") == "ours-degree=1"
@@ -317,6 +317,8 @@ def test_every_option_that_changes_a_methods_maps_is_in_its_file_names():
     assert label(method="fisher", fisher_probes=4, seed=1) == "fisher-4-probes-seed-1"
     # the data a run is rendered on is not in the name: --data moves the scene, not the maps' method
     assert label(data="elsewhere") == "ours"
+    # an ensemble run's default is named as --method ensemble is
+    assert UncertaintyOptions(density_aware=True).for_run(ensemble=True).label() == "ensemble-density-aware"
 
 
 def test_the_recorded_options_are_every_option_including_the_scene():
