@@ -27,6 +27,9 @@ import numpy as np
 from splatu.atomic import atomic_write
 from splatu.errors import DownscaleError, SplatuError, load_number_array, unwritable
 
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"}
+"""What COLMAP 4 reads and training decodes alike (pycolmap cannot read WebP): the photos `process-images` takes."""
+
 PixelKind = Literal["color", "mask", "depth"]
 CACHE_VERSION = 2
 """Bump when the pipeline changes, so stale cache entries are never read."""

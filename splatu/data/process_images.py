@@ -26,14 +26,11 @@ import tyro
 from rich.console import Console
 
 from splatu.atomic import swap_in_folder
-from splatu.data.images import read_image
+from splatu.data.images import IMAGE_SUFFIXES, read_image
 from splatu.data.pycolmap_quiet import pycolmap
 from splatu.data.resolve import colmap_data_path
 from splatu.errors import SplatuError, creatable_dir
 from splatu.interrupts import finish_first
-
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"}
-"""What COLMAP 4 reads and training decodes alike (pycolmap cannot read WebP)."""
 
 T = TypeVar("T")
 

@@ -19,7 +19,7 @@ from splatu.data.blender import is_blender, load_blender
 from splatu.data.colmap import empty_sparse_dir, find_sparse_dir, load_colmap, scene_root_of
 from splatu.data.config import DataConfig
 from splatu.data.frames import RawScene, downscaled
-from splatu.data.images import ImageCache, default_cache_dir
+from splatu.data.images import IMAGE_SUFFIXES, ImageCache, default_cache_dir
 from splatu.data.nerfstudio import load_nerfstudio
 from splatu.data.poster import build_poster_standin
 from splatu.data.poster.config import PosterConfig
@@ -60,8 +60,27 @@ def read_scene_files(path: Path, background: tuple[float, float, float], warn_of
     elif (empty := empty_sparse_dir(path)) is not None:
         raise SplatuError("the COLMAP model folder is empty (no cameras, images or points3D file)", f"in {empty}",
                           "run the reconstruction again (splatu process-images) or export the model into it")
-    raise SplatuError("unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0",
-                      f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
+    raise unknown_format_error(path)
+
+
+def is_scene_folder(path: Path) -> bool:
+    """Whether `read_scene_files` finds a scene format directly in the folder `path`."""
+    return (path / "transforms.json").is_file() or is_blender(path) or find_sparse_dir(path) is not None
+
+
+def unknown_format_error(path: Path) -> SplatuError:
+    """The error for a `--data` path with no scene format, with the likeliest fix: a scene's images/ or sparse/
+    folder given for the scene itself names the scene folder, and a folder of bare photos (no poses yet) names
+    `splatu process-images`, which makes the COLMAP model it needs."""
+    what = "unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0"
+    if path.is_dir() and is_scene_folder(path.parent):
+        return SplatuError(what, f"in {path}", f"pass the scene folder it is in: --data {path.parent}")
+    photos = sum(1 for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if path.is_dir() else 0
+    if photos:
+        held = f"{photos} photo{'s' if photos > 1 else ''}"
+        return SplatuError(f"{what}; the folder holds {held} but no camera poses", f"in {path}",
+                           f"run `splatu process-images {path}` first: it estimates them and prints the train line")
+    return SplatuError(what, f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
 
 
 def colmap_data_path(root: Path) -> Path:

@@ -59,10 +59,29 @@ def test_train_style_resolution_of_a_nonexistent_data_path(tmp_path):
 
 
 def test_unknown_format(tmp_path):
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "a.txt").write_text("no scene here")
+    error = load_error(tmp_path / "notes", tmp_path)
+    assert "unknown scene format" in error.what and "notes" in error.where and "--data" in error.fix
+
+
+def test_a_folder_of_photos_without_poses_names_process_images(tmp_path):
+    """Photos straight off a camera have no poses yet: the fix is the command that makes them, not a format list."""
     (tmp_path / "photos").mkdir()
-    write_rgb(tmp_path / "photos" / "a.png", noise_image(0, 8, 6))
+    for i in range(3):
+        write_rgb(tmp_path / "photos" / f"{i}.JPG", noise_image(i, 8, 6))
     error = load_error(tmp_path / "photos", tmp_path)
-    assert "unknown scene format" in error.what and "photos" in error.where
+    assert "unknown scene format" in error.what and "3 photos but no camera poses" in error.what
+    assert f"splatu process-images {tmp_path}/photos" in error.fix
+
+
+def test_a_scenes_images_folder_names_the_scene_folder(tmp_path):
+    """--data scene/images (or scene/sparse) is a slip for --data scene: the fix names the folder to pass."""
+    cameras = write_nerfstudio_scene(tmp_path / "scene", n=3)
+    images = (tmp_path / "scene" / cameras[0].name).parent
+    error = load_error(images, tmp_path)
+    assert "unknown scene format" in error.what
+    assert error.fix == f"pass the scene folder it is in: --data {tmp_path}/scene"
 
 
 def test_an_empty_colmap_model_folder_says_so(tmp_path):
