@@ -177,6 +177,15 @@ def _plain_value_error(sections: list[list[str]]) -> str | None:
     return f"{flag} takes {takes}, got {_quoted(values)}"
 
 
+def _closest_first(names: list[str], problem: list[str]) -> list[str]:
+    """tyro's suggested flags, the nearest spelling of a flag the user typed (in the box's first section) first:
+    tyro lists them alphabetically, so `--step` read "did you mean --eval-every-steps or ... or --steps?"."""
+    typed = re.findall(r"(?<![\w-])--[\w.-]+", " ".join(problem))
+    if not typed:
+        return names
+    return sorted(names, key=lambda name: -max(difflib.SequenceMatcher(None, flag, name).ratio() for flag in typed))
+
+
 def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str]) -> SplatuError | None:
     """The one-line error for tyro's parse-error box `tyro_output`, or None when it is not one. `subcommands` are
     named from the registry: tyro's own list is wrapped over lines of the box."""
@@ -198,7 +207,7 @@ def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str])
     for section in sections[1:]:
         heading = section[0].strip()
         if heading.startswith("Perhaps you meant"):
-            names = _flag_names(section[1:], help_command)
+            names = _closest_first(_flag_names(section[1:], help_command), sections[0])
             if names:
                 hints.append(f"did you mean {' or '.join(names)}?")
         elif heading.startswith("Argument helptext") and len(section) > 1:

@@ -414,6 +414,14 @@ def test_only_the_chosen_subcommands_flags_are_suggested(capsys):
     assert "unrecognized options: --step, 3" in err and "--steps" not in err and "did you mean" not in err
 
 
+def test_the_nearest_suggested_flag_comes_first(capsys):
+    """tyro lists its guesses alphabetically: `--step` read "did you mean --eval-every-steps or
+    --max-nonfinite-steps or --optim.means-lr-steps or --steps?", the flag meant last."""
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--step", "3"])
+    assert "did you mean --steps or " in capsys.readouterr().err
+
+
 def test_debug_shows_tyros_own_parse_error(capsys):
     with pytest.raises(SystemExit) as exc:
         entrypoint(["train", "--stepz", "3", "--debug"])
