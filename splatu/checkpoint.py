@@ -23,7 +23,7 @@ from splatu.config_values import changed_options
 from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
-from splatu.run_dir import still_training
+from splatu.run_dir import LATEST, still_training
 from splatu.train_config import TrainConfig, from_dict, load_config, option_value
 from splatu.world_frame import WorldTransform
 
@@ -76,8 +76,10 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
         raise SplatuError("this is an ensemble run; it has one model per member", f"in {target}",
                           "load each run listed in its ensemble.json")
     if not (target / CHECKPOINT_DIR).is_dir() and not (target / "config.yml").is_file():  # a run saves its config first
-        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}",
-                          "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
+        newest = target / LATEST
+        fix = (f"pass {newest}, the newest run in it, or one of its timestamped runs" if newest.is_dir() else
+               "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
+        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}", fix)
     found = list_checkpoints(target)
     if not found:
         raise SplatuError("no checkpoint in this run directory", f"in {target / CHECKPOINT_DIR}",

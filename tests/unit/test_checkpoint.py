@@ -121,6 +121,17 @@ def test_a_checkpoint_with_nan_or_inf_names_the_file_and_tensor(tmp_path, bad):
     assert caught.value.where == f"in {path}"
 
 
+def test_the_folder_holding_runs_names_its_latest_run(tmp_path):
+    """`--load outputs/poster/splatu` (the runs' folder, as nerfstudio users type it) said only "pass a run
+    directory": the fix names the `latest` link inside it."""
+    method_dir = tmp_path / "outputs" / "poster" / "splatu"
+    (method_dir / "2026-01-01_000000").mkdir(parents=True)
+    (method_dir / "latest").symlink_to("2026-01-01_000000")
+    with pytest.raises(SplatuError) as caught:
+        ckpt.resolve_checkpoint(method_dir)
+    assert caught.value.fix == f"pass {method_dir}/latest, the newest run in it, or one of its timestamped runs"
+
+
 def test_a_checkpoint_that_does_not_fit_its_config_names_the_file(tmp_path):
     state = _state(TrainConfig(), 0)
     state["model"]["sh_rest"] = state["model"]["sh_rest"][:, :3]
