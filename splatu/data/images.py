@@ -197,6 +197,10 @@ def read_image(path: Path, or_else: str = "remove its frame") -> np.ndarray:
     truncated or corrupt file (what else the user may do). A folder where the image should be is said to be one:
     "not found" sent the user looking for a path that exists (an empty file_path names the scene folder itself)."""
     if not path.is_file():
+        if not path.parent.is_dir():  # a COLMAP scene copied without images/ names no file to check
+            raise SplatuError(f"image not found: its folder {path.parent.name}/ does not exist", f"in {path}",
+                              f"put the scene's images in {path.parent}, or check the file path in the scene "
+                              "description")
         what = "image path is a folder, not an image file" if path.is_dir() else "image not found"
         raise SplatuError(what, f"in {path}", "check the file path in the scene description")
     try:

@@ -281,6 +281,20 @@ def test_colmap_images_txt_without_its_empty_points_lines_is_refused_not_half_re
     assert error.where == f"in {images}"
 
 
+def test_a_missing_image_folder_says_so(tmp_path):
+    """A scene copied without its images/ folder named only the first image and "the scene description", which a
+    COLMAP model has none of: the message says the folder is missing and where the images go."""
+    root = tmp_path / "scene"
+    cameras = write_nerfstudio_scene(root, n=4)
+    folder = (root / cameras[0].name).parent
+    for image in folder.iterdir():
+        image.unlink()
+    folder.rmdir()
+    error = load_error(root, tmp_path, eval_split="every-n", eval_every=2)
+    assert error.what == f"image not found: its folder {folder.name}/ does not exist"
+    assert error.fix.startswith(f"put the scene's images in {folder}, ")
+
+
 @pytest.mark.parametrize("file_path", ["images", ""])
 def test_an_image_path_that_is_a_folder_says_so(tmp_path, file_path):
     """It said "image not found" for a path that exists; an empty file_path is the scene folder itself."""
