@@ -99,7 +99,8 @@ class TrainConfig:
     eval_every_steps: int = 0
     """Evaluate on the held-out views every this many steps (0: only at the end)."""
     log_every: int = 10
-    """Append a training line to metrics.jsonl every this many steps."""
+    """Append a training line to metrics.jsonl every this many steps, and at every densification step, whose line
+    says what it cloned, split and pruned (every step when --densify.refine-every is 1, as --steps 300 sets it)."""
     checkpoint_every: int = 1000
     """Write a checkpoint every this many steps (and always at the end); 0: only at the end."""
     keep_checkpoints: int = 2
