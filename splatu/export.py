@@ -28,8 +28,8 @@ def export_path(load: Path, checkpoint: Path, output: Path | None) -> Path:
     """Where the PLY goes, refused in one line before anything is read if it cannot be written there."""
     path = output or run_folder(load) / "exports" / f"splat-{checkpoint.stem}.ply"
     if path.suffix.lower() != ".ply" or path.is_dir():  # X.PLY too, as viewers and file pickers take it
-        raise SplatuError("--output must name a .ply file", f"in {path}",
-                          f"pass a path such as {path.with_suffix('.ply')}")
+        example = path / f"splat-{checkpoint.stem}.ply" if path.is_dir() else path.with_suffix(".ply")  # a file in it
+        raise SplatuError("--output must name a .ply file", f"in {path}", f"pass a path such as {example}")
     creatable_dir(path.parent, "--output (a .ply path in a writable folder)")
     return path
 

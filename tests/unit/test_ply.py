@@ -234,3 +234,12 @@ def test_f_rest_properties_that_are_not_a_multiple_of_three_are_named(tmp_path):
     path.write_bytes(("\n".join(header) + "\n").encode("ascii") + np.zeros((n, len(names)), "<f4").tobytes())
     with pytest.raises(SplatuError, match="PLY has 25 f_rest properties, not a multiple of 3"):
         load_ply(path, ModelConfig())
+
+
+def test_an_export_output_that_is_a_folder_is_told_a_file_in_it(tmp_path):
+    """`splatu export --output DIR` was told "pass a path such as DIR.ply", a file beside the folder meant."""
+    from splatu.export import export_path
+
+    with pytest.raises(SplatuError) as caught:
+        export_path(tmp_path, tmp_path / "checkpoints" / "step-0000300.pt", tmp_path)
+    assert caught.value.fix == f"pass a path such as {tmp_path}/splat-step-0000300.ply"
