@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import functools
 import math
 import types
@@ -28,7 +29,9 @@ def read_yaml(path: Path) -> dict[str, Any]:
     try:
         values = copy.deepcopy(_parsed(path.read_text(encoding="utf-8")))  # the caller's own, free to change
     except (OSError, yaml.YAMLError) as err:
-        raise SplatuError(f"cannot read YAML ({type(err).__name__})", f"in {path}",
+        mark = getattr(err, "problem_mark", None)  # a syntax error's place: the file alone sent users searching it
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise SplatuError(f"cannot read YAML ({type(err).__name__})", f"in {path}{at}",
                           "check the file exists and is valid YAML") from None
     if values is None:
         return {}
@@ -55,9 +58,10 @@ def apply_values(config: Any, values: Mapping[str, Any], source: str, prefix: st
     for raw_key, value in values.items():
         key = _option_name(raw_key, hints, prefix, source)
         if key not in hints:
-            known = ", ".join(f.name for f in dataclasses.fields(config))
-            raise SplatuError(f"unknown option {prefix + key!r} for {type(config).__name__}", f"in {source}",
-                              f"use one of: {known}")
+            names = [f.name for f in dataclasses.fields(config)]
+            near = difflib.get_close_matches(key, names, n=1)  # a misspelt key, which a list of 25 hides
+            known = f"did you mean {prefix + near[0]!r}?" if near else f"use one of: {', '.join(names)}"
+            raise SplatuError(f"unknown option {prefix + key!r} for {type(config).__name__}", f"in {source}", known)
         current = getattr(config, key)
         if dataclasses.is_dataclass(current) and isinstance(value, Mapping):
             changes[key] = apply_values(current, value, source, f"{prefix}{key}.")

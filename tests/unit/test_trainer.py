@@ -813,6 +813,19 @@ def test_preset_values_are_coerced_to_the_field_types(tmp_path):
     assert config.uncertainty.off and config.degree_choice.on
 
 
+def test_a_misspelt_or_malformed_preset_file_names_the_key_or_line(tmp_path):
+    """A misspelt key listed all 25 options and left the user to spot it; a syntax error named only the file."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("densify:\n  refine_evry: 3\n")
+    with pytest.raises(SplatuError) as caught:
+        apply_values(preset_config("fast"), read_yaml(custom), str(custom))
+    assert caught.value.fix == "did you mean 'densify.refine_every'?"
+    custom.write_text("steps: 10\nseed: [1\nlog_every: 5\n")
+    with pytest.raises(SplatuError) as caught:
+        read_yaml(custom)
+    assert caught.value.where.startswith(f"in {custom}, line 3, column ")
+
+
 def test_methods_registry():
     base = preset_config("fast")
     assert not METHODS["splatu"].configure(base).uncertainty.off
