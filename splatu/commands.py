@@ -9,6 +9,7 @@ from typing import Any
 from splatu.cli import Command
 from splatu.data.process_images import ProcessImagesConfig
 from splatu.data.process_images import run as run_process_images
+from splatu.errors import SplatuError
 from splatu.eval_ause import EvalAuseConfig
 from splatu.eval_ause import run as run_eval_ause
 from splatu.export import ExportConfig
@@ -24,14 +25,27 @@ def _config_only(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], N
     return lambda config, argv: run(config)
 
 
+def _loading(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], None]:
+    """A command whose --load defaults to the demo's run: run without --load where there is no such run (another
+    folder), its error named a path the user never typed, so it says that path was --load's default."""
+    def checked(config: Any, argv: Sequence[str]) -> None:
+        typed = any(arg == "--load" or arg.startswith("--load=") for arg in argv)
+        if not typed and not config.load.exists():
+            raise SplatuError(f"no --load given, and no run at its default {config.load}", f"in {Path.cwd()}",
+                              "pass --load RUN, a run folder (outputs/<scene>/<method>/latest) or a checkpoint")
+        run(config)
+
+    return checked
+
+
 COMMANDS: dict[str, Command] = {
     "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),
     "render-uncertainty": Command("Render RGB, depth and uncertainty maps of a trained run.",
-                                  lambda argv: RenderUncertaintyConfig(), _config_only(run_render_uncertainty)),
+                                  lambda argv: RenderUncertaintyConfig(), _loading(run_render_uncertainty)),
     "eval-ause": Command("Score uncertainty maps with sparsification curves and AUSE.",
                          lambda argv: EvalAuseConfig(), _config_only(run_eval_ause)),
     "export": Command("Write a run's model, or any checkpoint of it, as a standard 3DGS PLY.",
-                      lambda argv: ExportConfig(), _config_only(run_export)),
+                      lambda argv: ExportConfig(), _loading(run_export)),
     "process-images": Command("Run structure from motion (pycolmap, CPU) on a folder of photos.",
                               lambda argv: ProcessImagesConfig(images=Path("images")),
                               _config_only(run_process_images)),

@@ -422,6 +422,17 @@ def test_the_nearest_suggested_flag_comes_first(capsys):
     assert "did you mean --steps or " in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("command", ["render-uncertainty", "export"])
+def test_a_missing_default_load_is_said_to_be_the_default(capsys, monkeypatch, tmp_path, command):
+    """Without --load, in a folder with no demo run, the error named outputs/poster/splatu/latest as if typed."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        entrypoint([command])
+    assert capsys.readouterr().err == (
+        f"error: no --load given, and no run at its default outputs/poster/splatu/latest, in {tmp_path}, pass --load "
+        "RUN, a run folder (outputs/<scene>/<method>/latest) or a checkpoint\n")
+
+
 def test_debug_shows_tyros_own_parse_error(capsys):
     with pytest.raises(SystemExit) as exc:
         entrypoint(["train", "--stepz", "3", "--debug"])
