@@ -75,7 +75,10 @@ def unknown_format_error(path: Path) -> SplatuError:
     what = "unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0"
     if path.is_dir() and is_scene_folder(path.parent):
         return SplatuError(what, f"in {path}", f"pass the scene folder it is in: --data {path.parent}")
-    photos = sum(1 for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if path.is_dir() else 0
+    try:
+        photos = sum(1 for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if path.is_dir() else 0
+    except OSError:  # a folder it may not list: the plain error, not a traceback
+        photos = 0
     if photos:
         held = f"{photos} photo{'s' if photos > 1 else ''}"
         return SplatuError(f"{what}; the folder holds {held} but no camera poses", f"in {path}",

@@ -75,6 +75,18 @@ def test_a_folder_of_photos_without_poses_names_process_images(tmp_path):
     assert f"splatu process-images {tmp_path}/photos" in error.fix
 
 
+def test_a_folder_it_may_not_list_is_the_plain_unknown_format(tmp_path, monkeypatch):
+    """Counting the photos lists the folder, which a permission error stops: that is no reason for a traceback."""
+    (tmp_path / "locked").mkdir()
+
+    def refused(self):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "iterdir", refused)
+    error = load_error(tmp_path / "locked", tmp_path)
+    assert error.what.startswith("unknown scene format") and "--data" in error.fix
+
+
 def test_a_scenes_images_folder_names_the_scene_folder(tmp_path):
     """--data scene/images (or scene/sparse) is a slip for --data scene: the fix names the folder to pass."""
     cameras = write_nerfstudio_scene(tmp_path / "scene", n=3)
