@@ -24,7 +24,7 @@ from splatu.errors import SplatuError
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
 from splatu.run_dir import LATEST, still_training
-from splatu.train_config import TrainConfig, from_dict, load_config, option_value
+from splatu.train_config import DISPLAY_OPTIONS, TrainConfig, from_dict, load_config, option_value
 from splatu.world_frame import WorldTransform
 
 CHECKPOINT_DIR = "checkpoints"
@@ -232,9 +232,9 @@ class TrainedRun(NamedTuple):
 
 
 RUN_CHANGES = ("data.data", "steps", "optim.means_lr_steps", "model.sh_degree", "model.u_sh_degree", "uncertainty.",
-               "degree_choice.")
+               "degree_choice.", *DISPLAY_OPTIONS)
 """Options a run's own life changes, so that its checkpoints may differ from its config.yml there: the scene's move
-(--data beside --resume), --extend-to, and the mid-run degree choice."""
+(--data beside --resume), --extend-to, the mid-run degree choice, and what a resume shows (`DISPLAY_OPTIONS`)."""
 
 
 def refuse_foreign_checkpoint(checkpoint: TrainConfig, run: TrainConfig, path: Path, run_dir: Path, flag: str) -> None:

@@ -23,7 +23,7 @@ from splatu.errors import SplatuError
 from splatu.interrupts import TrainingInterrupted, signal_of
 from splatu.json_files import is_finite_number, read_json
 from splatu.run_dir import training_lock
-from splatu.train_config import TrainConfig, from_dict, load_config, save_config
+from splatu.train_config import TrainConfig, from_dict, load_config, save_config, with_display
 from splatu.train_progress import console
 from splatu.trainer import train_locked_run
 from splatu.training_step import StepHook
@@ -33,8 +33,9 @@ ENSEMBLE_SESSIONS = "ensemble_sessions.json"
 
 def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Sequence[StepHook],
                  began: Callable[[], None] | None) -> None:
-    """Skip a finished member (summary.json written last), continue one from its newest checkpoint, or start it; the
-    caller holds the member's `training_lock`, under which this choice is made. `began` as in `train_locked_run`."""
+    """Skip a finished member (summary.json written last), continue one from its newest checkpoint (with its saved
+    options, but for what `member` shows), or start it; the caller holds the member's `training_lock`, under which
+    this choice is made. `began` as in `train_locked_run`."""
     if (member_dir / "summary.json").is_file():
         console.print(f"already trained: {member_dir}", soft_wrap=True)
         return
@@ -43,8 +44,8 @@ def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Seq
         train_locked_run(member, scene, member_dir, hooks, began=began)
         return
     checkpoint = read_checkpoint(found[-1], RESUME_KEYS)
-    train_locked_run(from_dict(checkpoint["config"], str(found[-1])), scene, member_dir, hooks, checkpoint,
-                     began=began)
+    saved = with_display(from_dict(checkpoint["config"], str(found[-1])), member)
+    train_locked_run(saved, scene, member_dir, hooks, checkpoint, began=began)
 
 
 @dataclasses.dataclass

@@ -46,6 +46,7 @@ from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.run_records import refuse_set_aside_checkpoint
 from splatu.train_config import (
     DEFAULT_PRESET,
+    DISPLAY_OPTIONS,
     SCHEDULE,
     SPLATFACTO_STEPS,
     TrainConfig,
@@ -62,6 +63,7 @@ from splatu.train_config import (
     preset_config,
     preset_values,
     scaled_schedule,
+    with_display,
 )
 from splatu.train_progress import console, scene_line
 from splatu.trainer import restartable, train_locked_run
@@ -171,7 +173,7 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so: each
     flag `typed` on the command line (one at the preset's value too, which the run may not have), or for a caller
     without one (None), each option off a bare preset's value (none when the preset cannot be read, as a resume never
-    needs it)."""
+    needs it). The options of what the session shows (`DISPLAY_OPTIONS`: --no-progress) are the command's."""
     if typed is None:
         chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
                   if getattr(given, name) != default]  # the base of the comparison below, so never in it
@@ -182,11 +184,12 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
         given_names = chosen + changed_options(given, bare)
     else:
         given_names = [name for name in flat_options(to_dict(given)) if option_flag(name) in typed]
-    ignored = [name for name in given_names if name not in ("resume", "extend_to", "data.data")]
+    ignored = [name for name in given_names if name not in ("resume", "extend_to", "data.data", *DISPLAY_OPTIONS)]
     if ignored:
         flags = " ".join(_flag(given, name) for name in ignored)
         more = " (--extend-to N trains the run on to N steps)" if "steps" in ignored else ""
         console.print(f"note: --resume continues with the run's saved options; ignoring {flags}{more}", soft_wrap=True)
+    saved = with_display(saved, given)
     if given.data.data != POSTER:
         return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
     if saved.data.data != POSTER and not Path(saved.data.data).exists():

@@ -113,7 +113,8 @@ class TrainConfig:
     """Seeds torch, numpy, random and the trainer's own generator: same seed, same run."""
     resume: Path | None = None
     """Continue a run exactly from its latest checkpoint (a run directory or a .pt file), with its saved options:
-    other flags are ignored (and named), except --data, which gives the scene's new location, and --extend-to."""
+    other flags are ignored (and named), except --data, which gives the scene's new location, --extend-to, and
+    --no-progress, which changes only what the session shows."""
     extend_to: int | None = None
     """With --resume: train a single run on to this many steps in all, more than it was set to train (or the same
     number again, which continues an extension that stopped part way or finds it finished). Its schedules stay as
@@ -155,6 +156,19 @@ class TrainConfig:
             # an ensemble's members take seed, seed + 1, …
             raise SplatuError(f"--seed {self.seed} is too large", "in the training options",
                               f"pass a seed below {MAX_SEED - self.ensemble + 1:,}")
+
+
+DISPLAY_OPTIONS = ("progress",)
+"""Options that change what a session shows, never what it trains: a resume takes them from its own command (a batch
+job resuming a run turns the bar off), where every other option is the run's saved one. Not --compile-kernels, whose
+rounding differs from eager torch's, so that a resume with it changed would not continue the run exactly."""
+
+
+def with_display(saved: TrainConfig, given: TrainConfig) -> TrainConfig:
+    """`saved` showing what `given` asks to (`DISPLAY_OPTIONS`). The run's config.yml and checkpoints then record
+    the latest session's value: they hold the config that session ran with, and a value there is never read back but
+    by a resume, which takes its command's own (checkpoint.RUN_CHANGES lets them differ from an older checkpoint)."""
+    return dataclasses.replace(saved, **{name: getattr(given, name) for name in DISPLAY_OPTIONS})
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:

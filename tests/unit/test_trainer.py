@@ -1500,11 +1500,29 @@ def test_resume_names_a_preset_or_method_it_ignores(tmp_path, capsys):
     for flag, given in (("--preset", preset_config("quality")), ("--method", preset_config(method="splatfacto"))):
         train_command.resumed_config(dataclasses.replace(given, resume=tmp_path), saved, tmp_path)
         assert f"ignoring {flag}" in capsys.readouterr().err
-    # options named as they were typed: a boolean turned off is --no-<name>, nested ones keep their group
+    # options named as they were typed: a boolean turned off is --no-<name>, nested ones keep their group; what the
+    # session shows is the command's, so --no-progress is taken, not named
     given = dataclasses.replace(saved, resume=tmp_path, progress=False, compile_kernels=False, steps=7,
                                 densify=dataclasses.replace(saved.densify, refine_every=3))
-    train_command.resumed_config(given, saved, tmp_path)
-    assert "ignoring --densify.refine-every --steps --no-progress --no-compile-kernels" in capsys.readouterr().err
+    resumed = train_command.resumed_config(given, saved, tmp_path)
+    assert "ignoring --densify.refine-every --steps --no-compile-kernels (" in capsys.readouterr().err
+    assert not resumed.progress and resumed.compile_kernels and resumed.steps == saved.steps
+
+
+def test_an_ensembles_resume_with_no_progress_shows_none_for_a_started_member_either(tmp_path, scene, capsys):
+    """A started member resumes with its checkpoint's config, whose progress was the first session's."""
+    def ctrl_c_at_step_2(step, state):
+        if step == 2:
+            raise KeyboardInterrupt
+
+    config = dataclasses.replace(_ensemble_config(tmp_path, progress=True), ensemble=2)
+    with pytest.raises(interrupts.TrainingInterrupted):
+        train_command.train(config, hooks=[ctrl_c_at_step_2])
+    run_dir = (tmp_path / "outputs" / "tiny" / "ensemble" / "latest").resolve()
+    capsys.readouterr()
+    train_command.train(dataclasses.replace(config, resume=run_dir, progress=False))
+    assert (run_dir / "ensemble.json").is_file()
+    assert not [line for line in capsys.readouterr().err.splitlines() if PROGRESS_LINE.match(line)]
 
 
 def test_resume_names_every_flag_typed_beside_it_also_at_the_presets_value(tmp_path, capsys):
@@ -1517,6 +1535,9 @@ def test_resume_names_every_flag_typed_beside_it_also_at_the_presets_value(tmp_p
     train_command.resumed_config(parsed(argv), saved, tmp_path, flags_given(argv))
     assert "ignoring --densify.refine-every --method --steps (--extend-to N" in capsys.readouterr().err
     train_command.resumed_config(parsed(["--resume", str(tmp_path)]), saved, tmp_path, flags_given([]))
+    assert "ignoring" not in capsys.readouterr().err
+    argv = ["--resume", str(tmp_path), "--no-progress"]
+    assert not train_command.resumed_config(parsed(argv), saved, tmp_path, flags_given(argv)).progress
     assert "ignoring" not in capsys.readouterr().err
 
 

@@ -21,13 +21,14 @@ from splatu import evaluation, train_command, train_progress
 from splatu.baselines import METHODS_FROM_TRAINING_VIEWS
 from splatu.baselines.load import LoadedRun, build_method
 from splatu.baselines.model_sources import OursSource
+from splatu.checkpoint import list_checkpoints
 from splatu.data.poster import PosterConfig, build_poster_standin
 from splatu.data.scene import Scene
 from splatu.model import GaussianModel, ModelConfig
 from splatu.render_uncertainty import RenderedView, ViewSpec, render_views, write_outputs
-from splatu.train_config import preset_config
+from splatu.train_config import flags_given, load_config, preset_config
 from tests.small_models import noise_views, overlapping_gaussians
-from tests.unit.test_trainer import serve_scene, tiny_config, tiny_scene
+from tests.unit.test_trainer import parsed, serve_scene, tiny_config, tiny_scene
 
 VIEW_BAR = re.compile(r"(\w+) +(\d+)/(\d+) views ")
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
@@ -123,6 +124,25 @@ def test_a_periodic_evaluation_draws_under_the_training_bar(tmp_path, monkeypatc
     assert ("eval", 2, 2) in view_counts(drawn)
     assert any(re.fullmatch(r"step 6 eval \(2 views\): PSNR \d+\.\d\d dB, SSIM \d\.\d{3}", frame.splitlines()[0])
                for frame in frames(drawn))
+
+
+def test_a_resume_with_no_progress_draws_no_bar_on_a_terminal(tmp_path, monkeypatch):
+    """--no-progress beside --resume was ignored (the run's saved options hold it), so a batch job resuming a run
+    could not turn the bar off. The run's config.yml takes the session's value, and its older checkpoint, written
+    with the bar on, still resumes."""
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
+    run_dir = train_command.train(tiny_config(tmp_path, progress=True))  # checkpoints at steps 6 and 12
+    first = list_checkpoints(run_dir)[0]
+    argv = ["--resume", str(first), "--no-progress"]
+    with on_a_terminal(monkeypatch) as screen:
+        train_command.train(parsed(argv), typed=flags_given(argv))
+    drawn = screen.getvalue()
+    assert "resuming" in drawn and "ignoring" not in drawn
+    assert not [frame for frame in frames(drawn) if re.match(r"step +\d+/12", frame)]
+    assert not load_config(run_dir / "config.yml").progress
+    with on_a_terminal(monkeypatch) as screen:  # not refused as a checkpoint of another run
+        train_command.train(parsed(["--resume", str(first)]), typed=flags_given(["--resume", str(first)]))
+    assert any(re.match(r"step +12/12", frame) for frame in frames(screen.getvalue()))
 
 
 def small_run() -> tuple[LoadedRun, Scene]:
