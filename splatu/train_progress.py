@@ -49,12 +49,19 @@ def _clock(seconds: float) -> str:
     return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 
+COMPILE_FIGURES = "compiling the kernels for the first step…"
+"""What the bar shows in place of its figures while a session's first step compiles: a terminal otherwise sat on
+step 0 without a word for that wait (~10 s warm, minutes cold), which COMPILE_LINE tells a log."""
+
+
 class StepFigures(ProgressColumn):
-    """loss, PSNR, #G and it/s of the last step; dashes where a session has no step yet (its first compiles the
-    kernels for up to a minute, and `loss 0.0000 PSNR 0.00` read as figures the run had)."""
+    """loss, PSNR, #G and it/s of the last step; dashes where a session has no step yet (`loss 0.0000 PSNR 0.00`
+    read as figures the run had), or COMPILE_FIGURES while its first step compiles (the task's `compiling`)."""
 
     def render(self, task: Task) -> Text:
         loss, psnr, rate = (task.fields[key] for key in ("loss", "psnr", "rate"))
+        if loss is None and task.fields["compiling"]:
+            return Text(COMPILE_FIGURES)
         shown_loss, shown_psnr, shown_rate = (("     -", "    -", "   -") if loss is None
                                               else (f"{loss:.4f}", f"{psnr:5.2f}", f"{rate:4.1f}"))
         return Text(f"loss {shown_loss} PSNR {shown_psnr} #G {task.fields['gaussians']:>6} {shown_rate} it/s")

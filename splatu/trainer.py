@@ -191,7 +191,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     log.drop_after(state.step)
     terminal = on_terminal()
     plain_every = math.ceil(config.steps / PLAIN_PROGRESS_LINES) if config.progress and not terminal else 0
-    if plain_every and compile_pending() and state.step < config.steps:
+    compiling = compile_pending() and state.step < config.steps  # the first step compiles: say so, or all looks stuck
+    if plain_every and compiling:
         console.print(COMPILE_LINE, highlight=False, soft_wrap=True)
     if _eval_due(state.step, config):  # a resume redoes its step's evaluation, which a stop may have skipped
         _log_eval(state, config, scene, log)
@@ -201,7 +202,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
     with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=None, psnr=None,
-                                 gaussians=len(state.model), rate=None)
+                                 gaussians=len(state.model), rate=None, compiling=compiling)
         in_step = False
         try:
             while state.step < config.steps:

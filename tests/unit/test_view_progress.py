@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from splatu import evaluation, train_command, train_progress
+from splatu import evaluation, train_command, train_progress, trainer
 from splatu.baselines import METHODS_FROM_TRAINING_VIEWS
 from splatu.baselines.load import LoadedRun, build_method
 from splatu.baselines.model_sources import OursSource
@@ -232,6 +232,19 @@ def test_the_training_bar_shows_the_time_elapsed_while_the_first_step_compiles(t
         train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
     drawn = frames(screen.getvalue())
     assert any(re.match(r"step +0/2 loss +- PSNR +- #G +300 +- it/s \d:\d\d:\d\d<", frame) for frame in drawn)
+
+
+def test_the_training_bar_says_the_first_step_compiles_then_shows_its_figures(tmp_path, monkeypatch):
+    """On a terminal the bar sat on step 0 with dashes for the compile's ~10 s (minutes cold), while a log was told
+    (COMPILE_LINE); the compile itself is not run here, only said to be due."""
+    monkeypatch.setattr(trainer, "compile_pending", lambda: True)
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
+    with on_a_terminal(monkeypatch) as screen:
+        train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0, progress=True))
+    drawn = [frame for frame in frames(screen.getvalue()) if re.match(r"step +\d/2", frame)]
+    assert any(re.match(rf"step +0/2 {train_progress.COMPILE_FIGURES} +\d:\d\d:\d\d<", frame) for frame in drawn)
+    assert not [frame for frame in drawn if "compiling" in frame and not frame.startswith("step      0/2")]
+    assert re.match(r"step +2/2 +loss \d\.\d{4} PSNR", drawn[-1])
 
 
 def test_the_training_bar_keeps_every_figure_on_an_80_column_terminal(tmp_path, monkeypatch):
