@@ -3,8 +3,9 @@ per-view bar of every evaluation and render."""
 
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
+from statistics import median
 
 from rich.console import Console
 from rich.progress import (
@@ -36,11 +37,12 @@ FORCE_COLOR is set), so plain progress lines replace it there, every 1/20 of the
 
 
 class ElapsedAndRemaining(ProgressColumn):
-    """`0:01:12<0:02:30`, time elapsed and time left in one column as tqdm shows them: the elapsed time ticks while
-    the first step compiles the kernels (~10 s, a minute on a cold cache), when nothing else on the bar moves."""
+    """`0:01:12<0:02:30`, time elapsed and time left (the task's `left`, `StepRate.seconds_left`) in one column as
+    tqdm shows them: the elapsed time ticks while the first step compiles the kernels (~10 s, a minute on a cold
+    cache), when nothing else on the bar moves."""
 
     def render(self, task: Task) -> Text:
-        left = "-:--:--" if task.time_remaining is None else _clock(task.time_remaining)
+        left = "-:--:--" if task.fields["left"] is None else _clock(task.fields["left"])
         return Text(f"{_clock(task.elapsed or 0.0)}<{left}")
 
 
@@ -118,35 +120,65 @@ def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
             f"SSIM {metrics['ssim']:.3f}")
 
 
-def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float) -> str:
+def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float,
+                  left: float) -> str:
     """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
-    rich draws no bar until the end."""
-    left = round((steps - step) / rate) if rate > 0 else None
-    eta = "?" if left is None else f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
+    rich draws no bar until the end; `left`: the seconds left."""
     return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR (EMA) {psnr:5.2f}  #G {gaussians:>7}"
-            f"  {rate:5.2f} it/s  ETA {eta}")
+            f"  {rate:5.2f} it/s  ETA {_clock(round(left))}")
 
 
 RATE_WINDOW = 50
-"""it/s (and the plain lines' ETA) cover the last this-many steps: a mean over the whole session would carry
-the first step's kernel compile (10-60 s) for the rest of the run."""
+"""it/s and the ETA cover the last this-many steps (at each resolution level): a mean over the whole session would
+carry the first step's kernel compile (10-60 s) for the rest of the run."""
 
 
 class StepRate:
-    """Steps per second over the last RATE_WINDOW steps, from the times `tick` is called at. The first step of a
-    session compiles the kernels, so from the second step on the window starts after it."""
+    """Steps per second over the last RATE_WINDOW steps, from the times `tick` is called at, and the time the
+    session's steps from `first_step` to `steps` have left. The first step of a session compiles the kernels, so
+    from the second step on neither counts it. `level_at(step)` is the step's level in the trainer's resolution
+    schedule (1/2^level of the images' size): a step's time grows with its image, and the steps left timed at the
+    rate of the early, smaller images put the end of a short run far too early."""
 
-    def __init__(self, now: float) -> None:
+    def __init__(self, now: float, first_step: int, steps: int, level_at: Callable[[int], int]) -> None:
         self.times: deque[float] = deque([now], maxlen=RATE_WINDOW + 1)
         self.compile_step_in_window = True
+        self.level_at, self.step, self.first_level = level_at, first_step, level_at(first_step)
+        self.steps_left = Counter(level_at(step) for step in range(first_step, steps))
+        self.seconds_at: dict[int, deque[float]] = {}  # per level, its last steps' times
 
     def tick(self, now: float) -> float:
         """Record a finished step at time `now`; the current rate."""
+        level = self.level_at(self.step)
+        self.step += 1
+        self.steps_left[level] -= 1
+        self.seconds_at.setdefault(level, deque(maxlen=RATE_WINDOW)).append(now - self.times[-1])
         self.times.append(now)
         if self.compile_step_in_window and len(self.times) == 3:
             self.times.popleft()
+            self.seconds_at[self.first_level].popleft()  # the oldest there, the compiling step's
+            if not self.seconds_at[self.first_level]:  # the second step began the next level
+                del self.seconds_at[self.first_level]
             self.compile_step_in_window = False
         return (len(self.times) - 1) / max(self.times[-1] - self.times[0], 1e-9)
+
+    def seconds_left(self) -> float:
+        """The steps left, each at the median time of the last steps at its level (not the mean, which one slow step
+        moves: a level's first, which downsamples its images, or one with an evaluation after it). A level not
+        reached yet (the schedule only raises the resolution) is timed as a fixed cost plus one per pixel, the two
+        fitted to the current level and the one before it (the fixed part, projecting and optimising every Gaussian,
+        outweighs the pixels on small images); with one level timed yet in the session, as the current level, which
+        reads short."""
+        current = self.level_at(self.step - 1)
+        typical = {level: median(times) for level, times in self.seconds_at.items()}
+        pixels = {level: 4.0 ** -level for level in self.steps_left}  # of the full-size image's
+        per_pixel = 0.0
+        if current + 1 in typical:
+            per_pixel = (typical[current] - typical[current + 1]) / (pixels[current] - 4.0 ** -(current + 1))
+        per_pixel = min(max(per_pixel, 0.0), typical[current] / pixels[current])  # neither cost below 0
+        fixed = typical[current] - per_pixel * pixels[current]
+        return sum(count * typical.get(level, fixed + per_pixel * pixels[level])
+                   for level, count in self.steps_left.items())
 
 
 def scene_line(scene: Scene) -> str:

@@ -12,6 +12,7 @@ folder's lock as `splatu train` does; the `splatu train` command around it (opti
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import random
@@ -93,6 +94,7 @@ from splatu.training_step import (
     StepOutcome,
     TrainImages,
     TrainState,
+    resolution_level,
     scene_extent,
     train_step,
     trained_sh_degree,
@@ -197,12 +199,14 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     if _eval_due(state.step, config):  # a resume redoes its step's evaluation, which a stop may have skipped
         _log_eval(state, config, scene, log)
     smoothed_psnr = float("nan")
-    step_rate = StepRate(time.perf_counter())
+    step_rate = StepRate(time.perf_counter(), state.step, config.steps,
+                         functools.partial(resolution_level, levels=config.resolution_levels,
+                                           interval=config.resolution_interval))
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
     with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=None, psnr=None,
-                                 gaussians=len(state.model), rate=None, compiling=compiling)
+                                 gaussians=len(state.model), rate=None, left=None, compiling=compiling)
         in_step = False
         try:
             while state.step < config.steps:
@@ -224,12 +228,12 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                 if outcome.skipped is None:
                     smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
                                      else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
-                rate = step_rate.tick(time.perf_counter())
+                rate, left = step_rate.tick(time.perf_counter()), step_rate.seconds_left()
                 progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
-                                gaussians=len(state.model), rate=rate)
+                                gaussians=len(state.model), rate=rate, left=left)
                 if plain_every and (state.step % plain_every == 0 or state.step == config.steps):
                     console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
-                                                len(state.model), rate), highlight=False, soft_wrap=True)
+                                                len(state.model), rate, left), highlight=False, soft_wrap=True)
                 if _eval_due(state.step, config) and not interrupt.requested:  # a stop must not wait for it
                     with stop_at_once(interrupt):  # nor once it runs: the resume redoes it
                         _log_eval(state, config, scene, log)

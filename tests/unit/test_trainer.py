@@ -1,4 +1,5 @@
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -1237,10 +1238,9 @@ def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
 
 
 def test_progress_and_eval_lines_read_plainly():
-    assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6) == (
+    assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6, 416.7) == (
         "step    500/2000  loss 0.0512  train PSNR (EMA) 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
-    assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0).endswith("ETA 27:46:39")
-    assert train_progress.progress_line(0, 10, 0.0, float("nan"), 0, 0.0).endswith("ETA ?")
+    assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0, 99_999).endswith("ETA 27:46:39")
     metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
     assert train_progress.eval_line(2000, "eval", metrics) == (
         "step 2000 eval (33 views): PSNR 22.92 dB, observed pixels 26.46 dB, SSIM 0.792")
@@ -1434,15 +1434,52 @@ def test_a_masked_view_s_ssim_is_its_kept_pixels_alone(tmp_path):
 
 
 def test_it_per_second_forgets_the_compile_of_the_first_step():
-    rate = train_progress.StepRate(now=0.0)
+    rate = train_progress.StepRate(now=0.0, first_step=0, steps=100, level_at=lambda step: 0)
     now = 30.0  # the first step compiles the kernels
     assert rate.tick(now) == pytest.approx(1 / 30)
     now += 0.25
     assert rate.tick(now) == pytest.approx(4.0)  # from the second step on, the compile is not in the window
+    assert rate.seconds_left() == pytest.approx(98 * 0.25)  # nor in the time left
     for _ in range(train_progress.RATE_WINDOW):
         now += 0.5
         last = rate.tick(now)
     assert last == pytest.approx(2.0)  # a session mean would read 52 / 55.25 = 0.94
+    now += 10.0  # a step with an evaluation after it
+    rate.tick(now)
+    assert rate.seconds_left() == pytest.approx(47 * 0.5)  # not what the other steps took
+
+
+@pytest.mark.parametrize("fixed", [0.0, 0.1])
+@pytest.mark.parametrize("first_step", [0, 20])
+def test_the_time_left_counts_the_larger_images_the_resolution_schedule_brings(first_step, fixed):
+    """`--steps 300` showed 33 s left at step 61 where about 67 s remained: the rate was measured on the schedule's
+    smaller images. Here a step costs a fixed time plus one per pixel (1 s at full size; the compile 30 s): once the
+    second level is timed, the time left is right, also in a session resumed part way through the first level."""
+    levels, interval, steps = 2, 30, 300  # the schedule --steps 300 trains with
+    level_at = functools.partial(training_step.resolution_level, levels=levels, interval=interval)
+
+    def cost(step: int) -> float:
+        return fixed + 4.0 ** -level_at(step)
+
+    rate = train_progress.StepRate(now=0.0, first_step=first_step, steps=steps, level_at=level_at)
+    now = 30.0
+    rate.tick(now)
+    for step in range(first_step + 1, 60):
+        now += cost(step)
+        speed = rate.tick(now)
+        truth = sum(cost(later) for later in range(step + 1, steps))
+        if step >= interval:
+            assert rate.seconds_left() == pytest.approx(truth, rel=0.01)
+    assert (steps - 60) / speed < truth / 2  # the steps left at the current rate: what the bar showed
+
+
+def test_the_time_left_of_a_session_resumed_on_a_levels_last_step_is_its_next_levels_rate():
+    """Its first step, the compile, is all it timed at that level: none is left to fit the pixels' cost to."""
+    rate = train_progress.StepRate(now=0.0, first_step=29, steps=300,
+                                   level_at=functools.partial(training_step.resolution_level, levels=2, interval=30))
+    rate.tick(30.0)
+    rate.tick(30.25)
+    assert rate.seconds_left() == pytest.approx(269 * 0.25)
 
 
 def test_resume_keeps_the_runs_options_says_which_it_ignores_and_takes_a_moved_scene(tmp_path, capsys):
