@@ -9,6 +9,12 @@ import numpy as np
 
 from splatu.data.images import read_image
 from splatu.render_uncertainty import RenderedView, RenderUncertaintyConfig, write_render
+from splatu.uncertainty_options import UncertaintyOptions
+
+
+def _config(views: str) -> RenderUncertaintyConfig:
+    """The options as the command hands them to write_render: the method resolved for the run (`for_run`)."""
+    return RenderUncertaintyConfig(views=views, uncertainty=UncertaintyOptions(method="ours"))
 
 
 def _view(name: str, with_gt: bool) -> RenderedView:
@@ -20,7 +26,7 @@ def _view(name: str, with_gt: bool) -> RenderedView:
 
 
 def _write(tmp_path, views: str, with_gt: bool) -> dict:
-    write_render(tmp_path, [_view("a", with_gt), _view("b", with_gt)], RenderUncertaintyConfig(views=views),
+    write_render(tmp_path, [_view("a", with_gt), _view("b", with_gt)], _config(views),
                  {"train_step_seconds": None, "train_wall_seconds": None}, 0.0, [0.1, 0.1])
     return json.loads((tmp_path / "render.json").read_text())
 
@@ -59,13 +65,13 @@ def test_a_few_floaters_do_not_set_the_depth_scale(tmp_path):
     maps = {"rgb": np.full((20, 20, 3), 0.5), "depth": depth, "alpha": np.ones((20, 20)),
             "uncertainty": np.full((20, 20), 0.3)}
     write_render(tmp_path, [RenderedView("a", maps, gt=None, elevation_degrees=0.0)],
-                 RenderUncertaintyConfig(views="orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
+                 _config("orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
                  0.0, [0.1])
     lo, hi = json.loads((tmp_path / "render.json").read_text())["depth_scale"]
     assert 2.0 <= lo < 2.1 and 3.9 < hi <= 4.0
     maps["depth"][0, :] = np.inf  # non-finite depths (5% of the pixels) gave a scale of NaN, which colours nothing
     write_render(tmp_path / "inf", [RenderedView("a", maps, gt=None, elevation_degrees=0.0)],
-                 RenderUncertaintyConfig(views="orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
+                 _config("orbit"), {"train_step_seconds": None, "train_wall_seconds": None},
                  0.0, [0.1])
     lo, hi = json.loads((tmp_path / "inf" / "render.json").read_text())["depth_scale"]
     assert 2.1 <= lo < 2.2 and 3.9 < hi <= 4.0  # the finite depths' percentiles (the first row, 2.0-2.1, is gone)
