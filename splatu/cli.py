@@ -9,6 +9,7 @@ and exit 2; `--debug` or SPLATU_DEBUG=1 shows the traceback instead.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import os
 import sys
@@ -47,15 +48,25 @@ def main(argv: Sequence[str], debug: bool = False) -> None:
     if argv and argv[0] not in commands and not argv[0].startswith("-"):
         raise unknown_subcommand(argv[0], list(commands))
     chosen = argv[0] if argv and argv[0] in commands else None
-    # only the chosen subcommand sees the arguments: `eval-ause --method fisher` is not `train --method`
-    defaults = {name: cmd.default_config(list(argv[1:]) if name == chosen else []) for name, cmd in commands.items()}
+    # only the chosen subcommand's config is built, which imports its module (seconds, for torch): the others are
+    # listed by name and description. One typed after options (`splatu --steps 3 train`) is built too, for tyro to
+    # tell those options misplaced. Only the chosen sees the arguments: `eval-ause --method fisher` is not `train
+    # --method`
+    built = [name for name in commands if name == chosen or (chosen is None and name in argv)]
+    defaults = {name: (cmd.default_config(list(argv[1:]) if name == chosen else []) if name in built
+                       else _stand_in(name)) for name, cmd in commands.items()}
+    for name in built:
+        hand_option_help_to_tyro(type(defaults[name]))
     descriptions = {name: cmd.description for name, cmd in commands.items()}
-    for config in defaults.values():
-        hand_option_help_to_tyro(type(config))
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
     config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", list(commands), debug)
     name = next(n for n, d in defaults.items() if type(d) is type(config))
     commands[name].run(config, list(argv[1:]))
+
+
+def _stand_in(name: str) -> Any:
+    """An empty config in place of a subcommand not chosen, for tyro to list it by name."""
+    return dataclasses.make_dataclass(name.replace("-", "_"), [], frozen=True)()
 
 
 def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands: Sequence[str], debug: bool) -> Any:

@@ -1,23 +1,26 @@
-"""The subcommand registry: one entry per `splatu` subcommand."""
+"""The subcommand registry: one entry per `splatu` subcommand.
+
+Each command's module is imported only when that command is chosen: `splatu --help` lists them all without
+importing torch, matplotlib or pycolmap, and `splatu export --help` does not import train's modules.
+"""
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from splatu.cli import Command
-from splatu.data.process_images import ProcessImagesConfig
-from splatu.data.process_images import run as run_process_images
 from splatu.errors import SplatuError
-from splatu.eval_ause import EvalAuseConfig
-from splatu.eval_ause import run as run_eval_ause
-from splatu.export import ExportConfig
-from splatu.export import run as run_export
-from splatu.render_uncertainty import RenderUncertaintyConfig
-from splatu.render_uncertainty import run as run_render_uncertainty
-from splatu.train_command import run_command as run_train
-from splatu.train_config import default_config as train_default_config
+
+
+def _lazy(module: str, name: str) -> Callable[..., Any]:
+    """`module.name`, called with the arguments given, its module imported at the first call."""
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+    return call
 
 
 def _config_only(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], None]:
@@ -39,14 +42,18 @@ def _loading(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], None]
 
 
 COMMANDS: dict[str, Command] = {
-    "train": Command("Train a 3DGS model with view-dependent uncertainty.", train_default_config, run_train),
+    "train": Command("Train a 3DGS model with view-dependent uncertainty.",
+                     _lazy("splatu.train_config", "default_config"), _lazy("splatu.train_command", "run_command")),
     "render-uncertainty": Command("Render RGB, depth and uncertainty maps of a trained run.",
-                                  lambda argv: RenderUncertaintyConfig(), _loading(run_render_uncertainty)),
+                                  lambda argv: _lazy("splatu.render_uncertainty", "RenderUncertaintyConfig")(),
+                                  _loading(_lazy("splatu.render_uncertainty", "run"))),
     "eval-ause": Command("Score uncertainty maps with sparsification curves and AUSE.",
-                         lambda argv: EvalAuseConfig(), _config_only(run_eval_ause)),
+                         lambda argv: _lazy("splatu.eval_ause", "EvalAuseConfig")(),
+                         _config_only(_lazy("splatu.eval_ause", "run"))),
     "export": Command("Write a run's model, or any checkpoint of it, as a standard 3DGS PLY.",
-                      lambda argv: ExportConfig(), _loading(run_export)),
+                      lambda argv: _lazy("splatu.export", "ExportConfig")(), _loading(_lazy("splatu.export", "run"))),
     "process-images": Command("Run structure from motion (pycolmap, CPU) on a folder of photos.",
-                              lambda argv: ProcessImagesConfig(images=Path("images")),
-                              _config_only(run_process_images)),
+                              lambda argv: _lazy("splatu.data.process_images", "ProcessImagesConfig")(
+                                  images=Path("images")),
+                              _config_only(_lazy("splatu.data.process_images", "run"))),
 }

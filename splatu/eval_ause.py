@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -22,10 +23,17 @@ from splatu import ause as A
 from splatu.atomic import atomic_write_text
 from splatu.checkpoint import run_folder
 from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir, no_empty_folders_left
-from splatu.figures import plot_sparsification
 from splatu.interrupts import finish_first
 from splatu.maps import MapEntry, entry_names, read_entry
 from splatu.uncertainty_options import DEFAULTS, OPTION_NAMES, UncertaintyOptions
+
+
+def plot_sparsification(path: Path, curves: Mapping[str, A.Curves], title: str, metric: str) -> None:
+    """figures.plot_sparsification, imported at the first plot: matplotlib takes most of a second to import, which
+    `splatu eval-ause --help` does not need."""
+    from splatu.figures import plot_sparsification as plot
+
+    plot(path, curves, title, metric)
 
 
 @dataclass
