@@ -43,6 +43,16 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None], fix: str = RESUM
             tmp.unlink(missing_ok=True)
 
 
+def file_identity(path: Path) -> tuple[int, int] | None:
+    """Inode and modification time of `path`, None when absent: a file `atomic_write` replaced has another, so
+    comparing them tells whether a stopped command replaced it."""
+    try:
+        found = path.stat()
+    except FileNotFoundError:
+        return None
+    return found.st_ino, found.st_mtime_ns
+
+
 def temporary_sibling(path: Path) -> Path:
     """Where `path` is written whole before it is renamed into place: hidden, and named by the writing process, so
     two writers never share one and a killed writer's leftover can be found (`leftover_temporaries`)."""

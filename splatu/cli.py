@@ -21,7 +21,7 @@ import tyro
 
 from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
-from splatu.interrupts import exit_code
+from splatu.interrupts import Interrupted, exit_code
 from splatu.option_help import hand_option_help_to_tyro
 from splatu.usage_errors import unknown_subcommand, usage_error
 
@@ -153,7 +153,7 @@ def entrypoint(argv: Sequence[str] | None = None) -> None:
             raise
         _end(2, f"error: {err}")
     except KeyboardInterrupt as stop:
-        _end(exit_code(stop), "interrupted")
+        _end(exit_code(stop), f"interrupted: {stop.left}" if isinstance(stop, Interrupted) else "interrupted")
     except BrokenPipeError:  # `splatu train --help | head`: the reader left, so there is no one to tell
         if debug:
             raise

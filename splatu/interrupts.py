@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +29,25 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM outside the steps (loading the scene, between ensemble members), unwinding as Ctrl-C does."""
 
     signal_number = signal.SIGTERM
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM that stopped a command, retold with what it left written: the CLI's `interrupted: LEFT`."""
+
+    def __init__(self, left: str, signal_number: int) -> None:
+        super().__init__(left)
+        self.left = left
+        self.signal_number = signal_number
+
+
+@contextmanager
+def saying_what_is_left(left: Callable[[], str]) -> Iterator[None]:
+    """A stop within the block becomes `Interrupted`, saying `left()`: what is written once the block has unwound
+    (its staging folders and temporaries removed), so the user knows whether an earlier output survived."""
+    try:
+        yield
+    except KeyboardInterrupt as stop:
+        raise Interrupted(left(), signal_of(stop)) from stop
 
 
 def signal_of(stop: KeyboardInterrupt) -> int:

@@ -33,7 +33,7 @@ import torch
 import tyro
 from rich.console import Console
 
-from splatu.atomic import atomic_write_text, leftover_temporaries, temporary_sibling
+from splatu.atomic import atomic_write_text, file_identity, leftover_temporaries, temporary_sibling
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished, run_folder
@@ -61,7 +61,7 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
-from splatu.interrupts import finish_first, sigterm_as_ctrl_c
+from splatu.interrupts import finish_first, saying_what_is_left, sigterm_as_ctrl_c
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.nearest_view import nearest_training_views
 from splatu.orbit import (
@@ -496,25 +496,42 @@ def run(config: RenderUncertaintyConfig) -> None:
     out = creatable_dir(config.output or run_folder(config.load) / "uncertainty" / f"{label}-{config.views}",
                         "--output folder")
     refuse_foreign_output(out, config.output is None)
-    scene, built = _setup(run_info, options, config.views)
-    spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
-    if spec.note is not None:
-        Console(stderr=True).print(spec.note, soft_wrap=True)
-    views, seconds = render_views(built.source, spec)
-    nearest = nearest_training_views([c.world_to_camera for c in spec.cameras],
-                                     [c.world_to_camera for c in scene.train.cameras], scene.train.names,
-                                     spec.depth_unit)
-    for view, camera, closest in zip(views, spec.cameras, nearest, strict=True):
-        view.nearest_training_view = closest._asdict()
-        view.source_name = camera.name or view.name
-    with no_empty_folders_left(out):
-        record = write_in_place(out, views, config, train_timing(run_info), built.setup_seconds, seconds, spec.orbit)
+    earlier = file_identity(out / "render.json")
+    with saying_what_is_left(lambda: left_by_a_stop(out, earlier)):
+        scene, built = _setup(run_info, options, config.views)
+        spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
+        if spec.note is not None:
+            Console(stderr=True).print(spec.note, soft_wrap=True)
+        views, seconds = render_views(built.source, spec)
+        nearest = nearest_training_views([c.world_to_camera for c in spec.cameras],
+                                         [c.world_to_camera for c in scene.train.cameras], scene.train.names,
+                                         spec.depth_unit)
+        for view, camera, closest in zip(views, spec.cameras, nearest, strict=True):
+            view.nearest_training_view = closest._asdict()
+            view.source_name = camera.name or view.name
+        with no_empty_folders_left(out):
+            record = write_in_place(out, views, config, train_timing(run_info), built.setup_seconds, seconds,
+                                    spec.orbit)
     most = max(record["per_view"], key=lambda view: view["mean_uncertainty"])
     which = "candidate" if config.views == "cameras" else config.views
     Console().print(f"rendered {len(views)} {which} view{'' if len(views) == 1 else 's'} with {options.method} "
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
                     f"{most['source_name']} (mean U {most['mean_uncertainty']:.3f}, coverage {most['coverage']:.0%})",
                     soft_wrap=True)
+
+
+def left_by_a_stop(out: Path, earlier: tuple[int, int] | None) -> str:
+    """What a Ctrl-C or SIGTERM left in `out`, whose render.json was `earlier` (`file_identity`): a render is written
+    in staging and swapped in whole (`write_in_place`), and a stop during the swap waits for its end; only a second
+    stop there cuts it short."""
+    if (out / SWAPPING).exists():
+        return (f"a second stop cut short the swap of the new render into {out}, which may hold parts of it and of "
+                "the earlier one; run the command again to write it whole")
+    if file_identity(out / "render.json") != earlier:
+        return f"the new render was already written in full to {out}"
+    if earlier is None:
+        return f"no render written to {out}"
+    return f"no render written; the earlier render in {out} is unchanged"
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,

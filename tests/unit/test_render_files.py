@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib
 import numpy as np
+import pytest
 
+from splatu.cli import entrypoint
 from splatu.data.images import read_image
 from splatu.render_uncertainty import RenderedView, RenderUncertaintyConfig, write_render
 from splatu.uncertainty_options import UncertaintyOptions
@@ -75,3 +81,77 @@ def test_a_few_floaters_do_not_set_the_depth_scale(tmp_path):
                  0.0, [0.1])
     lo, hi = json.loads((tmp_path / "inf" / "render.json").read_text())["depth_scale"]
     assert 2.1 <= lo < 2.2 and 3.9 < hi <= 4.0  # the finite depths' percentiles (the first row, 2.0-2.1, is gone)
+
+
+def _stub_run_and_scene(monkeypatch, tmp_path) -> list[str]:
+    """`splatu render-uncertainty` arguments that render views a and b of a stubbed run into tmp_path/render."""
+    from splatu import render_uncertainty as R
+
+    run_info = SimpleNamespace(member_steps=None, config=SimpleNamespace(data=SimpleNamespace(downscale=1)))
+    scene = SimpleNamespace(train=SimpleNamespace(cameras=[], names=[]))
+    spec = SimpleNamespace(note=None, cameras=[SimpleNamespace(world_to_camera=None, name=n) for n in "ab"],
+                           depth_unit=1.0, orbit=None)
+    monkeypatch.setattr(R, "pinned_load", lambda load, written: load)
+    monkeypatch.setattr(R, "_load", lambda load, options: (run_info, options.for_run(False)))
+    monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None, setup_seconds=0.0)))
+    monkeypatch.setattr(R, "view_spec", lambda *args: spec)
+    monkeypatch.setattr(R, "render_views", lambda source, spec: ([_view("a", True), _view("b", True)], [0.1, 0.1]))
+    monkeypatch.setattr(R, "nearest_training_views", lambda *args: [SimpleNamespace(_asdict=dict)] * 2)
+    monkeypatch.setattr(R, "train_timing", lambda run: {"train_step_seconds": None, "train_wall_seconds": None})
+    return ["render-uncertainty", "--load", str(tmp_path), "--output", str(tmp_path / "render")]
+
+
+def _files(folder: Path) -> dict[Path, bytes]:
+    return {path.relative_to(folder): path.read_bytes() for path in folder.rglob("*") if path.is_file()}
+
+
+@pytest.mark.parametrize("earlier", [True, False])
+def test_a_ctrl_c_while_writing_says_that_no_render_was_written(tmp_path, monkeypatch, capsys, earlier):
+    """It said only "interrupted", though the render is staged and swapped in whole: the earlier one is intact."""
+    from splatu import render_uncertainty as R
+
+    argv = _stub_run_and_scene(monkeypatch, tmp_path)
+    out = tmp_path / "render"
+    if earlier:
+        entrypoint(argv)
+    before = _files(out) if earlier else None
+
+    def stopped(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(R, "write_view", stopped)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        entrypoint(argv)
+    assert stop.value.code == 130
+    said = (f"no render written; the earlier render in {out} is unchanged" if earlier
+            else f"no render written to {out}")
+    assert capsys.readouterr().err == f"interrupted: {said}\n"
+    if earlier:
+        assert _files(out) == before
+    else:
+        assert not out.exists()
+
+
+def test_a_ctrl_c_during_the_swap_says_the_new_render_is_whole(tmp_path, monkeypatch, capsys):
+    """A stop during the swap waits for its end: the new render is then in place, and the line says so."""
+    from splatu import render_uncertainty as R
+
+    argv = _stub_run_and_scene(monkeypatch, tmp_path)
+    entrypoint(argv)
+    remove = R.remove
+
+    def ctrl_c_then_remove(paths):
+        if (tmp_path / "render" / R.SWAPPING).exists():  # in the swap; the first call clears leftover staging
+            os.kill(os.getpid(), signal.SIGINT)
+        remove(paths)
+
+    monkeypatch.setattr(R, "remove", ctrl_c_then_remove)
+    monkeypatch.setattr(R, "write_view", lambda out, view, scales: (out / "png" / f"{view.name}_new.png").touch())
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        entrypoint(argv)
+    assert stop.value.code == 130
+    out = tmp_path / "render"
+    assert capsys.readouterr().err == f"interrupted: the new render was already written in full to {out}\n"
+    assert sorted(path.name for path in (out / "png").iterdir()) == ["a_new.png", "b_new.png"]
