@@ -243,3 +243,35 @@ def test_an_export_output_that_is_a_folder_is_told_a_file_in_it(tmp_path):
     with pytest.raises(SplatuError) as caught:
         export_path(tmp_path, tmp_path / "checkpoints" / "step-0000300.pt", tmp_path)
     assert caught.value.fix == f"pass a path such as {tmp_path}/splat-step-0000300.ply"
+
+
+@pytest.mark.parametrize(("earlier", "written", "said"), [
+    (True, False, "no export written; the earlier {} is unchanged"), (False, False, "no export written to {}"),
+    (True, True, "the export was already written in full to {}")])
+def test_a_ctrl_c_during_export_says_what_it_left(tmp_path, monkeypatch, capsys, earlier, written, said):
+    """It said only "interrupted"; the PLY is renamed into place whole, so the line says whether that happened."""
+    from types import SimpleNamespace
+
+    from splatu import export
+    from splatu.cli import entrypoint
+
+    output = tmp_path / "splat.ply"
+    if earlier:
+        output.write_bytes(b"earlier export")
+
+    def stopped(model, path, frame, uncertainty):
+        if written:  # as a Ctrl-C landing just after the rename
+            path.with_name("new.ply").write_bytes(b"new export")
+            path.with_name("new.ply").replace(path)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(export, "resolve_checkpoint", lambda load: tmp_path / "step-0000001.pt")
+    monkeypatch.setattr(export, "load_run", lambda checkpoint: SimpleNamespace(
+        model=None, frame=object(), config=SimpleNamespace(uncertainty=SimpleNamespace(off=False))))
+    monkeypatch.setattr(export, "save_ply", stopped)
+    with pytest.raises(SystemExit) as stop:
+        entrypoint(["export", "--load", str(tmp_path), "--output", str(output)])
+    assert stop.value.code == 130
+    assert capsys.readouterr().err == f"interrupted: {said.format(output)}\n"
+    assert (output.read_bytes() if output.exists() else None) == (
+        b"new export" if written else b"earlier export" if earlier else None)
