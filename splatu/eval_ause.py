@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -20,10 +21,10 @@ from rich.console import Console
 from rich.table import Table
 
 from splatu import ause as A
-from splatu.atomic import atomic_write_text
+from splatu.atomic import atomic_write_text, file_identity
 from splatu.checkpoint import run_folder
 from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir, no_empty_folders_left
-from splatu.interrupts import finish_first
+from splatu.interrupts import finish_first, saying_what_is_left
 from splatu.maps import MapEntry, entry_names, read_entry
 from splatu.uncertainty_options import DEFAULTS, OPTION_NAMES, UncertaintyOptions
 
@@ -157,6 +158,19 @@ def load_only_options_set(options: UncertaintyOptions) -> list[str]:
     return [f"--{name.replace('_', '-')}" for name in OPTION_NAMES if getattr(options, name) != getattr(DEFAULTS, name)]
 
 
+def scoring_into(output: Path) -> AbstractContextManager[None]:
+    """A stop while the scores are computed and written to `output` says whether they were: they are written last,
+    with their plot, and a stop there waits for both (`finish_first`)."""
+    earlier = file_identity(output)
+
+    def left() -> str:
+        if file_identity(output) != earlier:
+            return f"the scores were already written in full to {output}, with their plot"
+        return f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
+
+    return saying_what_is_left(left)
+
+
 def run(config: EvalAuseConfig) -> None:
     if (config.load is None) == (config.maps is None):
         raise SplatuError("pass exactly one of --load and --maps", "in the eval-ause options",
@@ -168,8 +182,9 @@ def run(config: EvalAuseConfig) -> None:
             raise SplatuError(f"{flags} only {verb} with --load (a maps directory already holds its images and "
                               "one uncertainty)", "in the eval-ause options",
                               f"drop {flags}, or pass --load RUN_DIR instead of --maps")
-        report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
         output = config.output or config.maps / "ause.json"
+        with scoring_into(output):
+            report = evaluate_maps(config.maps, config.metric, "uncertainty", config.output)
     else:
         from splatu.render_uncertainty import pinned_load, render_eval_maps
 
@@ -179,9 +194,11 @@ def run(config: EvalAuseConfig) -> None:
         if config.output is not None:  # before the render, so a bad --output costs nothing
             maps_root = maps_beside(checked_output(config.output))
         # options: the method resolved for the run (`UncertaintyOptions.for_run`), as the report records it
-        maps_dir, entries, stand_in, label, options = render_eval_maps(config.load, config.uncertainty, maps_root)
+        with saying_what_is_left(lambda: "no scores written, so any earlier report is unchanged"):
+            maps_dir, entries, stand_in, label, options = render_eval_maps(config.load, config.uncertainty, maps_root)
         output = config.output or run_folder(config.load) / f"ause_{label}.json"
-        report = evaluate_maps(maps_dir, config.metric, label, output, {"load": str(config.load), **options.record()},
-                               entries, stand_in)
+        with scoring_into(output):
+            report = evaluate_maps(maps_dir, config.metric, label, output,
+                                   {"load": str(config.load), **options.record()}, entries, stand_in)
     print_report(report, config.metric)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

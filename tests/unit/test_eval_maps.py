@@ -510,3 +510,27 @@ def test_a_plot_the_disk_refuses_is_one_line_and_keeps_the_earlier_scores(tmp_pa
     assert "ause.png" in line and "free space" in line
     assert out.read_text() == "{}" and not out.with_suffix(".png").exists()
     assert not list(tmp_path.glob(".ause.png.tmp-*"))
+
+
+@pytest.mark.parametrize("earlier", [True, False])
+def test_a_ctrl_c_while_scoring_says_no_scores_were_written(tmp_path, monkeypatch, capsys, earlier):
+    """It said only "interrupted"; the scores are written last, so a stop before them leaves an earlier report."""
+    from splatu import eval_ause
+
+    _tiny_maps(tmp_path / "maps", n=1)
+    output = tmp_path / "maps" / "ause.json"
+    if earlier:
+        _run("--maps", str(tmp_path / "maps"))
+    before = output.read_bytes() if earlier else None
+
+    def stopped(entries, metric):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(eval_ause, "score_entries", stopped)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        _run("--maps", str(tmp_path / "maps"))
+    assert stop.value.code == 130
+    said = f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
+    assert capsys.readouterr().err == f"interrupted: {said}\n"
+    assert (output.read_bytes() if output.exists() else None) == before
