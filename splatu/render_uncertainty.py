@@ -96,18 +96,20 @@ class RenderUncertaintyConfig:
     by default)."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """Which uncertainty to render, and the options that change its maps."""
-    views: ViewSet = "eval"
+    # None until `run` resolves it from --cameras; parsed as the view sets alone, with the default told in words
+    views: Annotated[ViewSet | None, tyro.conf.arg(
+        constructor=ViewSet, help_behavior_hint="(default: eval, or cameras with --cameras)")] = None
     """eval / train: the scene's cameras (with ground truth); orbit: generated views round the capture (a circle, or
     an arc over the side a one-sided capture was taken from: --orbit-shape) that also look from below; cameras:
     the candidate cameras of --cameras (render.json gives each view's mean uncertainty, to rank them by)."""
     cameras: Path | None = None
-    """With --views cameras: a transforms.json-style file of cameras in the data's own frame (the scene's poses and
-    splat.ply's): per frame a file_path naming the view (no file need exist) and an OpenGL camera-to-world
-    transform_matrix; fl_x, fl_y, cx, cy, w and h at the scene's full resolution, and a distorted capture's k1, k2,
-    p1, p2 (K is then undistorted as the loader's is), at the top level or per frame, as nerfstudio writes them. They
-    render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose [R(qvec) | tvec] is written as
-    its inverse with the y and z columns negated. Empty space counts as U = 1, so a view of nothing ranks first
-    (render.json gives each view's coverage)."""
+    """Candidate cameras to render (implies --views cameras): a transforms.json-style file of cameras in the data's
+    own frame (the scene's poses and splat.ply's): per frame a file_path naming the view (no file need exist) and an
+    OpenGL camera-to-world transform_matrix; fl_x, fl_y, cx, cy, w and h at the scene's full resolution, and a
+    distorted capture's k1, k2, p1, p2 (K is then undistorted as the loader's is), at the top level or per frame, as
+    nerfstudio writes them. They render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose
+    [R(qvec) | tvec] is written as its inverse with the y and z columns negated. Empty space counts as U = 1, so a
+    view of nothing ranks first (render.json gives each view's coverage)."""
     off_centre_ok: bool = False
     """With --cameras: its cameras are tiles or crops of larger photos (a tile scene's own, say), whose principal
     point lies far off-centre or off the image by design; without it such a camera is refused, as a K made for
@@ -467,20 +469,32 @@ def train_timing(run: LoadedRun) -> dict[str, float | None]:
 ORBIT_OPTIONS = ("orbit_frames", "orbit_elevation", "orbit_shape", "orbit_radius_scale", "gif_fps")
 
 
+def with_views_resolved(config: RenderUncertaintyConfig) -> RenderUncertaintyConfig:
+    """`config` with its view set chosen when none was typed: the candidate cameras of --cameras, else the eval
+    split. A file of cameras given alone asks for nothing else, so it is not refused for a missing --views."""
+    if config.views is not None:
+        return config
+    return dataclasses.replace(config, views="cameras" if config.cameras is not None else "eval")
+
+
 def run(config: RenderUncertaintyConfig) -> None:
     """Render the views, then write them. A command that fails while writing (a full disk, Ctrl-C) leaves the output
     folder as it found it: an earlier render whole, a folder that existed as it was, and no folder it made itself.
     The views it had written by then are deleted with its staging folder, not kept: their colour scales were fitted
     to every view, and `eval-ause --maps` would score a part of the views as if it were the whole render."""
+    config = with_views_resolved(config)
     orbit_only = [f"--{n.replace('_', '-')}" for n in ORBIT_OPTIONS
                   if getattr(config, n) != getattr(RenderUncertaintyConfig, n)]  # the class holds the defaults
     if orbit_only and config.views != "orbit":
         flags = " ".join(orbit_only)
         raise SplatuError(f"{flags} only {'applies' if len(orbit_only) == 1 else 'apply'} with --views orbit",
                           "in the command's options", f"drop {flags}, or pass --views orbit")
-    if (config.cameras is None) == (config.views == "cameras"):
-        raise SplatuError("--cameras FILE and --views cameras go together", "in the command's options",
-                          "pass both to render candidate cameras, or neither")
+    if config.views == "cameras" and config.cameras is None:
+        raise SplatuError("--views cameras renders the candidate cameras of a file, and none was given",
+                          "in the command's options", "pass --cameras FILE (a transforms.json-style file)")
+    if config.views != "cameras" and config.cameras is not None:
+        raise SplatuError(f"--cameras FILE renders candidate cameras, not --views {config.views}",
+                          "in the command's options", f"drop --views {config.views}, or drop --cameras")
     if config.off_centre_ok and config.cameras is None:  # the scene's own views (train, eval) render as they are
         raise SplatuError("--off-centre-ok only applies with --views cameras --cameras FILE",
                           "in the command's options", "drop --off-centre-ok, or pass --views cameras --cameras FILE")

@@ -1098,7 +1098,8 @@ def test_a_run_still_training_renders_its_newest_checkpoint_under_that_checkpoin
 
 def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, capsys):
     """A candidate's file_path `near0.5` is written as `near0_*.npy`: render.json also gives the name the file gave
-    it, so a planner can match the ranking back to its candidates (render.json named only the stem `near0`)."""
+    it, so a planner can match the ranking back to its candidates (render.json named only the stem `near0`).
+    `--cameras` alone asks for them: it implies `--views cameras` (it was refused without it)."""
     from splatu.baselines.load import load_any_run, run_data
     from splatu.data.resolve import load_scene
 
@@ -1107,8 +1108,10 @@ def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, c
     frames = [dict(source["frames"][0], file_path="near0.5"), dict(source["frames"][0], file_path="far/2.0")]
     candidates = tmp_path / "candidates.json"
     candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"}, "frames": frames}))
-    _render(tiny_run, "--views", "cameras", "--cameras", str(candidates), "--output", str(tmp_path / "out"))
-    per_view = json.loads((tmp_path / "out" / "render.json").read_text())["per_view"]
+    _render(tiny_run, "--cameras", str(candidates), "--output", str(tmp_path / "out"))
+    record = json.loads((tmp_path / "out" / "render.json").read_text())
+    assert record["views"] == "cameras"
+    per_view = record["per_view"]
     assert [(v["name"], v["source_name"]) for v in per_view] == [("near0", "near0.5"), ("far_2", "far/2.0")]
     assert all((tmp_path / "out" / "npy" / f"{v['name']}_uncertainty.npy").is_file() for v in per_view)
     most = max(per_view, key=lambda v: v["mean_uncertainty"])["source_name"]
@@ -1153,9 +1156,11 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (("--views", "cameras"), "--cameras FILE and --views cameras go together"),
-    (("--cameras", "c.json"), "--cameras FILE and --views cameras go together"),
+    (("--views", "cameras"), "--views cameras renders the candidate cameras of a file, and none was given"),
+    (("--views", "eval", "--cameras", "c.json"), "--cameras FILE renders candidate cameras, not --views eval"),
+    (("--views", "orbit", "--cameras", "c.json"), "--cameras FILE renders candidate cameras, not --views orbit"),
     (("--views", "cameras", "--cameras", "missing.json"), "camera file not found"),
+    (("--cameras", "missing.json"), "camera file not found"),
     (("--off-centre-ok",), "--off-centre-ok only applies with --views cameras --cameras FILE"),
 ])
 def test_candidate_camera_options_are_refused_in_one_line(tiny_run, tmp_path, capsys, args, message):
