@@ -173,7 +173,7 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so: each
     flag `typed` on the command line (one at the preset's value too, which the run may not have), or for a caller
     without one (None), each option off a bare preset's value (none when the preset cannot be read, as a resume never
-    needs it). The options of what the session shows (`DISPLAY_OPTIONS`: --no-progress) are the command's."""
+    needs it). An option of what the session shows (`DISPLAY_OPTIONS`: --no-progress) given is taken, not ignored."""
     if typed is None:
         chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
                   if getattr(given, name) != default]  # the base of the comparison below, so never in it
@@ -189,7 +189,7 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
         flags = " ".join(_flag(given, name) for name in ignored)
         more = " (--extend-to N trains the run on to N steps)" if "steps" in ignored else ""
         console.print(f"note: --resume continues with the run's saved options; ignoring {flags}{more}", soft_wrap=True)
-    saved = with_display(saved, given)
+    saved = with_display(saved, given, [name for name in given_names if name in DISPLAY_OPTIONS])
     if given.data.data != POSTER:
         return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
     if saved.data.data != POSTER and not Path(saved.data.data).exists():

@@ -164,11 +164,12 @@ job resuming a run turns the bar off), where every other option is the run's sav
 rounding differs from eager torch's, so that a resume with it changed would not continue the run exactly."""
 
 
-def with_display(saved: TrainConfig, given: TrainConfig) -> TrainConfig:
-    """`saved` showing what `given` asks to (`DISPLAY_OPTIONS`). The run's config.yml and checkpoints then record
-    the latest session's value: they hold the config that session ran with, and a value there is never read back but
-    by a resume, which takes its command's own (checkpoint.RUN_CHANGES lets them differ from an older checkpoint)."""
-    return dataclasses.replace(saved, **{name: getattr(given, name) for name in DISPLAY_OPTIONS})
+def with_display(saved: TrainConfig, given: TrainConfig, names: Collection[str] = DISPLAY_OPTIONS) -> TrainConfig:
+    """`saved` showing what `given` asks to, for the display options `names` (a resume: those typed, so a run started
+    with --no-progress stays quiet when resumed without it). The run's config.yml and checkpoints then record the
+    latest session's value: they hold the config that session ran with (checkpoint.RUN_CHANGES lets them differ from
+    an older checkpoint)."""
+    return dataclasses.replace(saved, **{name: getattr(given, name) for name in names})
 
 
 def eval_background(config: TrainConfig) -> torch.Tensor:

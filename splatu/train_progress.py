@@ -121,11 +121,12 @@ def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
 
 
 def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float,
-                  left: float) -> str:
+                  left: float | None) -> str:
     """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
-    rich draws no bar until the end; `left`: the seconds left."""
+    rich draws no bar until the end; `left`: the seconds left, None (`?`) before they can be told."""
+    eta = "?" if left is None else _clock(round(left))
     return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR (EMA) {psnr:5.2f}  #G {gaussians:>7}"
-            f"  {rate:5.2f} it/s  ETA {_clock(round(left))}")
+            f"  {rate:5.2f} it/s  ETA {eta}")
 
 
 RATE_WINDOW = 50
@@ -162,13 +163,16 @@ class StepRate:
             self.compile_step_in_window = False
         return (len(self.times) - 1) / max(self.times[-1] - self.times[0], 1e-9)
 
-    def seconds_left(self) -> float:
+    def seconds_left(self) -> float | None:
         """The steps left, each at the median time of the last steps at its level (not the mean, which one slow step
         moves: a level's first, which downsamples its images, or one with an evaluation after it). A level not
         reached yet (the schedule only raises the resolution) is timed as a fixed cost plus one per pixel, the two
         fitted to the current level and the one before it (the fixed part, projecting and optimising every Gaussian,
         outweighs the pixels on small images); with one level timed yet in the session, as the current level, which
-        reads short."""
+        reads short. None until a step after the session's first has been timed: the first compiles the kernels, and
+        timing the rest by it read 47 hours left on the main job."""
+        if self.compile_step_in_window:
+            return None
         current = self.level_at(self.step - 1)
         typical = {level: median(times) for level, times in self.seconds_at.items()}
         pixels = {level: 4.0 ** -level for level in self.steps_left}  # of the full-size image's

@@ -1437,6 +1437,7 @@ def test_it_per_second_forgets_the_compile_of_the_first_step():
     rate = train_progress.StepRate(now=0.0, first_step=0, steps=100, level_at=lambda step: 0)
     now = 30.0  # the first step compiles the kernels
     assert rate.tick(now) == pytest.approx(1 / 30)
+    assert rate.seconds_left() is None  # 99 steps at the compile's 30 s each read 49 minutes left
     now += 0.25
     assert rate.tick(now) == pytest.approx(4.0)  # from the second step on, the compile is not in the window
     assert rate.seconds_left() == pytest.approx(98 * 0.25)  # nor in the time left

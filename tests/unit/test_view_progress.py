@@ -145,6 +145,18 @@ def test_a_resume_with_no_progress_draws_no_bar_on_a_terminal(tmp_path, monkeypa
     assert any(re.match(r"step +12/12", frame) for frame in frames(screen.getvalue()))
 
 
+def test_a_run_started_without_progress_stays_without_it_when_resumed_without_the_flag(tmp_path, monkeypatch):
+    """The display option is the command's only where typed: a plain `--resume` of a run started with --no-progress
+    drew the bar again, and `--progress` beside the resume draws it."""
+    serve_scene(monkeypatch, lambda data_config: tiny_scene())
+    run_dir = train_command.train(tiny_config(tmp_path, progress=False))  # checkpoints at steps 6 and 12
+    first = list_checkpoints(run_dir)[0]
+    for argv, bar in ((["--resume", str(first)], False), (["--resume", str(first), "--progress"], True)):
+        with on_a_terminal(monkeypatch) as screen:
+            train_command.train(parsed(argv), typed=flags_given(argv))
+        assert any(re.match(r"step +\d+/12", frame) for frame in frames(screen.getvalue())) == bar, argv
+
+
 def small_run() -> tuple[LoadedRun, Scene]:
     """A run of a few Gaussians over a scene of a few noise views, for the baselines that look at them first."""
     config = preset_config("fast")
