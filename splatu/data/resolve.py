@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shlex
 from pathlib import Path
 
 from splatu.config_values import changed_options
@@ -74,7 +75,8 @@ def unknown_format_error(path: Path) -> SplatuError:
     `splatu process-images`, which makes the COLMAP model it needs."""
     what = "unknown scene format: no transforms.json, transforms_train.json or COLMAP sparse/0"
     if path.is_dir() and is_scene_folder(path.parent):
-        return SplatuError(what, f"in {path}", f"pass the scene folder it is in: --data {path.parent}")
+        return SplatuError(what, f"in {path}",
+                           f"pass the scene folder it is in: --data {shlex.quote(str(path.parent))}")
     try:
         photos = sum(1 for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if path.is_dir() else 0
     except OSError:  # a folder it may not list: the plain error, not a traceback
@@ -82,7 +84,8 @@ def unknown_format_error(path: Path) -> SplatuError:
     if photos:
         held = f"{photos} photo{'s' if photos > 1 else ''}"
         return SplatuError(f"{what}; the folder holds {held} but no camera poses", f"in {path}",
-                           f"run `splatu process-images {path}` first: it estimates them and prints the train line")
+                           f"run `splatu process-images {shlex.quote(str(path))}` first: it estimates them and "
+                           "prints the train line")
     return SplatuError(what, f"in {path}", "point --data at a nerfstudio, NeRF-synthetic or COLMAP scene folder")
 
 

@@ -66,13 +66,15 @@ def test_unknown_format(tmp_path):
 
 
 def test_a_folder_of_photos_without_poses_names_process_images(tmp_path):
-    """Photos straight off a camera have no poses yet: the fix is the command that makes them, not a format list."""
-    (tmp_path / "photos").mkdir()
+    """Photos straight off a camera have no poses yet: the fix is the command that makes them, not a format list,
+    quoted so that a folder name with a space pastes as one argument."""
+    photos = tmp_path / "my photos"
+    photos.mkdir()
     for i in range(3):
-        write_rgb(tmp_path / "photos" / f"{i}.JPG", noise_image(i, 8, 6))
-    error = load_error(tmp_path / "photos", tmp_path)
+        write_rgb(photos / f"{i}.JPG", noise_image(i, 8, 6))
+    error = load_error(photos, tmp_path)
     assert "unknown scene format" in error.what and "3 photos but no camera poses" in error.what
-    assert f"splatu process-images {tmp_path}/photos" in error.fix
+    assert f"splatu process-images '{photos}'" in error.fix
 
 
 def test_a_folder_it_may_not_list_is_the_plain_unknown_format(tmp_path, monkeypatch):
