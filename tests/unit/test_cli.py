@@ -505,7 +505,8 @@ def test_views_help_describes_the_orbit_of_every_shape(capsys):
     with pytest.raises(SystemExit):
         entrypoint(["render-uncertainty", "--help"])
     flat = " ".join(capsys.readouterr().out.replace("│", " ").split())
-    views = re.search(r"--views \{eval,train,orbit,cameras\} (.*?)\(default: eval\)", flat).group(1)
+    views = re.search(r"--views \{eval,train,orbit,cameras\} (.*?)\(default: eval, or cameras with --cameras\)",
+                      flat).group(1)
     assert "circle" in views and "arc" in views and "--orbit-shape" in views
 
 
