@@ -52,7 +52,8 @@ def main(argv: Sequence[str], debug: bool = False) -> None:
     # listed by name and description. One typed after options (`splatu --steps 3 train`) is built too, for tyro to
     # tell those options misplaced. Only the chosen sees the arguments: `eval-ause --method fisher` is not `train
     # --method`
-    built = [name for name in commands if name == chosen or (chosen is None and name in argv)]
+    built = [name for name in commands
+             if name == chosen or (chosen is None and name in (a.replace("_", "-") for a in argv))]
     defaults = {name: (cmd.default_config(list(argv[1:]) if name == chosen else []) if name in built
                        else _stand_in(name)) for name, cmd in commands.items()}
     for name in built:

@@ -197,8 +197,12 @@ def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str])
         return SplatuError(plain, "on the command line", see_help)
     hints = []
     misplaced = _misplaced(sections[0])
+    unplaced = _options_without_subcommand(sections)
     if misplaced:
         message = f"{sections[0][0].strip().rstrip(':')}: {', '.join(misplaced)}"
+        hints.append("put each option after its subcommand")
+    elif unplaced is not None:
+        message = f"unrecognized or misplaced options: {unplaced}"
         hints.append("put each option after its subcommand")
     else:
         message = " ".join(line.strip() for line in sections[0]).rstrip(".")
@@ -215,6 +219,18 @@ def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str])
         elif heading.startswith("Available subcommands"):
             hints.append(f"available subcommands: {', '.join(subcommands)}")
     return SplatuError(message, "on the command line", f"{'; '.join(hints)} ({see_help})" if hints else see_help)
+
+
+def _options_without_subcommand(sections: list[list[str]]) -> str | None:
+    """The options of a box for a command line with no subcommand (tyro lists the subcommands then), or None: the
+    CLI builds no subcommand's config unless one is named, so tyro cannot tell that `splatu --load x` holds options
+    of a subcommand and calls them only unrecognized; they are misplaced too."""
+    listed = " ".join(line.strip() for line in sections[0])  # a long list wraps over lines of the box
+    if not listed.startswith("Unrecognized options: "):
+        return None
+    if not any(section[0].strip().startswith("Available subcommands") for section in sections[1:]):
+        return None
+    return listed.removeprefix("Unrecognized options: ")
 
 
 def _closest(word: str, subcommands: Sequence[str]) -> str | None:

@@ -317,8 +317,9 @@ def test_version(capsys):
     (["train", "--steps", "abc"], "--steps takes a whole number, got 'abc'", "see `splatu train --help`"),
     (["train", "--stepz", "3"], "unrecognized options: --stepz, 3",
      "did you mean --steps? (see `splatu train --help`)"),
-    (["--bogus"], "unrecognized options: --bogus",
-     "available subcommands: train, render-uncertainty, eval-ause, export, process-images (see `splatu --help`)"),
+    (["--bogus"], "unrecognized or misplaced options: --bogus",
+     "put each option after its subcommand; available subcommands: train, render-uncertainty, eval-ause, export, "
+     "process-images (see `splatu --help`)"),
     (["render-uncertainty", "--views", "bogus"], "--views takes one of eval, train, orbit, cameras, got 'bogus'",
      "see `splatu render-uncertainty --help`"),
     (["train", "--steps"], "--steps needs a value after it", "see `splatu train --help`"),
@@ -417,6 +418,12 @@ SUBCOMMANDS = "train, render-uncertainty, eval-ause, export, process-images"
                                 f"(the subcommands are {SUBCOMMANDS}; see `splatu --help`)"),
     (["--steps", "3", "train"], "unrecognized or misplaced options: --steps, 3, on the command line, put each option "
                                 "after its subcommand (see `splatu --help`)"),
+    # the subcommand in tyro's underscore spelling is built too, for tyro to tell the options before it misplaced
+    (["--load", "x", "render_uncertainty"], "unrecognized or misplaced options: --load, x, on the command line, put "
+                                            "each option after its subcommand (see `splatu --help`)"),
+    # no subcommand: none is built, and the options it would take are misplaced all the same
+    (["--load", "x"], "unrecognized or misplaced options: --load, x, on the command line, put each option after its "
+                      f"subcommand; available subcommands: {SUBCOMMANDS} (see `splatu --help`)"),
 ])
 def test_a_mistyped_subcommand_names_them_all_and_the_closest(capsys, argv, line):
     """tyro's list of subcommands is wrapped over two lines of its box, and only the first was kept
