@@ -42,10 +42,12 @@ class Interrupted(KeyboardInterrupt):
 
 @contextmanager
 def saying_what_is_left(left: Callable[[], str]) -> Iterator[None]:
-    """A stop within the block becomes `Interrupted`, saying `left()`: what is written once the block has unwound
-    (its staging folders and temporaries removed), so the user knows whether an earlier output survived."""
+    """A stop within the block, Ctrl-C or SIGTERM (`sigterm_as_ctrl_c`: by default SIGTERM would end the process
+    there and then, unsaid), becomes `Interrupted`, saying `left()`: what is written once the block has unwound (its
+    staging folders and temporaries removed), so the user knows whether an earlier output survived."""
     try:
-        yield
+        with sigterm_as_ctrl_c():
+            yield
     except KeyboardInterrupt as stop:
         raise Interrupted(left(), signal_of(stop)) from stop
 

@@ -61,7 +61,7 @@ from splatu.figures import (
     save_orbit_gif,
     save_panel,
 )
-from splatu.interrupts import finish_first, saying_what_is_left, sigterm_as_ctrl_c
+from splatu.interrupts import finish_first, saying_what_is_left
 from splatu.maps import MapEntry, file_stems, write_entry, write_maps_dir
 from splatu.nearest_view import nearest_training_views
 from splatu.orbit import (
@@ -552,13 +552,13 @@ def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertain
                    training: dict[str, float | None], setup_seconds: float, seconds: list[float],
                    orbit: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write the render into a staging folder inside `out`, then swap it in whole (see `swap_in`); the staging
-    folder is removed whatever happens. Returns what render.json holds."""
+    folder is removed whatever happens (a SIGTERM too: `run` calls it within `saying_what_is_left`, where SIGTERM
+    unwinds as Ctrl-C does). Returns what render.json holds."""
     remove(leftover_temporaries(out, STAGING))  # a render killed outright (SIGKILL, OOM) left its staging
     staging = temporary_sibling(out / STAGING)
     try:
-        with sigterm_as_ctrl_c():  # so a kill also unwinds through the cleanup below
-            record = write_render(staging, views, config, training, setup_seconds, seconds, orbit)
-            swap_in(staging, out)
+        record = write_render(staging, views, config, training, setup_seconds, seconds, orbit)
+        swap_in(staging, out)
     except OSError as err:  # a full disk: np.save and matplotlib raise it as it is
         if os_error_behind(err) is None:
             raise

@@ -1,8 +1,10 @@
 import itertools
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -668,3 +670,44 @@ def test_an_output_folder_through_a_broken_link_is_one_line(tmp_path, capsys):
     assert exc.value.code == 2
     line = capsys.readouterr().err.strip()
     assert "is a broken link" in line and "--output-dir" in line
+
+
+def _killed(*args: object) -> None:
+    """A stand-in for a stage of a command, where a SIGTERM (`kill`, a scheduler's time limit) lands."""
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(10)  # the handler raises within this
+    raise AssertionError("SIGTERM did not stop the command")
+
+
+@pytest.mark.parametrize("command", ["render-uncertainty", "eval-ause", "export"])
+def test_a_sigterm_before_the_write_says_what_it_left(monkeypatch, tmp_path, capsys, command):
+    """Only the write itself took SIGTERM as Ctrl-C: one during the scene's setup, the render or the checkpoint's
+    load ended the process at once, without the `interrupted: ...` line the docs promise."""
+    from types import SimpleNamespace
+
+    from splatu import export, render_uncertainty
+
+    def not_default(signum: int, frame: object) -> None:  # where SIGTERM's default would end pytest itself
+        raise AssertionError("SIGTERM reached the handler from before the command")
+
+    before = signal.signal(signal.SIGTERM, not_default)
+    try:
+        monkeypatch.setattr(render_uncertainty, "pinned_load", lambda load, written: load)
+        monkeypatch.setattr(render_uncertainty, "_load", lambda load, options: (
+            SimpleNamespace(member_steps=None), options.for_run(False)))
+        monkeypatch.setattr(render_uncertainty, "_setup", _killed)
+        monkeypatch.setattr(render_uncertainty, "render_eval_maps", _killed)
+        monkeypatch.setattr(export, "resolve_checkpoint", lambda load: tmp_path / "step-0000001.pt")
+        monkeypatch.setattr(export, "load_run", _killed)
+        out = tmp_path / "out"
+        output = {"render-uncertainty": out, "eval-ause": out / "ause.json", "export": out / "splat.ply"}[command]
+        with pytest.raises(SystemExit) as stop:
+            entrypoint([command, "--load", str(tmp_path), "--output", str(output)])
+        assert signal.getsignal(signal.SIGTERM) is not_default
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert stop.value.code == 128 + signal.SIGTERM
+    left = {"render-uncertainty": f"no render written to {out}",
+            "eval-ause": "no scores written, so any earlier report is unchanged",
+            "export": f"no export written to {output}"}[command]
+    assert capsys.readouterr().err.endswith(f"interrupted: {left}\n")
