@@ -160,12 +160,18 @@ def load_only_options_set(options: UncertaintyOptions) -> list[str]:
 
 def scoring_into(output: Path) -> AbstractContextManager[None]:
     """A stop while the scores are computed and written to `output` says whether they were: they are written last,
-    with their plot, and a stop there waits for both (`finish_first`)."""
-    earlier = file_identity(output)
+    with their plot, and a stop there waits for both (`finish_first`); only a second stop there cuts it short, maybe
+    between the plot (written first) and the scores."""
+    plot = output.with_suffix(".png")
+    earlier, earlier_plot = file_identity(output), file_identity(plot)
 
     def left() -> str:
         if file_identity(output) != earlier:
             return f"the scores were already written in full to {output}, with their plot"
+        if file_identity(plot) != earlier_plot:
+            kept = f"the earlier {output} is unchanged" if earlier else f"{output} is not written"
+            return (f"a second stop cut short the write of the scores: their plot {plot} is new, but {kept}; run the "
+                    "command again to write both")
         return f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
 
     return saying_what_is_left(left)

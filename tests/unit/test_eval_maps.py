@@ -534,3 +534,30 @@ def test_a_ctrl_c_while_scoring_says_no_scores_were_written(tmp_path, monkeypatc
     said = f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
     assert capsys.readouterr().err == f"interrupted: {said}\n"
     assert (output.read_bytes() if output.exists() else None) == before
+
+
+@pytest.mark.parametrize("earlier", [True, False])
+def test_a_second_stop_between_the_plot_and_the_scores_says_the_plot_is_new(tmp_path, monkeypatch, capsys, earlier):
+    """The plot is written first: a second stop before the scores said "the earlier X.json is unchanged", true, but
+    silent on X.png, which was already replaced by the new curves."""
+    from splatu import eval_ause
+
+    _tiny_maps(tmp_path / "maps", n=1)
+    output = tmp_path / "maps" / "ause.json"
+    if earlier:
+        _run("--maps", str(tmp_path / "maps"))
+    before = output.read_bytes() if earlier else None
+
+    def second_stop(*args, **kwargs):  # aborts at once (`finish_first`), after the plot
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(eval_ause, "atomic_write_text", second_stop)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        _run("--maps", str(tmp_path / "maps"))
+    assert stop.value.code == 130
+    kept = f"the earlier {output} is unchanged" if earlier else f"{output} is not written"
+    assert capsys.readouterr().err == (f"interrupted: a second stop cut short the write of the scores: their plot "
+                                       f"{output.with_suffix('.png')} is new, but {kept}; run the command again to "
+                                       "write both\n")
+    assert (output.read_bytes() if output.exists() else None) == before
