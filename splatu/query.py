@@ -168,6 +168,9 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod | No
     scene's new location if it has moved, for those methods alone (the others never read the scene here)."""
     target = Path(path).expanduser()
     is_ensemble = (target / ENSEMBLE_FILE).is_file()
+    # an ensemble opened as it renders by default is told about as the run: the method was not the caller's, and it
+    # renders with no other
+    own_ensemble = method is None and is_ensemble
     if method is None:
         method = own_method(is_ensemble)
     if method not in QUERY_METHODS:
@@ -176,13 +179,19 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod | No
     if density_aware and method != "ensemble":  # as render-uncertainty refuses it: it would be ignored
         raise SplatuError("density_aware only applies with method=\"ensemble\"", "in open_run",
                           "drop density_aware, or pass method=\"ensemble\" for an ensemble run")
+    subject = ("an ensemble run, rendered with its members' std by default," if own_ensemble
+               else f'method="{method}"')
     if head is not None and method not in METHODS_WITH_OURS:
-        raise SplatuError(f'head picks an uncertainty head of ours; method="{method}" has none',
-                          "in open_run", f"drop head, or pass method= one of {method_list(METHODS_WITH_OURS)}")
+        raise SplatuError(f"head picks an uncertainty head of ours; {subject} has "
+                          f"{'no uncertainty head' if own_ensemble else 'none'}", "in open_run",
+                          "drop head" if own_ensemble else
+                          f"drop head, or pass method= one of {method_list(METHODS_WITH_OURS)}")
     if data is not None and method not in METHODS_FROM_TRAINING_VIEWS:  # it renders the model alone
-        raise SplatuError(f'data= is where the scene is, which method="{method}" never reads', "in open_run",
-                          "drop data= here, and pass it to run.scene_cameras() and run.training_cameras(), which "
-                          f"read the scene, or pass method= one of {method_list(METHODS_FROM_TRAINING_VIEWS)}")
+        to_cameras = ("drop data= here, and pass it to run.scene_cameras() and run.training_cameras(), which read the "
+                      "scene")
+        raise SplatuError(f"data= is where the scene is, which {subject} never reads", "in open_run",
+                          to_cameras if own_ensemble else
+                          f"{to_cameras}, or pass method= one of {method_list(METHODS_FROM_TRAINING_VIEWS)}")
     if is_ensemble != (method == "ensemble"):  # an ensemble's members trained without the loss: they have no U
         raise SplatuError("this is an ensemble run, whose uncertainty is its members' disagreement" if is_ensemble
                           else "method=\"ensemble\" needs an ensemble run (with ensemble.json)", f"in {path}",

@@ -1241,6 +1241,25 @@ def test_open_run_refuses_an_option_its_method_never_reads(tiny_run):
     assert open_run(tiny_run, method="ours-spread", head=EXTRA_HEAD).method == "ours-spread"
 
 
+def test_open_run_tells_an_ensemble_opened_by_default_that_head_and_data_are_of_no_use(tmp_path):
+    """With no method=, an ensemble is rendered as "ensemble": head= and data= were refused as of method="ensemble",
+    which the caller never passed, with the advice to pass an ours-family method, which an ensemble refuses."""
+    from splatu.query import open_run
+
+    (tmp_path / "ensemble.json").write_text("{}")  # refused before the members load
+    with pytest.raises(SplatuError) as error:
+        open_run(tmp_path, head=EXTRA_HEAD)
+    assert error.value.what == ("head picks an uncertainty head of ours; an ensemble run, rendered with its members' "
+                                "std by default, has no uncertainty head") and error.value.fix == "drop head"
+    with pytest.raises(SplatuError) as error:
+        open_run(tmp_path, data=tmp_path / "moved")
+    assert error.value.what == ("data= is where the scene is, which an ensemble run, rendered with its members' std "
+                                "by default, never reads")
+    assert "method=" not in error.value.fix and "run.training_cameras()" in error.value.fix
+    with pytest.raises(SplatuError, match='method="ensemble" has none'):  # typed, it is named as typed
+        open_run(tmp_path, method="ensemble", head=EXTRA_HEAD)
+
+
 def test_open_run_refuses_data_for_a_method_that_never_reads_the_scene(tiny_run, tmp_path):
     """ours renders the model alone: open_run read no scene for it, so data= (the scene's new place) was dropped
     without a word, and a planner that passed it believed it checked. The methods that read the scene read it there."""
