@@ -496,8 +496,8 @@ def run(config: RenderUncertaintyConfig) -> None:
         raise SplatuError(f"--cameras FILE renders candidate cameras, not --views {config.views}",
                           "in the command's options", f"drop --views {config.views}, or drop --cameras")
     if config.off_centre_ok and config.cameras is None:  # the scene's own views (train, eval) render as they are
-        raise SplatuError("--off-centre-ok only applies with --views cameras --cameras FILE",
-                          "in the command's options", "drop --off-centre-ok, or pass --views cameras --cameras FILE")
+        raise SplatuError("--off-centre-ok only applies with --cameras FILE",
+                          "in the command's options", "drop --off-centre-ok, or pass --cameras FILE")
     if config.cameras is not None:
         require_file(transforms_file(config.cameras), "camera file",
                      "pass the path of a transforms.json-style file of cameras, or of the folder holding it")

@@ -1161,7 +1161,8 @@ def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny
     (("--views", "orbit", "--cameras", "c.json"), "--cameras FILE renders candidate cameras, not --views orbit"),
     (("--views", "cameras", "--cameras", "missing.json"), "camera file not found"),
     (("--cameras", "missing.json"), "camera file not found"),
-    (("--off-centre-ok",), "--off-centre-ok only applies with --views cameras --cameras FILE"),
+    (("--off-centre-ok",), "--off-centre-ok only applies with --cameras FILE, in the command's options, drop "
+                          "--off-centre-ok, or pass --cameras FILE"),
 ])
 def test_candidate_camera_options_are_refused_in_one_line(tiny_run, tmp_path, capsys, args, message):
     assert message in _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), *args,
