@@ -512,27 +512,36 @@ def test_a_plot_the_disk_refuses_is_one_line_and_keeps_the_earlier_scores(tmp_pa
     assert not list(tmp_path.glob(".ause.png.tmp-*"))
 
 
+def _maps_scored_before(tmp_path, earlier: bool) -> tuple[Path, bytes | None]:
+    """A one-view maps folder, scored once already when `earlier`: its report's path and bytes (None if none)."""
+    _tiny_maps(tmp_path / "maps", n=1)
+    output = tmp_path / "maps" / "ause.json"
+    if earlier:
+        _run("--maps", str(tmp_path / "maps"))
+    return output, output.read_bytes() if earlier else None
+
+
+def _stopped_in(module, name: str, tmp_path, monkeypatch, capsys) -> str:
+    """What `eval-ause --maps` prints when a Ctrl-C comes in `module.name`; it must exit 130."""
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, name, stop)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stopped:
+        _run("--maps", str(tmp_path / "maps"))
+    assert stopped.value.code == 130
+    return capsys.readouterr().err
+
+
 @pytest.mark.parametrize("earlier", [True, False])
 def test_a_ctrl_c_while_scoring_says_no_scores_were_written(tmp_path, monkeypatch, capsys, earlier):
     """It said only "interrupted"; the scores are written last, so a stop before them leaves an earlier report."""
     from splatu import eval_ause
 
-    _tiny_maps(tmp_path / "maps", n=1)
-    output = tmp_path / "maps" / "ause.json"
-    if earlier:
-        _run("--maps", str(tmp_path / "maps"))
-    before = output.read_bytes() if earlier else None
-
-    def stopped(entries, metric):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(eval_ause, "score_entries", stopped)
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as stop:
-        _run("--maps", str(tmp_path / "maps"))
-    assert stop.value.code == 130
+    output, before = _maps_scored_before(tmp_path, earlier)
     said = f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
-    assert capsys.readouterr().err == f"interrupted: {said}\n"
+    assert _stopped_in(eval_ause, "score_entries", tmp_path, monkeypatch, capsys) == f"interrupted: {said}\n"
     assert (output.read_bytes() if output.exists() else None) == before
 
 
@@ -542,22 +551,10 @@ def test_a_second_stop_between_the_plot_and_the_scores_says_the_plot_is_new(tmp_
     silent on X.png, which was already replaced by the new curves."""
     from splatu import eval_ause
 
-    _tiny_maps(tmp_path / "maps", n=1)
-    output = tmp_path / "maps" / "ause.json"
-    if earlier:
-        _run("--maps", str(tmp_path / "maps"))
-    before = output.read_bytes() if earlier else None
-
-    def second_stop(*args, **kwargs):  # aborts at once (`finish_first`), after the plot
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(eval_ause, "atomic_write_text", second_stop)
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as stop:
-        _run("--maps", str(tmp_path / "maps"))
-    assert stop.value.code == 130
+    output, before = _maps_scored_before(tmp_path, earlier)
     kept = f"the earlier {output} is unchanged" if earlier else f"{output} is not written"
-    assert capsys.readouterr().err == (f"interrupted: a second stop cut short the write of the scores: their plot "
-                                       f"{output.with_suffix('.png')} is new, but {kept}; run the command again to "
-                                       "write both\n")
+    # a second stop aborts at once (`finish_first`), here after the plot
+    said = _stopped_in(eval_ause, "atomic_write_text", tmp_path, monkeypatch, capsys)
+    assert said == (f"interrupted: a second stop cut short the write of the scores: their plot "
+                    f"{output.with_suffix('.png')} is new, but {kept}; run the command again to write both\n")
     assert (output.read_bytes() if output.exists() else None) == before
