@@ -53,6 +53,17 @@ def file_identity(path: Path) -> tuple[int, int] | None:
     return found.st_ino, found.st_mtime_ns
 
 
+def what_a_stop_left(written: Path, earlier: tuple[int, int] | None, thing: str, where: Path) -> str:
+    """What a Ctrl-C or SIGTERM left of `thing` in `where`, told by `written`, which was `earlier` (`file_identity`)
+    when the command began and is replaced whole (`atomic_write`, or last, as a staged render's swap does): either the
+    earlier one, unchanged, or the whole new one. The line `interrupted: …` says it, so a user knows what survived."""
+    if file_identity(written) != earlier:
+        return f"the new {thing} was already written in full to {where}"
+    if earlier is None:
+        return f"no {thing} written to {where}"
+    return f"no {thing} written; the earlier {thing} in {where} is unchanged"
+
+
 def temporary_sibling(path: Path) -> Path:
     """Where `path` is written whole before it is renamed into place: hidden, and named by the writing process, so
     two writers never share one and a killed writer's leftover can be found (`leftover_temporaries`)."""

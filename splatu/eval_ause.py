@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.table import Table
 
 from splatu import ause as A
-from splatu.atomic import atomic_write_text, file_identity
+from splatu.atomic import atomic_write_text, file_identity, what_a_stop_left
 from splatu.checkpoint import run_folder
 from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir, no_empty_folders_left
 from splatu.interrupts import finish_first, saying_what_is_left
@@ -166,13 +166,11 @@ def scoring_into(output: Path) -> AbstractContextManager[None]:
     earlier, earlier_plot = file_identity(output), file_identity(plot)
 
     def left() -> str:
-        if file_identity(output) != earlier:
-            return f"the scores were already written in full to {output}, with their plot"
-        if file_identity(plot) != earlier_plot:
+        if file_identity(output) == earlier and file_identity(plot) != earlier_plot:
             kept = f"the earlier {output} is unchanged" if earlier else f"{output} is not written"
             return (f"a second stop cut short the write of the scores: their plot {plot} is new, but {kept}; run the "
                     "command again to write both")
-        return f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
+        return what_a_stop_left(output, earlier, "report", output)
 
     return saying_what_is_left(left)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from splatu.atomic import file_identity
+from splatu.atomic import file_identity, what_a_stop_left
 from splatu.checkpoint import load_run, resolve_checkpoint, run_folder
 from splatu.errors import SplatuError, creatable_dir
 from splatu.interrupts import saying_what_is_left
@@ -36,21 +36,11 @@ def export_path(load: Path, checkpoint: Path, output: Path | None) -> Path:
     return path
 
 
-def left_by_a_stop(output: Path, earlier: tuple[int, int] | None) -> str:
-    """What a Ctrl-C left at `output`, which was `earlier` (`file_identity`): the PLY is written beside it and renamed
-    over it whole (`atomic_write`), so it is the earlier file (or none) or the whole new one."""
-    if file_identity(output) != earlier:
-        return f"the export was already written in full to {output}"
-    if earlier is None:
-        return f"no export written to {output}"
-    return f"no export written; the earlier {output} is unchanged"
-
-
 def run(config: ExportConfig) -> None:
     checkpoint = resolve_checkpoint(config.load)
     output = export_path(config.load, checkpoint, config.output)
     earlier = file_identity(output)
-    with saying_what_is_left(lambda: left_by_a_stop(output, earlier)):
+    with saying_what_is_left(lambda: what_a_stop_left(output, earlier, "export", output)):
         trained = load_run(checkpoint)
         if trained.frame is None:
             raise SplatuError("this checkpoint predates the record of the scene's normalisation, so its Gaussians "

@@ -33,7 +33,13 @@ import torch
 import tyro
 from rich.console import Console
 
-from splatu.atomic import atomic_write_text, file_identity, leftover_temporaries, temporary_sibling
+from splatu.atomic import (
+    atomic_write_text,
+    file_identity,
+    leftover_temporaries,
+    temporary_sibling,
+    what_a_stop_left,
+)
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished, run_folder
@@ -541,11 +547,7 @@ def left_by_a_stop(out: Path, earlier: tuple[int, int] | None) -> str:
     if (out / SWAPPING).exists():
         return (f"a second stop cut short the swap of the new render into {out}, which may hold parts of it and of "
                 "the earlier one; run the command again to write it whole")
-    if file_identity(out / "render.json") != earlier:
-        return f"the new render was already written in full to {out}"
-    if earlier is None:
-        return f"no render written to {out}"
-    return f"no render written; the earlier render in {out} is unchanged"
+    return what_a_stop_left(out / "render.json", earlier, "render", out)
 
 
 def write_in_place(out: Path, views: list[RenderedView], config: RenderUncertaintyConfig,

@@ -540,7 +540,8 @@ def test_a_ctrl_c_while_scoring_says_no_scores_were_written(tmp_path, monkeypatc
     from splatu import eval_ause
 
     output, before = _maps_scored_before(tmp_path, earlier)
-    said = f"no scores written; the earlier {output} is unchanged" if earlier else "no scores written"
+    said = (f"no report written; the earlier report in {output} is unchanged" if earlier
+            else f"no report written to {output}")
     assert _stopped_in(eval_ause, "score_entries", tmp_path, monkeypatch, capsys) == f"interrupted: {said}\n"
     assert (output.read_bytes() if output.exists() else None) == before
 

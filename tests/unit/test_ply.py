@@ -246,8 +246,9 @@ def test_an_export_output_that_is_a_folder_is_told_a_file_in_it(tmp_path):
 
 
 @pytest.mark.parametrize(("earlier", "written", "said"), [
-    (True, False, "no export written; the earlier {} is unchanged"), (False, False, "no export written to {}"),
-    (True, True, "the export was already written in full to {}")])
+    (True, False, "no export written; the earlier export in {} is unchanged"),
+    (False, False, "no export written to {}"),
+    (True, True, "the new export was already written in full to {}")])
 def test_a_ctrl_c_during_export_says_what_it_left(tmp_path, monkeypatch, capsys, earlier, written, said):
     """It said only "interrupted"; the PLY is renamed into place whole, so the line says whether that happened."""
     from types import SimpleNamespace
