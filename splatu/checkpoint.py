@@ -140,6 +140,14 @@ def run_dir_of(checkpoint: Path) -> Path:
     return parent.parent if parent.name == CHECKPOINT_DIR else parent
 
 
+def run_holding(checkpoint: Path) -> Path | None:
+    """The run a checkpoint file is inside, which a `--resume` of it trains on in, or None for a file inside none (a
+    copy in ~/Downloads, or one set aside in a run's abandoned/): a run is a folder holding config.yml, which a run
+    writes before anything else, and its checkpoints lie in its checkpoints/ folder or, put there by hand, in it."""
+    folder = run_dir_of(checkpoint)
+    return folder if (folder / "config.yml").is_file() else None
+
+
 OLDER_CHECKPOINT = "use an older checkpoint of the run (its checkpoints/ folder), or retrain"
 
 

@@ -14,7 +14,7 @@ from splatu.checkpoint import (
     checkpoint_step,
     list_checkpoints,
 )
-from splatu.errors import SplatuError, unwritable
+from splatu.errors import unwritable
 from splatu.json_files import is_finite_number
 from splatu.run_dir import new_timestamped_dir
 
@@ -151,8 +151,8 @@ def _outputs_made_after(run_dir: Path, step: int) -> list[Path]:
 
 
 def _move_into(folder: Path, run_dir: Path, paths: list[Path]) -> None:
-    """Move `paths` into `folder`: renders and exports keep their folder; the rest (checkpoints too, see
-    refuse_set_aside_checkpoint) go straight in."""
+    """Move `paths` into `folder`: renders and exports keep their folder; the rest go straight in, checkpoints too,
+    which then lie inside no run (`run_holding`), so that a resume of one trains on in a new run."""
     for path in paths:
         if path.exists():
             kept_folder = path.parent in (run_dir / "uncertainty", run_dir / "exports")
@@ -182,10 +182,3 @@ def _choice_step(path: Path) -> int:
         return int(json.loads(path.read_text(encoding="utf-8"))["step"])
     except (OSError, ValueError, KeyError, TypeError):
         return 1 << 62
-
-
-def refuse_set_aside_checkpoint(checkpoint: Path) -> None:
-    """A checkpoint in abandoned/ has no run folder of its own: resuming it would train inside abandoned/."""
-    if checkpoint.resolve().parent.parent.name == ABANDONED_DIR:
-        raise SplatuError("this checkpoint was set aside by an earlier resume (it is in abandoned/)",
-                          f"at {checkpoint}", "copy it into a new folder and resume from there, or resume the run")

@@ -20,7 +20,7 @@ from splatu.checkpoint import (
     read_checkpoint,
     refuse_foreign_checkpoint,
     resolve_checkpoint,
-    run_dir_of,
+    run_holding,
     saved_frame,
 )
 from splatu.config_values import changed_options, flat_options, to_dict
@@ -43,7 +43,6 @@ from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import refuse_copies_of_the_own_head
 from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
-from splatu.run_records import refuse_set_aside_checkpoint
 from splatu.train_config import (
     DEFAULT_PRESET,
     DISPLAY_OPTIONS,
@@ -66,7 +65,7 @@ from splatu.train_config import (
     with_display,
 )
 from splatu.train_progress import console, scene_line
-from splatu.trainer import restartable, train_locked_run
+from splatu.trainer import fitting_frame, restartable, train_locked_run
 from splatu.training_step import StepHook, resolution_level
 from splatu.world_frame import require_same_frame, scene_frame
 
@@ -168,12 +167,14 @@ def _flag(config: TrainConfig, name: str) -> str:
 
 
 def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
-                   typed: Collection[str] | None = None) -> TrainConfig:
+                   typed: Collection[str] | None = None, *, in_new_run: bool = False) -> TrainConfig:
     """The config a resume continues with: the run's saved one. `--data` beside `--resume` moves only where the
     scene is (the run's split and downscale stay); any other option given is ignored, and the user told so: each
     flag `typed` on the command line (one at the preset's value too, which the run may not have), or for a caller
     without one (None), each option off a bare preset's value (none when the preset cannot be read, as a resume never
-    needs it). An option of what the session shows (`DISPLAY_OPTIONS`: --no-progress) given is taken, not ignored."""
+    needs it). An option of what the session shows (`DISPLAY_OPTIONS`: --no-progress) given is taken, not ignored, and
+    so is --output-dir `in_new_run` (a checkpoint inside no run, `_resume_in_new_run`), which goes where a new run
+    would."""
     if typed is None:
         chosen = [name for name, default in (("preset", DEFAULT_PRESET), ("method", "splatu"))
                   if getattr(given, name) != default]  # the base of the comparison below, so never in it
@@ -184,12 +185,15 @@ def resumed_config(given: TrainConfig, saved: TrainConfig, run_dir: Path,
         given_names = chosen + changed_options(given, bare)
     else:
         given_names = [name for name in flat_options(to_dict(given)) if option_flag(name) in typed]
-    ignored = [name for name in given_names if name not in ("resume", "extend_to", "data.data", *DISPLAY_OPTIONS)]
+    taken = ("resume", "extend_to", "data.data", *DISPLAY_OPTIONS, *(("output_dir",) if in_new_run else ()))
+    ignored = [name for name in given_names if name not in taken]
     if ignored:
         flags = " ".join(_flag(given, name) for name in ignored)
         more = " (--extend-to N trains the run on to N steps)" if "steps" in ignored else ""
         console.print(f"note: --resume continues with the run's saved options; ignoring {flags}{more}", soft_wrap=True)
     saved = with_display(saved, given, [name for name in given_names if name in DISPLAY_OPTIONS])
+    if in_new_run:
+        saved = dataclasses.replace(saved, output_dir=given.output_dir)
     if given.data.data != POSTER:
         return dataclasses.replace(saved, data=dataclasses.replace(saved.data, data=given.data.data))
     if saved.data.data != POSTER and not Path(saved.data.data).exists():
@@ -241,7 +245,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
             with training_lock(run_dir):
                 return _resume_ensemble(config, saved_ensemble, run_dir, wall_start, hooks, typed)
         path = _resume_point(config.resume)
-        run_dir = Path(config.resume).expanduser().resolve() if path is None else run_dir_of(path)
+        run_dir = Path(config.resume).expanduser().resolve() if path is None else run_holding(path)
+        if run_dir is None:
+            return _resume_in_new_run(config, path, wall_start, hooks, typed)
         # a member's resume holds its ensemble's lock too; then choose again: a training that just ended may have
         # pruned the checkpoint or saved a newer one
         with enclosing_ensemble_lock(run_dir) as ensemble, training_lock(run_dir):
@@ -304,9 +310,7 @@ def _resume_point(resume: Path) -> Path | None:
     target = Path(resume).expanduser()
     if target.is_dir() and restartable(target):
         return None
-    path = resolve_checkpoint(target)
-    refuse_set_aside_checkpoint(path)
-    return path
+    return resolve_checkpoint(target)
 
 
 def check_restart(saved: TrainConfig, run_dir: Path) -> None:
@@ -326,7 +330,7 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     """`--resume` of a single run from checkpoint `path`, or from step 0 and its config.yml when `path` is None;
     `ensemble` is the ensemble run that `run_dir` is a member of, whose wall time the session then adds to."""
     checkpoint = None if path is None else read_checkpoint(path, RESUME_KEYS)
-    if checkpoint is not None and (run_dir / "config.yml").is_file():
+    if checkpoint is not None:  # `run_holding`: the run has a config.yml
         refuse_foreign_checkpoint(from_dict(checkpoint["config"], str(path)), load_config(run_dir / "config.yml"),
                                   path, run_dir, "--resume")
     saved = resumed_config(config, load_config(run_dir / "config.yml") if checkpoint is None
@@ -334,14 +338,10 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     step = 0 if checkpoint is None else int(checkpoint["step"])
     if checkpoint is None:
         check_restart(saved, run_dir)
-    if config.extend_to is not None:
-        if ensemble is not None:
-            raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay "
-                              "at their length)", f"in {run_dir}", "train a new ensemble with --steps N")
-        saved = extended(saved, config.extend_to, step, run_dir)
-        note = resolution_note(saved, extension=True)
-        if note is not None:  # a short run trained on can still end before full resolution, as a new one can
-            console.print(note, soft_wrap=True)
+    if config.extend_to is not None and ensemble is not None:
+        raise SplatuError("--extend-to trains on a single run, not an ensemble's member (the others would stay at "
+                          "their length)", f"in {run_dir}", "train a new ensemble with --steps N")
+    saved = _extended_if_asked(saved, config.extend_to, step, run_dir)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
         console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "
                       "trains it on to N steps)", soft_wrap=True)
@@ -352,6 +352,43 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
     console.print(scene_line(scene), soft_wrap=True)
     with counted_in_ensemble(ensemble, wall_start) as began:
         train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start, began)
+    return run_dir
+
+
+def _extended_if_asked(saved: TrainConfig, extend_to: int | None, step: int, where: Path) -> TrainConfig:
+    """`saved` trained on to --extend-to's length from `step` when it is given (`extended`), with its resolution
+    note: a short run trained on can still end before full resolution, as a new one can."""
+    if extend_to is None:
+        return saved
+    saved = extended(saved, extend_to, step, where)
+    note = resolution_note(saved, extension=True)
+    if note is not None:
+        console.print(note, soft_wrap=True)
+    return saved
+
+
+def _resume_in_new_run(config: TrainConfig, path: Path, wall_start: float, hooks: Sequence[StepHook],
+                       typed: Collection[str] | None) -> Path:
+    """`--resume` of checkpoint `path`, which is inside no run (`run_holding`: a copy in ~/Downloads, or one an
+    earlier resume set aside in abandoned/): it trains on exactly as its run's resume would, but in a new run folder
+    where a new run goes (<--output-dir>/<scene>/<method>/<time>, `latest` pointed at it), so that the folder it lies
+    in never becomes a run. The folder is made once the scene has loaded and fits the checkpoint."""
+    checkpoint = read_checkpoint(path, RESUME_KEYS)
+    saved = resumed_config(config, from_dict(checkpoint["config"], str(path)), path, typed, in_new_run=True)
+    saved = filed_as_trained(saved)  # an ensemble's member trains on as the single run it is
+    step = int(checkpoint["step"])
+    saved = _extended_if_asked(saved, config.extend_to, step, path)
+    creatable_dir(saved.output_dir, "--output-dir")  # before the scene, whose loading can take minutes
+    scene = load_scene(saved.data)
+    refuse_unscorable_sets(scene)
+    fitting_frame(checkpoint, saved, scene)
+    run_dir = new_run_dir(saved.output_dir, scene.name, saved.method)
+    point_latest(run_dir)
+    console.print(f"{path} is not inside a run folder: training continues from its step {step} of {saved.steps} in "
+                  f"a new run, {run_dir}", soft_wrap=True)
+    console.print(scene_line(scene), soft_wrap=True)
+    with training_lock(run_dir):
+        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
     return run_dir
 
 

@@ -99,7 +99,7 @@ from splatu.training_step import (
     train_step,
     trained_sh_degree,
 )
-from splatu.world_frame import require_same_frame, scene_frame
+from splatu.world_frame import WorldTransform, require_same_frame, scene_frame
 
 UNCERTAINTY_SEED_OFFSET = 7_919
 """Offsets the uncertainty loss's seed from the geometry's, so the two streams differ."""
@@ -151,11 +151,18 @@ def uncertainty_generators(seed: int, heads: int) -> list[torch.Generator]:
     return [torch.Generator().manual_seed(seed + UNCERTAINTY_SEED_OFFSET) for _ in range(heads)]
 
 
-def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> TrainState:
-    """The checkpointed state; refuses a scene whose normalisation moved (its cameras would not fit the model)."""
+def fitting_frame(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> WorldTransform:
+    """The scene's frame, refused unless the checkpoint's model was trained in it (a scene whose normalisation
+    moved: its cameras would not fit the model)."""
     to_world = scene_frame(scene)
     require_same_frame(saved_frame(checkpoint), to_world, f"in {config.data.data}",
                        "resume with the scene as it was, or start a new run")
+    return to_world
+
+
+def restored_state(checkpoint: dict[str, Any], config: TrainConfig, scene: Scene) -> TrainState:
+    """The checkpointed state, in a scene that fits it (`fitting_frame`)."""
+    to_world = fitting_frame(checkpoint, config, scene)
     model = model_from_state(checkpoint, config)
     extent = float(checkpoint["scene_extent"])
     optimizers = Optimizers(model, config.optim, extent, config.steps)
@@ -478,8 +485,10 @@ def _train_state(state: TrainState, config: TrainConfig, scene: Scene, run_dir: 
                           f"{abandoned}", soft_wrap=True)
     # wall time counts scene loading and every earlier session up to its last checkpoint (older ones lack it)
     state.wall_start = wall_start - (0.0 if checkpoint is None else float(checkpoint.get("wall_seconds", 0.0)))
-    if checkpoint is not None and int(checkpoint["config"]["steps"]) < config.steps:  # --extend-to
-        # its checkpoint again, with the new length: a resume after a kill from here on still trains on
+    if checkpoint is not None and (int(checkpoint["config"]["steps"]) < config.steps  # --extend-to
+                                   or not checkpoint_path(run_dir, state.step).is_file()):
+        # its checkpoint again, with the new length, or into a run that lacks it (a new run continuing a checkpoint
+        # from outside any): a resume after a kill from here on trains on from it, not anew from config.yml
         _save(state, config, run_dir, MetricsLog(run_dir / "metrics.jsonl"))
     if checkpoint is not None:
         # a summary that outlived the resume's checks is a finished run's that this one trains on (after a kill, its

@@ -58,6 +58,22 @@ def test_only_the_newest_checkpoints_are_kept_and_the_newest_is_resolved(tmp_pat
     assert [p.name for p in ckpt.list_checkpoints(tmp_path)] == [f"step-00000{s}.pt" for s in (30, 40, 50, 60)]
 
 
+def test_a_checkpoint_is_inside_a_run_only_beside_or_below_its_config(tmp_path):
+    """A run writes config.yml first; a folder without one (~/Downloads, a copied checkpoints/, abandoned/<time>/)
+    is no run, and `--resume` of a checkpoint in it trains on in a new run instead of turning it into one."""
+    run = tmp_path / "run"
+    in_checkpoints = ckpt.checkpoint_path(run, 5)
+    in_checkpoints.parent.mkdir(parents=True)
+    in_checkpoints.touch()
+    (run / "by_hand.pt").touch()
+    assert ckpt.run_holding(in_checkpoints) is None and ckpt.run_holding(run / "by_hand.pt") is None
+    (run / "config.yml").write_text("steps: 3\n")
+    assert ckpt.run_holding(in_checkpoints) == ckpt.run_holding(run / "by_hand.pt") == run.resolve()
+    (run / "abandoned" / "t").mkdir(parents=True)
+    (run / "abandoned" / "t" / "step-0000009.pt").touch()
+    assert ckpt.run_holding(run / "abandoned" / "t" / "step-0000009.pt") is None
+
+
 def test_keeping_no_checkpoint_is_refused(tmp_path):
     from splatu.cli import main
 

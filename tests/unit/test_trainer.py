@@ -161,7 +161,8 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
     """Stopped after step 5, every schedule changes after the resume: full resolution from step 7, a split after step
     7 that the density statistics of step 5 (in the checkpoint) count towards, colour SH degree 2 from step 9, the
     opacity reset (capping every Gaussian, and zeroing its Adam moments) after step 10. The stop after step 7 this
-    test had, right after a window's end, passed with no density statistics restored."""
+    test had, right after a window's end, passed with no density statistics restored. The run's checkpoint copied out
+    of it (into ~/Downloads, say) trains on alike, in a new run: its folder turned into a run folder before."""
     def config(folder: str, **changes) -> TrainConfig:
         densify = DensifyConfig(warmup_length=1, refine_every=3, stop_split_at=10, reset_alpha_every=3,
                                 densify_grad_thresh=1e-6, max_gaussians=2000)
@@ -184,6 +185,9 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
         train_command.train(config("b", checkpoint_every=0), hooks=[ctrl_c_at_5])
     interrupted_dir = (tmp_path / "b" / "outputs" / "tiny" / "splatu" / "latest").resolve()
     assert [p.name for p in list_checkpoints(interrupted_dir)] == ["step-0000005.pt"]
+    downloads = tmp_path / "downloads"
+    downloads.mkdir()
+    stray = shutil.copy(list_checkpoints(interrupted_dir)[0], downloads / "step_000005.pt")
 
     resumed_params: dict[int, dict[str, torch.Tensor]] = {}
     resumed_dir = train_command.train(dataclasses.replace(config("c"), resume=interrupted_dir),
@@ -202,6 +206,19 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
     assert len(model_a) != len(scene.points)  # densification happened, so its state was resumed too
     for name in GaussianModel.PARAM_NAMES:
         assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
+
+    stray_params: dict[int, dict[str, torch.Tensor]] = {}
+    new_dir = train_command.train(dataclasses.replace(config("d"), resume=stray), hooks=[record(stray_params)])
+    assert sorted(p.name for p in downloads.iterdir()) == ["step_000005.pt"]  # the folder did not become a run
+    assert new_dir.parent == tmp_path / "d" / "outputs" / "tiny" / "splatu"  # where --output-dir puts a new run
+    assert (new_dir.parent / "latest").resolve() == new_dir.resolve()
+    assert losses_of(new_dir) == {step: loss for step, loss in full.items() if step > 5}
+    assert sorted(stray_params) == list(range(6, 13))
+    for step, params in stray_params.items():
+        for name in GaussianModel.PARAM_NAMES:
+            assert torch.equal(params[name], full_params[step][name]), (step, name)
+    assert [p.name for p in list_checkpoints(new_dir)] == ["step-0000005.pt", "step-0000012.pt"]  # its own start too
+    assert load_config(new_dir / "config.yml").output_dir == tmp_path / "d" / "outputs"
 
 
 def test_a_run_writes_its_layout_and_its_config_loads_back(tmp_path, scene):
@@ -1271,9 +1288,12 @@ def test_resuming_an_older_checkpoint_sets_the_later_work_aside_and_continues_fr
     assert {r["step"]: r["loss"] for r in moved if r["event"] == "train"} == {
         s: loss for s, loss in abandoned_losses.items() if s > 6}
 
-    # the set-aside checkpoint is not resumed into abandoned/, and a second set-aside gets its own folder
-    with pytest.raises(SplatuError, match="set aside by an earlier resume"):
-        train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
+    # the set-aside checkpoint is inside no run: it trains on (here, it only finishes) in a new run, not in
+    # abandoned/; and a second set-aside gets its own folder
+    before = sorted(run_dir.rglob("*"))
+    branch = train_command.train(dataclasses.replace(tiny_config(tmp_path / "c"), resume=aside / newest.name))
+    assert branch.parent == tmp_path / "c" / "outputs" / "tiny" / "splatu" and sorted(run_dir.rglob("*")) == before
+    assert json.loads((branch / "summary.json").read_text())["steps"] == 12
     assert new_timestamped_dir(aside.parent) != new_timestamped_dir(aside.parent)
     for extra in aside.parent.iterdir():
         if extra != aside:
@@ -1294,6 +1314,35 @@ def _stopped_at_step_7(tmp_path) -> Path:
     with pytest.raises(interrupts.TrainingInterrupted):
         train_command.train(tiny_config(tmp_path, checkpoint_every=0), hooks=[ctrl_c_at_7])
     return (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+
+
+def test_a_checkpoint_inside_no_run_trains_on_in_a_new_run_and_says_so(tmp_path, scene, capsys, monkeypatch):
+    """`--resume ~/Downloads/step_001000.pt` took ~/Downloads for the run: it wrote checkpoints/, config.yml and
+    metrics.jsonl there. A checkpoint inside no run (no config.yml beside it or its checkpoints/ folder) now trains
+    on where a new run would go: --output-dir if typed (not named as ignored), else outputs/."""
+    run_dir = _stopped_at_step_7(tmp_path / "a")
+    downloads = tmp_path / "downloads"
+    (downloads / "checkpoints").mkdir(parents=True)
+    stray = shutil.copy(list_checkpoints(run_dir)[0], downloads / "step_000007.pt")
+    shutil.copy(list_checkpoints(run_dir)[0], downloads / "checkpoints" / "step-0000007.pt")
+    copied = sorted(downloads.rglob("*"))
+    monkeypatch.chdir(tmp_path)
+
+    def resume(*flags: str) -> tuple[Path, str]:
+        """The run folder and what stderr said."""
+        capsys.readouterr()
+        entrypoint(["train", "--resume", *flags])
+        out, err = capsys.readouterr()
+        return Path(out.split("run saved to ")[1].strip()), err
+
+    new_dir, err = resume(str(stray), "--output-dir", "elsewhere")
+    assert new_dir.resolve().parent == tmp_path / "elsewhere" / "tiny" / "splatu"
+    assert (f"{stray} is not inside a run folder: training continues from its step 7 of 12 in a new run, {new_dir}"
+            in err.splitlines()) and "ignoring" not in err
+    assert json.loads((new_dir / "summary.json").read_text())["steps"] == 12
+    copy_of_its_checkpoints, _ = resume(str(downloads))  # a folder of checkpoints is no run either
+    assert copy_of_its_checkpoints.resolve().parent == tmp_path / "outputs" / "tiny" / "splatu"
+    assert sorted(downloads.rglob("*")) == copied  # nothing written beside the copies
 
 
 def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene):
