@@ -1343,6 +1343,12 @@ def test_a_checkpoint_inside_no_run_trains_on_in_a_new_run_and_says_so(tmp_path,
     copy_of_its_checkpoints, _ = resume(str(downloads))  # a folder of checkpoints is no run either
     assert copy_of_its_checkpoints.resolve().parent == tmp_path / "outputs" / "tiny" / "splatu"
     assert sorted(downloads.rglob("*")) == copied  # nothing written beside the copies
+    runs = sorted((tmp_path / "outputs" / "tiny" / "splatu").iterdir())
+    scene.center = scene.center + 1  # the data moved: refused before a run folder is made for it
+    with pytest.raises(SystemExit):
+        resume(str(stray))
+    assert "normalisation" in capsys.readouterr().err
+    assert sorted((tmp_path / "outputs" / "tiny" / "splatu").iterdir()) == runs
 
 
 def test_resume_survives_a_metrics_line_torn_by_a_killed_process(tmp_path, scene):
