@@ -3,6 +3,7 @@ per-view bar of every evaluation and render."""
 
 from __future__ import annotations
 
+import signal
 from collections import Counter, deque
 from collections.abc import Callable
 from statistics import median
@@ -127,6 +128,17 @@ def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: in
     eta = "?" if left is None else _clock(round(left))
     return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR (EMA) {psnr:5.2f}  #G {gaussians:>7}"
             f"  {rate:5.2f} it/s  ETA {eta}")
+
+
+def stopping_line(step: int | None, done: int, compiling: bool, signum: int) -> str:
+    """What a training's first Ctrl-C or SIGTERM says at once (`interrupts.deferred_interrupt`): the step under way
+    (`step`; None between steps, `done` the last one done) can take a minute yet, the session's first compiling the
+    kernels (`compiling`), and a silent wait made users press Ctrl-C again, which aborts without saving."""
+    again = f"{'Ctrl-C' if signum == signal.SIGINT else 'SIGTERM'} again aborts without saving"
+    if step is None:
+        return f"stopping after step {done}, once its checkpoint is saved ({again})"
+    kernels = " (compiling the kernels, which can take a minute)" if compiling else ""
+    return f"stopping: finishing step {step}{kernels}, then saving a checkpoint ({again})"
 
 
 RATE_WINDOW = 50

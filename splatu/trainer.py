@@ -87,6 +87,7 @@ from splatu.train_progress import (
     on_terminal,
     progress_bar,
     progress_line,
+    stopping_line,
 )
 from splatu.training_step import (
     NonFiniteUpdate,
@@ -211,17 +212,23 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                                            interval=config.resolution_interval))
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
     saved_step = state.step if state.step > 0 and resumed_from.is_file() else None
-    with progress_bar(config.progress and terminal) as progress, deferred_interrupt() as interrupt:
+    first_step = state.step + 1  # the session's: it compiles the kernels when `compiling`
+    in_step = False
+
+    def stop_line(signum: int) -> str:
+        return stopping_line(state.step + 1 if in_step else None, state.step,
+                             compiling and in_step and state.step + 1 == first_step, signum)
+
+    with progress_bar(config.progress and terminal) as progress, deferred_interrupt(stop_line) as interrupt:
         task = progress.add_task("train", total=config.steps, completed=state.step, loss=None, psnr=None,
                                  gaussians=len(state.model), rate=None, left=None, compiling=compiling)
-        in_step = False
         try:
             while state.step < config.steps:
                 in_step = True  # from here until the step is counted, a stop cannot save a consistent state
                 if config.degree_choice.on and state.step == decision_step(config.degree_choice, config.steps):
                     config = choose_degrees(state, config, scene, log, run_dir)
                     images = TrainImages(scene.train)
-                started, compiling = time.perf_counter(), compile_seconds()
+                started, compiled_before = time.perf_counter(), compile_seconds()
                 try:
                     outcome = train_step(state, config, images)
                 except NonFiniteUpdate as bad:
@@ -229,7 +236,7 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                                       f"{bad.parameter} non-finite", f"in {run_dir}",
                                       f"{_last_good(run_dir)}; retrain with lower learning rates") from None
                 state.step += 1
-                count_training_time(state, time.perf_counter() - started, compiled_since(compiling))
+                count_training_time(state, time.perf_counter() - started, compiled_since(compiled_before))
                 in_step = False
                 _account(state, config, outcome, log, run_dir)
                 if outcome.skipped is None:

@@ -6,6 +6,8 @@ import os
 import re
 import shutil
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -1029,6 +1031,72 @@ def test_a_stopped_training_exits_with_128_plus_the_signal(tmp_path, scene, caps
         train_command.run_command(tiny_config(tmp_path, steps=4, checkpoint_every=0))
     assert exc.value.code == 128 + signum
     assert "interrupted at step 2" in capsys.readouterr().err
+
+
+STOPPED_IN_STEP_2 = """
+import sys, time
+from pathlib import Path
+from splatu import train_command, trainer
+from tests.unit.test_trainer import tiny_config, tiny_scene
+
+scene = tiny_scene()
+train_command.load_new_scene = lambda data: (data, scene)
+step_once = trainer.train_step
+
+def slow_step_2(state, config, images):
+    if state.step == 1:
+        print("in step 2", flush=True)
+        time.sleep(3)  # signals run their handler here, as in a step's Python code, and the sleep goes on
+    return step_once(state, config, images)
+
+trainer.train_step = slow_step_2
+train_command.run_command(tiny_config(Path(sys.argv[1]), steps=4, checkpoint_every=0))
+"""
+"""A training whose step 2 takes 3 s and says on stdout when it begins, for signals sent from outside."""
+
+
+@pytest.mark.parametrize("apart", [0.0, interrupts.SAME_STOP_SECONDS + 0.5])
+def test_a_stop_says_so_at_once_and_a_second_signal_in_the_same_instant_is_the_same_stop(tmp_path, apart):
+    """The first signal prints its line during the step, before the step ends and saves (a silent wait of a minute,
+    while the first step compiled, made users press Ctrl-C again). GNU `timeout -s INT` signals the command and its
+    process group, two SIGINTs microseconds apart: they are one stop, which saves; a second one later aborts."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    child = subprocess.Popen([sys.executable, "-c", STOPPED_IN_STEP_2, str(tmp_path)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env=env)
+    assert child.stdout.readline() == "in step 2\n"
+    child.send_signal(signal.SIGINT)
+    time.sleep(apart)
+    child.send_signal(signal.SIGINT)
+    _, err = child.communicate(timeout=120)
+    assert child.returncode == 130
+    lines = err.splitlines()[-2:]  # after the scene's line
+    assert lines[0] == "stopping: finishing step 2, then saving a checkpoint (Ctrl-C again aborts without saving)"
+    if apart:
+        assert lines[1].startswith("aborted during step 2; no checkpoint was written, so a resume starts at step 0")
+    else:
+        assert lines[1].startswith("interrupted at step 2, saved ")
+        run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+        assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
+
+
+@pytest.mark.parametrize(("step", "kernels"), [(1, True), (2, False)])
+def test_the_stop_line_says_the_first_steps_kernels_are_compiling(tmp_path, scene, capsys, monkeypatch, step,
+                                                                   kernels):
+    """A session's first compiled step can take a minute: the line says why the stop waits, then, and only then."""
+    step_once = training_step.train_step
+
+    def stopped_in_step(state, config, images):
+        if state.step == step - 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return step_once(state, config, images)
+
+    monkeypatch.setattr(trainer, "compile_pending", lambda: True)  # as at a session's start with the kernels compiled
+    monkeypatch.setattr(trainer, "train_step", stopped_in_step)
+    with pytest.raises(interrupts.TrainingInterrupted, match=f"interrupted at step {step}"):
+        train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0))
+    compiling = " (compiling the kernels, which can take a minute)" if kernels else ""
+    assert (f"stopping: finishing step {step}{compiling}, then saving a checkpoint (SIGTERM again aborts without "
+            "saving)\n") in capsys.readouterr().err
 
 
 def test_downsampled_targets_match_their_scaled_cameras():
@@ -2181,6 +2249,7 @@ def test_a_second_stop_during_a_periodic_save_aborts_it_instead_of_saving_again(
         saves.append(step)
         if step == 6:
             os.kill(os.getpid(), signal.SIGINT)  # the first: finish, then stop
+            time.sleep(interrupts.SAME_STOP_SECONDS + 0.1)  # any sooner, it would be the same stop
             os.kill(os.getpid(), signal.SIGINT)  # the second: now
         return real_save(run_dir, step, state, keep)
 
@@ -2200,7 +2269,9 @@ def test_ctrl_c_in_the_middle_of_writing_a_checkpoint_never_leaves_a_torn_one(tm
     real_save = torch.save
 
     def ctrl_cs():
-        for _ in range(signals):
+        os.kill(os.getpid(), signal.SIGINT)
+        if signals == 2:
+            time.sleep(interrupts.SAME_STOP_SECONDS + 0.1)  # any sooner, it would be the same stop
             os.kill(os.getpid(), signal.SIGINT)
 
     signalled: list[int] = []
