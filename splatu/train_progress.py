@@ -58,8 +58,9 @@ step 0 without a word for that wait (~10 s warm, minutes cold), which COMPILE_LI
 
 
 class StepFigures(ProgressColumn):
-    """loss, PSNR, #G and it/s of the last step; dashes where a session has no step yet (`loss 0.0000 PSNR 0.00`
-    read as figures the run had), or COMPILE_FIGURES while its first step compiles (the task's `compiling`)."""
+    """loss (the photometric one, comparable to splatfacto's), PSNR, #G and it/s of the last step; dashes where a
+    session has no step yet (`loss 0.0000 PSNR 0.00` read as figures the run had), or COMPILE_FIGURES while its first
+    step compiles (the task's `compiling`)."""
 
     def render(self, task: Task) -> Text:
         loss, psnr, rate = (task.fields[key] for key in ("loss", "psnr", "rate"))
@@ -122,12 +123,13 @@ def eval_line(step: int, name: str, metrics: dict[str, float]) -> str:
 
 
 def progress_line(step: int, steps: int, loss: float, psnr: float, gaussians: int, rate: float,
-                  left: float | None) -> str:
+                  elapsed: float, left: float | None) -> str:
     """The progress bar's figures as one plain line, for output that is not a terminal (a log file, CI), where
-    rich draws no bar until the end; `left`: the seconds left, None (`?`) before they can be told."""
+    rich draws no bar until the end; `elapsed`: the session's seconds so far; `left`: the seconds left, None (`?`)
+    before they can be told."""
     eta = "?" if left is None else _clock(round(left))
     return (f"step {step:>6}/{steps}  loss {loss:.4f}  train PSNR (EMA) {psnr:5.2f}  #G {gaussians:>7}"
-            f"  {rate:5.2f} it/s  ETA {eta}")
+            f"  {rate:5.2f} it/s  elapsed {_clock(elapsed)}  ETA {eta}")
 
 
 def stopping_line(step: int | None, done: int, compiling: bool, signum: int) -> str:

@@ -207,7 +207,8 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
     if _eval_due(state.step, config):  # a resume redoes its step's evaluation, which a stop may have skipped
         _log_eval(state, config, scene, log)
     smoothed_psnr = float("nan")
-    step_rate = StepRate(time.perf_counter(), state.step, config.steps,
+    session_start = time.perf_counter()  # the plain lines' elapsed time, as the bar's: the session's
+    step_rate = StepRate(session_start, state.step, config.steps,
                          functools.partial(resolution_level, levels=config.resolution_levels,
                                            interval=config.resolution_interval))
     resumed_from = checkpoint_path(run_dir, state.step)  # where a resume's own checkpoint is, unless copied elsewhere
@@ -243,11 +244,12 @@ def run_loop(state: TrainState, config: TrainConfig, scene: Scene, run_dir: Path
                     smoothed_psnr = (outcome.psnr if math.isnan(smoothed_psnr)
                                      else 0.9 * smoothed_psnr + 0.1 * outcome.psnr)
                 rate, left = step_rate.tick(time.perf_counter()), step_rate.seconds_left()
-                progress.update(task, completed=state.step, loss=outcome.loss, psnr=smoothed_psnr,
+                progress.update(task, completed=state.step, loss=outcome.photometric_loss, psnr=smoothed_psnr,
                                 gaussians=len(state.model), rate=rate, left=left)
                 if plain_every and (state.step % plain_every == 0 or state.step == config.steps):
-                    console.print(progress_line(state.step, config.steps, outcome.loss, smoothed_psnr,
-                                                len(state.model), rate, left), highlight=False, soft_wrap=True)
+                    console.print(progress_line(state.step, config.steps, outcome.photometric_loss, smoothed_psnr,
+                                                len(state.model), rate, time.perf_counter() - session_start, left),
+                                  highlight=False, soft_wrap=True)
                 if _eval_due(state.step, config) and not interrupt.requested:  # a stop must not wait for it
                     with stop_at_once(interrupt):  # nor once it runs: the resume redoes it
                         _log_eval(state, config, scene, log)

@@ -63,6 +63,9 @@ StepHook = Callable[[int, TrainState], None]
 @dataclass
 class StepOutcome:
     loss: float
+    """The step's total, photometric + uncertainty (metrics.jsonl's `loss`)."""
+    photometric_loss: float
+    """0.8·L1 + 0.2·(1 − SSIM) alone, what the progress displays show: splatfacto's loss, comparable to it."""
     uncertainty_loss: float
     psnr: float
     skipped: str | None
@@ -225,12 +228,12 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     rgb = render.rgb
     if weight is not None:  # masked pixels: both images are 0 there, as nerfstudio's splatfacto does
         rgb, target = rgb * weight[..., None], target * weight[..., None]
-    loss = photometric_loss(rgb, target, config.ssim_lambda)
-    u_loss = torch.zeros(())
+    photometric = photometric_loss(rgb, target, config.ssim_lambda)
+    loss, u_loss = photometric, torch.zeros(())
     if not config.uncertainty.off:
         u_loss = uncertainty_loss(state.model, camera.center(), render.raster, config.uncertainty,
                                   state.uncertainty_generators)
-        loss = loss + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
+        loss = photometric + u_loss  # already scaled by --uncertainty.weight; it reaches only u_sh
     loss.backward()
 
     bad = _nonfinite(loss.detach(), state.model, render.raster)
@@ -245,4 +248,5 @@ def train_step(state: TrainState, config: TrainConfig, images: TrainImages) -> S
     refined = {k: v for k, v in changes.items() if v}
     if refined:
         _refuse_nonfinite(state.model, "refinement")
-    return StepOutcome(float(loss.detach()), float(u_loss.detach()), train_psnr, bad, refined)
+    return StepOutcome(float(loss.detach()), float(photometric.detach()), float(u_loss.detach()), train_psnr,
+                       bad, refined)

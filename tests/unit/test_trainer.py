@@ -1282,6 +1282,21 @@ def test_off_a_terminal_training_prints_plain_progress_lines_and_every_evaluatio
     assert f"PSNR {final['psnr']:.2f} dB, SSIM {final['ssim']:.3f}" in evals[-1]
 
 
+def test_the_progress_lines_loss_is_the_photometric_one_and_the_log_keeps_every_term(tmp_path, scene, capsys,
+                                                                                      monkeypatch):
+    """The displays showed photometric + uncertainty loss (0.78 of which 0.64 uncertainty on the poster), no figure
+    to hold beside splatfacto's; metrics.jsonl keeps the total and the uncertainty term, as before."""
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    run_dir = train_command.train(tiny_config(tmp_path, steps=4, checkpoint_every=0, progress=True))
+    shown = [float(line.split()[3]) for line in capsys.readouterr().err.splitlines() if PROGRESS_LINE.match(line)]
+    logged = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    train = [r for r in logged if r["event"] == "train"]
+    assert all(set(r) - {"refined"} == {"step", "event", "loss", "uncertainty_loss", "psnr", "num_gaussians",
+                                        "train_seconds"} for r in train)
+    assert all(r["uncertainty_loss"] > 1e-3 for r in train)  # else the two losses could not be told apart
+    assert shown == pytest.approx([r["loss"] - r["uncertainty_loss"] for r in train], abs=6e-5)
+
+
 @pytest.mark.parametrize("pending", [True, False])
 def test_off_a_terminal_a_compiling_first_render_is_announced_once(tmp_path, scene, capsys, monkeypatch, pending):
     """A log showed nothing for the 10-60 s the first step compiles; now one line says why, before any step, and
@@ -1323,9 +1338,10 @@ def test_without_progress_no_progress_line_is_printed(tmp_path, scene, capsys):
 
 
 def test_progress_and_eval_lines_read_plainly():
-    assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6, 416.7) == (
-        "step    500/2000  loss 0.0512  train PSNR (EMA) 27.31  #G   15234   3.60 it/s  ETA 0:06:57")
-    assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0, 99_999).endswith("ETA 27:46:39")
+    assert train_progress.progress_line(500, 2000, 0.05123, 27.314, 15234, 3.6, 151.9, 416.7) == (
+        "step    500/2000  loss 0.0512  train PSNR (EMA) 27.31  #G   15234   3.60 it/s  elapsed 0:02:31  ETA 0:06:57")
+    assert train_progress.progress_line(1, 100_000, 0.1, 20.0, 10, 1.0, 42.0, 99_999).endswith(
+        "elapsed 0:00:42  ETA 27:46:39")
     metrics = {"psnr": 22.9209, "ssim": 0.79237, "num_images": 33, "psnr_observed": 26.4598}
     assert train_progress.eval_line(2000, "eval", metrics) == (
         "step 2000 eval (33 views): PSNR 22.92 dB, observed pixels 26.46 dB, SSIM 0.792")
