@@ -3,6 +3,7 @@ older checkpoint abandons."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 from pathlib import Path
@@ -152,13 +153,20 @@ def _outputs_made_after(run_dir: Path, step: int) -> list[Path]:
 
 def _move_into(folder: Path, run_dir: Path, paths: list[Path]) -> None:
     """Move `paths` into `folder`: renders and exports keep their folder; the rest go straight in, checkpoints too,
-    which then lie inside no run (`run_holding`), so that a resume of one trains on in a new run."""
+    which then lie inside no run (`run_holding`), so that a resume of one trains on in a new run. A renders' or
+    exports' folder left empty goes: an empty `uncertainty/` read as renders made and lost."""
+    emptied = set()
     for path in paths:
         if path.exists():
             kept_folder = path.parent in (run_dir / "uncertainty", run_dir / "exports")
             target = folder / path.parent.name if kept_folder else folder
             target.mkdir(exist_ok=True)
             path.replace(target / path.name)
+            if kept_folder:
+                emptied.add(path.parent)
+    for left in emptied:
+        with contextlib.suppress(OSError):  # not empty: it holds what was kept, made of an earlier checkpoint
+            left.rmdir()
 
 
 def _made_after(name: str, step: int) -> bool:

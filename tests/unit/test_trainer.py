@@ -2514,6 +2514,9 @@ def test_extend_to_trains_a_finished_run_on_exactly_as_one_longer_run_with_the_s
     (run_dir / "uncertainty" / "ours-eval").mkdir(parents=True)  # a render and a report of the 12-step model
     (run_dir / "ause_ours.json").write_text("{}")
     (run_dir / "ause_ours-step-0000006.json").write_text("{}")  # of a checkpoint it names: stays
+    (run_dir / "exports").mkdir()
+    (run_dir / "exports" / "splat.ply").write_text("")  # an export of the 12-step model
+    (run_dir / "exports" / "splat-step-0000006.ply").write_text("")  # of a checkpoint: stays
     capsys.readouterr()
     extend = dataclasses.replace(_mean_loss(tiny_config(tmp_path / "c")), resume=run_dir, extend_to=18)
     assert train_command.train(extend) == run_dir
@@ -2523,6 +2526,9 @@ def test_extend_to_trains_a_finished_run_on_exactly_as_one_longer_run_with_the_s
     assert json.loads((superseded / "summary.json").read_text())["steps"] == 12 and (superseded / "splat.ply").is_file()
     assert (superseded / "uncertainty" / "ours-eval").is_dir() and (superseded / "ause_ours.json").is_file()
     assert (run_dir / "ause_ours-step-0000006.json").is_file() and not (run_dir / "ause_ours.json").exists()
+    assert not (run_dir / "uncertainty").exists()  # emptied, so gone; exports/ holds what stays
+    assert [p.name for p in (run_dir / "exports").iterdir()] == ["splat-step-0000006.ply"]
+    assert (superseded / "exports" / "splat.ply").is_file()
     assert json.loads((run_dir / "summary.json").read_text())["steps"] == 18 and (run_dir / "splat.ply").is_file()
     assert load_config(run_dir / "config.yml").optim.means_lr_steps == 12
     assert losses_of(run_dir) == losses_of(longer) and sorted(losses_of(run_dir)) == list(range(1, 19))
@@ -2712,7 +2718,7 @@ def test_a_resume_of_a_stopped_run_sets_aside_the_reports_named_as_the_finished_
     train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir))
     (superseded,) = (run_dir / run_records.SUPERSEDED_DIR).iterdir()
     assert (superseded / "ause_ours.json").is_file() and (superseded / "uncertainty" / "ours-eval").is_dir()
-    assert not (run_dir / "uncertainty" / "ours-eval").exists() and not (run_dir / "ause_ours.json").exists()
+    assert not (run_dir / "uncertainty").exists() and not (run_dir / "ause_ours.json").exists()  # nor its folder
     assert (run_dir / "ause_ours-step-0000007.json").is_file() and (run_dir / "summary.json").is_file()
     assert "unfinished" in capsys.readouterr().err
 
