@@ -343,8 +343,9 @@ def _resume_run(config: TrainConfig, path: Path | None, run_dir: Path, ensemble:
                           "their length)", f"in {run_dir}", "train a new ensemble with --steps N")
     saved = _extended_if_asked(saved, config.extend_to, step, run_dir)
     if step >= saved.steps and (run_dir / "summary.json").is_file():
-        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to N "
-                      "trains it on to N steps)", soft_wrap=True)
+        longer = config.steps if typed is not None and "--steps" in typed and config.steps > saved.steps else "N"
+        console.print(f"already finished: {run_dir} trained all {saved.steps} steps; nothing to resume (--extend-to "
+                      f"{longer} trains it on to {longer} steps)", soft_wrap=True)  # a typed --steps named the length
         return run_dir
     console.print(f"resuming {run_dir} at step {step} of {saved.steps}", soft_wrap=True)
     scene = load_scene(saved.data)

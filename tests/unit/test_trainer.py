@@ -1460,6 +1460,19 @@ def test_resuming_a_finished_run_changes_nothing(tmp_path, scene, capsys):
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == files
 
 
+@pytest.mark.parametrize(("typed", "told"), [(["--steps", "500"], "500"), (["--steps", "5"], "N"), ([], "N")])
+def test_resuming_a_finished_run_with_a_longer_steps_names_the_extend_to_that_trains_on(tmp_path, scene, capsys,
+                                                                                        typed, told):
+    """`--resume RUN --steps 500` meant a longer run: the line names `--extend-to 500`; a --steps no longer than the
+    run's (which --extend-to would refuse), or none, leaves it `N`."""
+    run_dir = train_command.train(tiny_config(tmp_path))
+    capsys.readouterr()
+    argv = ["--resume", str(run_dir), *typed]
+    train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=run_dir,
+                                            steps=int(typed[1]) if typed else 12), typed=flags_given(argv))
+    assert f"nothing to resume (--extend-to {told} trains it on to {told} steps)" in capsys.readouterr().err
+
+
 def test_wall_seconds_add_up_over_sessions(tmp_path, scene):
     run_dir = _stopped_at_step_7(tmp_path)
     first_session = read_checkpoint(list_checkpoints(run_dir)[-1])["wall_seconds"]
