@@ -1050,19 +1050,24 @@ def test_an_ensemble_renders_its_members_disagreement_through_the_query(tiny_run
     assert np.allclose(plain.rgb, single.render(*camera).rgb, atol=1e-6)
 
 
-def test_the_readmes_python_example_runs(tiny_run):
-    """The README's `splatu.query` example, on the tiny run, from one of its eval poses."""
-    from splatu.baselines.load import load_any_run, run_data
-    from splatu.data.resolve import load_scene
+def test_the_readmes_python_example_runs(tiny_run, capsys):
+    """The README's `splatu.query` example runs as pasted, on the tiny run: it takes its camera from the run itself,
+    a held-out one, and renders it and a turned copy of it."""
     from splatu.query import open_run
 
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     example = readme.split("### Python:", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
     assert 'open_run("outputs/poster/splatu/latest")' in example
-    camera = load_scene(run_data(load_any_run(tiny_run))).eval.cameras[0]
-    names = {"world_to_camera": _data_frame_camera(camera, open_run(tiny_run).frame)}
+    names: dict = {}
     exec(example.replace("outputs/poster/splatu/latest", str(tiny_run)), names)
-    assert names["view"].uncertainty.shape == (256, 144) and 0.0 < names["view"].mean_uncertainty < 1.0
+    run = open_run(tiny_run)
+    training = run.training_cameras()
+    camera = next(camera for name, camera in run.scene_cameras().items() if name not in training)
+    assert np.array_equal(names["world_to_camera"], camera.world_to_camera)
+    assert names["view"].uncertainty.shape == (camera.height, camera.width)
+    assert 0.0 < names["view"].mean_uncertainty < 1.0 and not np.allclose(names["turned"], camera.world_to_camera)
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and all(line.startswith("mean U ") and "° from " in line for line in lines)
 
 
 def test_a_run_still_training_renders_its_newest_checkpoint_under_that_checkpoints_name(tiny_run, tmp_path, capsys):
