@@ -50,6 +50,8 @@ class EvalAuseConfig:
     """A maps directory (rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy, optional mask/, unobserved/) to score."""
     metric: A.Metric = "mae"
     """Error leading the table and the curve plot; the JSON always has mae and rmse (and mse when chosen)."""
+    per_image: bool = False
+    """Also print a row per image (of --metric): the JSON always has them, as per_image."""
     output: Path | None = None
     """Where to write the JSON (default: ause_<label>.json in the run, the label being the method and the options
     that change its maps; or ause.json in the maps dir). With --load it also takes the maps it scores, as
@@ -130,27 +132,49 @@ def _fmt(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.4f}"
 
 
-def print_report(report: dict[str, Any], metric: A.Metric) -> None:
-    """A rich table: one row per image and the mean, ours beside random and start-normalised; its title names the
-    built-in stand-in when the scores are of it."""
-    columns = (f"ause_{metric}", f"random_ause_{metric}", f"ause_{metric}_start_norm",
-               f"random_ause_{metric}_start_norm", f"ausc_{metric}", f"random_ausc_{metric}",
-               f"oracle_ausc_{metric}", "auroc_unobserved")
-    headers = ("AUSE", "random", "AUSE start-norm", "random start-norm", "AUSC", "random AUSC", "oracle AUSC",
-               "AUROC unobserved")
-    scene = " on the built-in poster stand-in" if report.get("stand_in") else ""
-    table = Table(title=f"AUSE-{metric.upper()} of {report['method']}{scene} ({report['caption']})")
-    table.add_column("image", overflow="fold")
-    for header in headers:
-        table.add_column(header, justify="right")
-    for name, scores in report["per_image"].items():
-        table.add_row(name, *(_fmt(scores[c]) for c in columns))
-    table.add_row("[bold]mean[/bold]", *(f"[bold]{_fmt(report['mean'][c])}[/bold]" for c in columns))
-    # As wide as the table needs: fitted to a log file's assumed 80 columns, or to a narrow terminal, rich would
-    # cut scores to "0.05…" or drop whole columns; a terminal wraps a long line instead, losing nothing.
+def _ratio(ours: float | None, random: float | None) -> str:
+    """Ours ÷ random, as the README's results quote AUSE: the fraction of random's that ours keeps."""
+    return "n/a" if ours is None or random is None or random <= 0 else f"{ours / random:.2f}"
+
+
+def _print_wide(table: Table) -> None:
+    """As wide as the table needs: fitted to a log file's assumed 80 columns, or to a narrow terminal, rich would
+    cut scores to "0.05…" or drop whole columns; a terminal wraps a long line instead, losing nothing."""
     console = Console()
     needed = console.measure(table, options=console.options.update_width(1 << 12)).maximum
     Console(width=max(console.width, needed)).print(table)
+
+
+def print_report(report: dict[str, Any], metric: A.Metric, per_image: bool = False) -> None:
+    """The mean over images of every error metric in the report (`metric` first), ours beside random and their
+    ratio, then the AUROC; with `per_image` first a row per image, of `metric` alone, to keep it narrow. The title
+    names the built-in stand-in when the scores are of it."""
+    mean = report["mean"]
+    ratio = "/" if Console().options.ascii_only else "÷"  # an ASCII-only stream (PYTHONIOENCODING) cannot print ÷
+    scene = " on the built-in poster stand-in" if report.get("stand_in") else ""
+    if per_image:
+        table = Table(title=f"AUSE-{metric.upper()} of {report['method']}{scene}, per image")
+        for header in ("image", "AUSE", "random", f"{ratio} random", "AUSE start-norm", "AUROC unobserved"):
+            table.add_column(header, justify="left" if header == "image" else "right", overflow="fold")
+        for name, scores in report["per_image"].items():
+            table.add_row(name, _fmt(scores[f"ause_{metric}"]), _fmt(scores[f"random_ause_{metric}"]),
+                          _ratio(scores[f"ause_{metric}"], scores[f"random_ause_{metric}"]),
+                          _fmt(scores[f"ause_{metric}_start_norm"]), _fmt(scores["auroc_unobserved"]))
+        _print_wide(table)
+    metrics = [m for m in dict.fromkeys((metric, "mae", "rmse", "mse")) if f"ause_{m}" in mean]
+    table = Table(title=f"AUSE of {report['method']}{scene}, mean over {len(report['per_image'])} images",
+                  caption=report["caption"])
+    for header in ("error", "AUSE", "random", f"{ratio} random", "AUSE start-norm", "random start-norm", "AUSC",
+                   "random AUSC", "oracle AUSC"):
+        table.add_column(header, justify="left" if header == "error" else "right")
+    for m in metrics:
+        table.add_row(m.upper(), _fmt(mean[f"ause_{m}"]), _fmt(mean[f"random_ause_{m}"]),
+                      _ratio(mean[f"ause_{m}"], mean[f"random_ause_{m}"]), _fmt(mean[f"ause_{m}_start_norm"]),
+                      _fmt(mean[f"random_ause_{m}_start_norm"]), _fmt(mean[f"ausc_{m}"]),
+                      _fmt(mean[f"random_ausc_{m}"]), _fmt(mean[f"oracle_ausc_{m}"]))
+    _print_wide(table)
+    if mean["auroc_unobserved"] is not None:
+        Console().print(f"AUROC of U for the unobserved pixels: {_fmt(mean['auroc_unobserved'])}", soft_wrap=True)
 
 
 def load_only_options_set(options: UncertaintyOptions) -> list[str]:
@@ -204,5 +228,5 @@ def run(config: EvalAuseConfig) -> None:
         with scoring_into(output):
             report = evaluate_maps(maps_dir, config.metric, label, output,
                                    {"load": str(config.load), **options.record()}, entries, stand_in)
-    print_report(report, config.metric)
+    print_report(report, config.metric, config.per_image)
     Console().print(f"wrote {output} and {output.with_suffix('.png')}", soft_wrap=True)

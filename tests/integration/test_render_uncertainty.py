@@ -182,7 +182,7 @@ def test_eval_ause_load_scores_the_run_with_auroc(tiny_run, capsys):
     entrypoint(["eval-ause", "--load", str(tiny_run)])
     report = json.loads((tiny_run / "ause_ours.json").read_text())
     out, err = capsys.readouterr()
-    assert report["stand_in"] is True and "AUSE-MAE of ours on the built-in poster stand-in" in out
+    assert report["stand_in"] is True and "AUSE of ours on the built-in poster stand-in" in out
     assert "stand-in" not in err  # `train` said so, once
     mean = report["mean"]
     for key in ("ause_mae", "ause_rmse", "random_ause_mae", "ause_mae_start_norm", "auroc_unobserved"):

@@ -58,7 +58,12 @@ def test_maps_round_trip_through_the_cli(tmp_path, capsys):
     assert {"ause_rmse", "ause_mae_start_norm", "random_ause_mae_start_norm"} <= set(mean)
     assert report["caption"] == A.CAPTION
     assert out.with_suffix(".png").is_file()
-    assert "mean" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "mean over 3 images" in printed and "view_0" not in printed  # the per-image rows only on request
+    _run("--maps", str(tmp_path / "maps"), "--output", str(out), "--per-image")
+    printed = capsys.readouterr().out
+    assert all(f"view_{i}" in printed for i in range(3))
+    assert json.loads(out.read_text())["per_image"] == report["per_image"]
 
 
 def test_maps_round_trip_in_a_folder_whose_name_is_not_utf8(tmp_path):
