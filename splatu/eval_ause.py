@@ -43,7 +43,7 @@ class EvalAuseConfig:
 
     load: Path | None = None
     """A training run directory, or one of its checkpoint files: render its eval views with --method, then score
-    them."""
+    them. Without it or --maps: outputs/poster/splatu/latest, as for render-uncertainty and export."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
     """With --load: what to render and score (a maps directory already holds its one uncertainty)."""
     maps: Path | None = None

@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -452,15 +453,32 @@ def test_the_nearest_suggested_flag_comes_first(capsys):
     assert "did you mean --steps or " in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("command", ["render-uncertainty", "export"])
+@pytest.mark.parametrize("command", ["render-uncertainty", "export", "eval-ause"])
 def test_a_missing_default_load_is_said_to_be_the_default(capsys, monkeypatch, tmp_path, command):
-    """Without --load, in a folder with no demo run, the error named outputs/poster/splatu/latest as if typed."""
+    """Without --load, in a folder with no demo run, the error named outputs/poster/splatu/latest as if typed;
+    eval-ause asked for --load or --maps instead of defaulting as the others do."""
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit):
         entrypoint([command])
+    or_maps = ", or --maps DIR to score maps written elsewhere" if command == "eval-ause" else ""
     assert capsys.readouterr().err == (
         f"error: no --load given, and no run at its default outputs/poster/splatu/latest, in {tmp_path}, pass --load "
-        "RUN, a run folder (outputs/<scene>/<method>/latest) or a checkpoint\n")
+        f"RUN, a run folder (outputs/<scene>/<method>/latest) or a checkpoint{or_maps}\n")
+
+
+def test_eval_ause_without_load_scores_the_demo_run(monkeypatch, tmp_path):
+    """eval-ause, like render-uncertainty and export, takes outputs/poster/splatu/latest when given no --load, and
+    --maps alone reads its maps without looking there."""
+    from splatu import eval_ause
+
+    monkeypatch.chdir(tmp_path)
+    demo = tmp_path / "outputs" / "poster" / "splatu" / "latest"
+    demo.mkdir(parents=True)
+    loaded: list[tuple] = []
+    monkeypatch.setattr(eval_ause, "run", lambda config: loaded.append((config.load, config.maps)))
+    entrypoint(["eval-ause"])
+    entrypoint(["eval-ause", "--maps", "elsewhere"])
+    assert loaded == [(Path("outputs/poster/splatu/latest"), None), (None, Path("elsewhere"))]
 
 
 def test_debug_shows_tyros_own_parse_error(capsys):
