@@ -20,7 +20,7 @@ import torch
 
 from splatu.atomic import atomic_write
 from splatu.config_values import changed_options
-from splatu.errors import SplatuError
+from splatu.errors import SplatuError, a_few
 from splatu.losses import parse_head, uncertainty_heads
 from splatu.model import GaussianModel, head_coefficients
 from splatu.run_dir import LATEST, still_training
@@ -76,15 +76,31 @@ def resolve_checkpoint(run_dir_or_checkpoint: Path) -> Path:
         raise SplatuError("this is an ensemble run; it has one model per member", f"in {target}",
                           "load each run listed in its ensemble.json")
     if not (target / CHECKPOINT_DIR).is_dir() and not (target / "config.yml").is_file():  # a run saves its config first
-        newest = target / LATEST
-        fix = (f"pass {newest}, the newest run in it, or one of its timestamped runs" if newest.is_dir() else
-               "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint")
-        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}", fix)
+        raise SplatuError(f"not a splatu run (it has no {CHECKPOINT_DIR}/ folder or config.yml)", f"in {target}",
+                          _instead_of_no_run(target))
     found = list_checkpoints(target)
     if not found:
         raise SplatuError("no checkpoint in this run directory", f"in {target / CHECKPOINT_DIR}",
                           "train it first (splatu train) or point to a run that saved checkpoints")
     return found[-1]
+
+
+def _instead_of_no_run(folder: Path) -> str:
+    """The fix for a folder passed as a run that is none: the run its checkpoints/ folder belongs to, the newest run
+    of a method's folder, or a few runs beneath a folder above them (outputs/, a scene's), found by their `latest`
+    links, else by their config.yml, at most three levels down (outputs/<scene>/<method>/<timestamp>)."""
+    if folder.name == CHECKPOINT_DIR and (folder.parent / "config.yml").is_file():
+        return f"pass its run, {folder.parent}, or one of the .pt files in this folder"
+    newest = folder / LATEST
+    if newest.is_dir():
+        return f"pass {newest}, the newest run in it, or one of its timestamped runs"
+    runs = sorted(link for pattern in ("*/latest", "*/*/latest") for link in folder.glob(pattern) if link.is_dir())
+    if not runs:
+        runs = sorted(path.parent for pattern in ("*/config.yml", "*/*/config.yml", "*/*/*/config.yml")
+                      for path in folder.glob(pattern))
+    if runs:
+        return f"pass a run beneath it, such as {a_few(runs)}"
+    return "pass a run directory (outputs/<scene>/<method>/<timestamp>) or a .pt checkpoint"
 
 
 def pinned_unless_finished(load: Path) -> tuple[Path, str | None]:

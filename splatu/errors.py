@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+import shlex
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,14 @@ class DownscaleError(SplatuError):
         self.copy_at_fault = copy_at_fault
         """Whether the copy is the wrong size, not turned on its side (a camera given the wrong way round): training
         at full size then does without it."""
+
+
+def a_few(paths: Sequence[Path], most: int = 3) -> str:
+    """Up to `most` of `paths`, shell-quoted to paste, as "A, B or C (3 of 7)": a fix that names what is there
+    saves a look around, and a long list would bury the line."""
+    shown = [shlex.quote(str(path)) for path in paths[:most]]
+    listed = shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} or {shown[-1]}"
+    return listed if len(paths) <= most else f"{listed} ({most} of {len(paths)})"
 
 
 def require_file(path: Path, what: str, fix: str) -> Path:

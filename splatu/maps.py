@@ -23,6 +23,7 @@ from splatu.atomic import swap_in_folder, temporary_sibling
 from splatu.data.images import read_image, write_png
 from splatu.errors import (
     SplatuError,
+    a_few,
     load_number_array,
     no_empty_folders_left,
     os_error_behind,
@@ -147,6 +148,20 @@ def read_entry(root: Path, name: str) -> MapEntry:
     return MapEntry(name, rgb, gt, uncertainty, present.get("mask"), present.get("unobserved"))
 
 
+def _instead_of_no_maps(root: Path, folder: str) -> str:
+    """The fix for a --maps folder without `folder`: the maps of the renders beneath it (a render's folder, the run's
+    uncertainty/ or the run itself: RUN/uncertainty/<label>/maps), and --load for a run."""
+    found = sorted(maps for pattern in ("maps", "*/maps", "*/*/maps") for maps in root.glob(pattern)
+                   if (maps / folder).is_dir())
+    is_run = any((root / name).exists() for name in ("config.yml", "checkpoints", "ensemble.json"))
+    load = f"--load {shlex.quote(str(root))} to render this run's eval views and score them"
+    if found:
+        maps = (f"pass --maps {a_few(found)}, the maps of this render" if found == [root / "maps"]
+                else f"pass --maps with the maps of a render beneath it: {a_few(found)}")
+        return f"{maps}, or {load}" if is_run else maps
+    return f"pass {load}" if is_run else "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy"
+
+
 def entry_names(root: Path) -> list[str]:
     """The views of a maps directory, checking that rgb/, gt/ and uncertainty/ name the same ones."""
     if not root.is_dir():
@@ -154,10 +169,8 @@ def entry_names(root: Path) -> list[str]:
     stems = {}
     for folder, suffix in (("rgb", ".png"), ("gt", ".png"), ("uncertainty", ".npy")):
         if not (root / folder).is_dir():
-            fix = (f"pass --maps {shlex.quote(str(root / 'maps'))}, the maps of this render"
-                   if (root / "maps" / folder).is_dir()
-                   else "lay it out as rgb/NAME.png, gt/NAME.png, uncertainty/NAME.npy")
-            raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}", fix)
+            raise SplatuError(f"maps directory has no {folder}/ folder", f"in {root}",
+                              _instead_of_no_maps(root, folder))
         stems[folder] = {p.stem for p in (root / folder).glob(f"*{suffix}")}
     if not stems["uncertainty"]:
         raise SplatuError("maps directory has no uncertainty maps", f"in {root / 'uncertainty'}",

@@ -92,6 +92,9 @@ PHOTO_KINDS = "/".join(sorted(suffix[1:] for suffix in IMAGE_SUFFIXES))
 def _photos(images: Path) -> tuple[list[str], list[str]]:
     """The photos' names, in file order, and the other files' (hidden ones aside); too few photos is one line that
     names what was skipped, since a folder of HEIC photos, or of subfolders, otherwise reads as an empty one."""
+    if images.is_file():  # one photo, as a file picker or a shell's completion gives it
+        raise SplatuError("this is a file; process-images takes the folder of photos", f"in {images}",
+                          f"pass its folder, {images.parent}")
     if not images.is_dir():
         raise SplatuError("photo folder not found", f"in {images}", "pass a folder of JPEG/PNG photos")
     entries = sorted(images.iterdir())

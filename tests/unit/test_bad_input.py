@@ -1096,6 +1096,17 @@ def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):
     assert err.count("\n") == 0 and err.startswith("error: photo folder not found") and "nowhere" in err
 
 
+def test_a_photo_passed_for_its_folder_is_said_to_be_a_file(tmp_path, capsys):
+    """`process-images images/0001.jpg` (a shell's completion) said "photo folder not found" of a file that exists."""
+    photo = tmp_path / "images" / "0001.jpg"
+    photo.parent.mkdir()
+    photo.write_bytes(b"")
+    with pytest.raises(SystemExit):
+        entrypoint(["process-images", str(photo)])
+    assert capsys.readouterr().err == (f"error: this is a file; process-images takes the folder of photos, in {photo}, "
+                                       f"pass its folder, {photo.parent}\n")
+
+
 @pytest.mark.parametrize(("key", "value"), [("w", True), ("fl_x", 1e308), ("h", "480")])
 def test_an_intrinsic_that_is_a_bool_string_or_beyond_float32_names_the_key(tmp_path, key, value):
     root = tmp_path / "scene"

@@ -148,6 +148,34 @@ def test_the_folder_holding_runs_names_its_latest_run(tmp_path):
     assert caught.value.fix == f"pass {method_dir}/latest, the newest run in it, or one of its timestamped runs"
 
 
+def test_a_runs_checkpoints_folder_names_its_run(tmp_path):
+    """`--load RUN/checkpoints` said "pass a run directory" without naming the one it is in."""
+    path = ckpt.save_checkpoint(tmp_path / "run", 5, _state(TrainConfig(), 0))
+    (tmp_path / "run" / "config.yml").write_text("steps: 10\n")
+    with pytest.raises(SplatuError) as caught:
+        ckpt.resolve_checkpoint(path.parent)
+    assert caught.value.fix == f"pass its run, {tmp_path / 'run'}, or one of the .pt files in this folder"
+
+
+def test_a_folder_above_the_runs_names_a_few_of_them(tmp_path):
+    """`--load outputs` (the root of every scene's runs) said only "pass a run directory": the fix names the
+    `latest` link of each scene and method beneath it, or, without such links, the runs themselves."""
+    outputs = tmp_path / "outputs"
+    for scene, method in (("poster", "splatu"), ("fox", "splatu"), ("poster", "splatfacto"), ("fox", "ensemble")):
+        (outputs / scene / method / "2026-01-01_000000").mkdir(parents=True)
+        (outputs / scene / method / "latest").symlink_to("2026-01-01_000000")
+    with pytest.raises(SplatuError) as caught:
+        ckpt.resolve_checkpoint(outputs)
+    assert caught.value.fix == (f"pass a run beneath it, such as {outputs}/fox/ensemble/latest, "
+                                f"{outputs}/fox/splatu/latest or {outputs}/poster/splatfacto/latest (3 of 4)")
+    loose = tmp_path / "loose"
+    (loose / "a" / "b" / "run").mkdir(parents=True)
+    (loose / "a" / "b" / "run" / "config.yml").write_text("steps: 10\n")
+    with pytest.raises(SplatuError) as caught:
+        ckpt.resolve_checkpoint(loose)
+    assert caught.value.fix == f"pass a run beneath it, such as {loose}/a/b/run"
+
+
 def test_a_checkpoint_that_does_not_fit_its_config_names_the_file(tmp_path):
     state = _state(TrainConfig(), 0)
     state["model"]["sh_rest"] = state["model"]["sh_rest"][:, :3]

@@ -156,6 +156,22 @@ def test_the_maps_folder_a_render_folder_names_is_quoted_for_a_shell(tmp_path, c
     line = _one_line_error(capsys, "--maps", str(tmp_path / "my runs" / "render"))
     assert f"pass --maps '{tmp_path / 'my runs' / 'render' / 'maps'}', the maps of this render" in line
 
+def test_maps_pointed_at_a_runs_uncertainty_folder_names_the_renders_maps_beneath(tmp_path, capsys):
+    """--maps RUN/uncertainty (or RUN itself) said only how to lay out a maps directory: the renders' maps are two
+    and three levels down (RUN/uncertainty/<label>/maps), and a run is scored with --load."""
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    for label in ("ours-eval", "spread-eval", "angle-eval", "visibility-eval"):
+        _tiny_maps(run / "uncertainty" / label / "maps", n=1)
+    first_two = ", ".join(str(run / "uncertainty" / f"{label}-eval" / "maps") for label in ("angle", "ours"))
+    line = _one_line_error(capsys, "--maps", str(run / "uncertainty"))
+    assert line.endswith(f"pass --maps with the maps of a render beneath it: {first_two} or "
+                         f"{run / 'uncertainty' / 'spread-eval' / 'maps'} (3 of 4)")
+    line = _one_line_error(capsys, "--maps", str(run))
+    assert f"beneath it: {first_two} or" in line and line.endswith(
+        f"(3 of 4), or --load {run} to render this run's eval views and score them")
+
+
 def test_options_of_load_are_refused_with_maps_rather_than_ignored(tmp_path, capsys):
     root = tmp_path / "maps"
     _tiny_maps(root, n=1)
