@@ -404,9 +404,10 @@ def _load(load: Path, options: UncertaintyOptions) -> tuple[LoadedRun, Uncertain
     from splatu.baselines.load import check_method, load_any_run
 
     run = load_any_run(load, options.head)
+    typed = options.method is not None
     options = options.for_run(len(run.models) > 1)
     assert options.method is not None  # for_run resolved it
-    check_method(options.method, run)
+    check_method(options.method, run, typed)
     return run, options
 
 

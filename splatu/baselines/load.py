@@ -166,8 +166,9 @@ def check_frames(run: LoadedRun, scene: Scene | CameraScene) -> None:
         require_same_frame(frame, scene_frame(scene), f"in {run.run_dir}", fix)
 
 
-def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
-    """Refuse a method the run cannot provide, before any scene is loaded."""
+def check_method(method: UncertaintyMethod, run: LoadedRun, typed: bool = True) -> None:
+    """Refuse a method the run cannot provide, before any scene is loaded; one not `typed` (the run's own, as no
+    --method chose it) is said to be the default, so a splatfacto run's user learns which to type instead."""
     if method != "ensemble" and len(run.models) > 1:
         raise SplatuError(f"--method {method} needs a single run, this is an ensemble", f"in {run.run_dir}",
                           "pass one member (members/<k>), or drop --method for the ensemble's std (its default)")
@@ -175,9 +176,10 @@ def check_method(method: UncertaintyMethod, run: LoadedRun) -> None:
         raise SplatuError("--method ensemble needs an ensemble run (with ensemble.json)", f"in {run.run_dir}",
                           "train one with `splatu train --method ensemble --ensemble 10`")
     if method in METHODS_WITH_OURS and run.config.uncertainty.off:
-        raise SplatuError(f"--method {method} needs a run trained with the uncertainty loss; this one had it off",
-                          f"in {run.run_dir}", f"use --method {method_list(METHODS_FOR_PLAIN_RUNS)} for it, or "
-                          "train with `splatu train --method splatu`")
+        chosen = f"--method {method} needs" if typed else f"without --method a single run renders {method}, which needs"
+        raise SplatuError(f"{chosen} a run trained with the uncertainty loss; this one had it off", f"in {run.run_dir}",
+                          f"pass one of --method {method_list(METHODS_FOR_PLAIN_RUNS)}, which render a run trained "
+                          "without it, or train with `splatu train --method splatu`")
 
 
 def build_method(method: UncertaintyMethod, run: LoadedRun, scene: Scene | CameraScene | None,

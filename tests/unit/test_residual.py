@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from splatu.baselines import METHODS_WITH_OURS
+from splatu.baselines import METHODS_FOR_PLAIN_RUNS, METHODS_WITH_OURS
 from splatu.baselines.angle import VIEW_CHUNK
 from splatu.baselines.load import LoadedRun, build_method, check_method
 from splatu.baselines.residual import (
@@ -124,6 +124,20 @@ def test_methods_reading_u_refuse_a_run_trained_without_the_loss(method):
     with pytest.raises(SplatuError, match="needs a run trained with the uncertainty loss"):
         check_method(method, run)
     check_method("residual", run)  # the residual alone needs no u
+
+
+def test_ours_by_default_on_a_run_without_the_loss_names_the_methods_that_render_it():
+    """render-uncertainty on a splatfacto run, with no --method, was told "--method ours needs…", of a flag never
+    typed: it says ours was the default, and the fix names the methods such a run renders."""
+    config = preset_config("fast")
+    off = dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=True))
+    run = LoadedRun(Path("run"), off, [overlapping_gaussians()], None, [None])
+    with pytest.raises(SplatuError) as refused:
+        check_method("ours", run, typed=False)
+    assert refused.value.what.startswith("without --method a single run renders ours, which needs")
+    assert refused.value.fix.startswith("pass one of --method visibility, fisher, random, spread, residual or angle")
+    for method in METHODS_FOR_PLAIN_RUNS:  # each one named is accepted
+        check_method(method, run, typed=False)
 
 
 def test_per_view_sums_give_each_views_own_residual():
