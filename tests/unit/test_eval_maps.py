@@ -138,7 +138,7 @@ def test_bad_maps_are_one_line_errors(tmp_path, capsys):
     (root / "uncertainty" / "view_1.npy").unlink()  # it used to score view_0 alone, without a word
     assert "1 renders have no uncertainty map (e.g. 'view_1')" in _one_line_error(capsys, "--maps", str(root))
     assert "not found" in _one_line_error(capsys, "--maps", str(tmp_path / "absent"))
-    assert "exactly one" in _one_line_error(capsys)
+    assert "exactly one" in _one_line_error(capsys, "--load", str(tmp_path), "--maps", str(root))
 
 
 def test_maps_pointed_at_a_render_folder_names_its_maps_folder(tmp_path, capsys):
