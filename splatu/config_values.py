@@ -28,6 +28,10 @@ def read_yaml(path: Path) -> dict[str, Any]:
     (`_parsed`): a train command consults its preset three times (loading, the --steps rescale, the note)."""
     try:
         values = copy.deepcopy(_parsed(path.read_text(encoding="utf-8")))  # the caller's own, free to change
+    except _DuplicateKey as err:
+        raise SplatuError(f"option {err.key!r} is given twice (first at line {err.first})",
+                          f"in {path}, line {err.line}",
+                          "keep one of the two lines, the one with the value you mean") from None
     except (OSError, yaml.YAMLError) as err:
         mark = getattr(err, "problem_mark", None)  # a syntax error's place: the file alone sent users searching it
         at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -41,10 +45,39 @@ def read_yaml(path: Path) -> dict[str, Any]:
     return values
 
 
+class _DuplicateKey(Exception):
+    """A mapping of the YAML text gives `key` twice, at 1-based lines `first` and `line`: YAML keeps the last value
+    without a word, so a preset's `sh_degree: 2` above `sh_degree: 3` was silently 3."""
+
+    def __init__(self, key: str, first: int, line: int) -> None:
+        super().__init__(key)
+        self.key, self.first, self.line = key, first, line
+
+
+def _refuse_duplicate_keys(node: yaml.Node | None, prefix: str = "") -> None:
+    """Raise `_DuplicateKey` for the first key given twice in one mapping of the composed YAML `node`, by its dotted
+    name (`model.sh_degree`)."""
+    if isinstance(node, yaml.SequenceNode):
+        for item in node.value:
+            _refuse_duplicate_keys(item, prefix)
+    if not isinstance(node, yaml.MappingNode):
+        return
+    seen: dict[Any, int] = {}
+    for key, value in node.value:
+        name = f"{prefix}{key.value}" if isinstance(key, yaml.ScalarNode) else None
+        if name is not None and (key.tag, key.value) in seen:
+            raise _DuplicateKey(name, seen[(key.tag, key.value)], key.start_mark.line + 1)
+        if name is not None:
+            seen[(key.tag, key.value)] = key.start_mark.line + 1
+        _refuse_duplicate_keys(value, f"{name}." if name is not None else prefix)
+
+
 @functools.lru_cache(maxsize=16)
 def _parsed(text: str) -> Any:
-    """`text` parsed as YAML. Keyed by the text, not by path and mtime, so a file rewritten within the clock tick its
-    filesystem stamps (tests rewrite a preset in a row) is never answered from its old contents."""
+    """`text` parsed as YAML, refusing a key given twice. Keyed by the text, not by path and mtime, so a file
+    rewritten within the clock tick its filesystem stamps (tests rewrite a preset in a row) is never answered from
+    its old contents."""
+    _refuse_duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
     return yaml.safe_load(text)
 
 

@@ -123,7 +123,7 @@ class TrainConfig:
     superseded/<time>/, and its checkpoint stays until newer ones prune it (--keep-checkpoints)."""
     ensemble: int = 1
     """Train this many members that differ only in seed (seed + k) into <run>/members/<k>/; `--method ensemble`
-    trains the paper's 10 when this is left at 1."""
+    trains the paper's 10 when --ensemble is not given (a typed --ensemble 1 trains one model: plain splatfacto)."""
     max_nonfinite_steps: int = 5
     """Stop when this many steps in a row have a non-finite loss or gradient (each one is skipped)."""
     progress: bool = True
@@ -197,7 +197,9 @@ def preset_path(preset: str) -> Path:
     if path.is_file():
         return path
     if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
-        raise SplatuError("preset file not found", f"at {path}", "check the path of the YAML file")
+        shipped = (CONFIGS_DIR / f"{path.stem}.yaml").is_file()  # `--preset fast.yaml` from a folder without it
+        fix = f", or pass --preset {path.stem} for the shipped preset" if shipped else ""
+        raise SplatuError("preset file not found", f"at {path}", f"check the path of the YAML file{fix}")
     known = sorted(p.stem for p in CONFIGS_DIR.glob("*.yaml"))
     raise SplatuError(f"unknown preset {preset!r}", f"in {CONFIGS_DIR}",
                       f"use one of {', '.join(known)} or a path to a YAML file")

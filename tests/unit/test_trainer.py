@@ -846,6 +846,34 @@ def test_a_misspelt_or_malformed_preset_file_names_the_key_or_line(tmp_path):
     assert caught.value.where.startswith(f"in {custom}, line 3, column ")
 
 
+@pytest.mark.parametrize(("text", "key", "lines"), [
+    ("model:\n  sh_degree: 2\n  sh_degree: 3\n", "model.sh_degree", (2, 3)),
+    ("steps: 10\nseed: 1\nsteps: 20\n", "steps", (1, 3)),
+    ("model:\n  sh_degree: 2\ndensify:\n  refine_every: 3\nmodel:\n  sh_degree: 1\n", "model", (1, 5)),
+])
+def test_a_key_given_twice_in_a_yaml_file_is_refused_with_its_line(tmp_path, text, key, lines):
+    """YAML keeps the last value without a word: `sh_degree: 2` then `sh_degree: 3` trained at 3."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text(text)
+    with pytest.raises(SplatuError) as caught:
+        read_yaml(custom)
+    assert caught.value.what == f"option {key!r} is given twice (first at line {lines[0]})"
+    assert caught.value.where == f"in {custom}, line {lines[1]}"
+    custom.write_text("model:\n  sh_degree: 2\ndensify:\n  sh_degree: 3\n")  # one name in two mappings
+    assert flat_options(read_yaml(custom)) == {"model.sh_degree": 2, "densify.sh_degree": 3}
+
+
+def test_a_missing_preset_file_named_as_a_shipped_preset_suggests_the_name(tmp_path, monkeypatch):
+    """`--preset fast.yaml` from a folder without that file said only "check the path of the YAML file"."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SplatuError) as caught:
+        preset_path("fast.yaml")
+    assert caught.value.fix == "check the path of the YAML file, or pass --preset fast for the shipped preset"
+    with pytest.raises(SplatuError) as caught:
+        preset_path("mine.yaml")
+    assert caught.value.fix == "check the path of the YAML file"
+
+
 def test_methods_registry():
     base = preset_config("fast")
     assert not METHODS["splatu"].configure(base).uncertainty.off
