@@ -86,7 +86,7 @@ def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands
             )
     except SystemExit as stop:
         if stop.code not in (0, None) and not debug:
-            error = usage_error(captured.getvalue(), help_command, subcommands)
+            error = usage_error(captured.getvalue(), help_command, subcommands, argv)
         if error is None:
             raise
         raise error from None

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import difflib
+import itertools
 import re
 from collections.abc import Sequence
 
@@ -186,15 +187,38 @@ def _closest_first(names: list[str], problem: list[str]) -> list[str]:
     return sorted(names, key=lambda name: -max(difflib.SequenceMatcher(None, flag, name).ratio() for flag in typed))
 
 
-def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str]) -> SplatuError | None:
-    """The one-line error for tyro's parse-error box `tyro_output`, or None when it is not one. `subcommands` are
-    named from the registry: tyro's own list is wrapped over lines of the box."""
+def _value_after_switch(sections: list[list[str]], argv: Sequence[str]) -> SplatuError | None:
+    """The error for a value typed after a boolean flag (`--uncertainty.off True`, `--no-progress=false`), which
+    tyro lists as an unrecognized option alone ("unrecognized options: True"); None for any other box. A flag that
+    tyro recognised and that left the word after it unread is one that takes no value."""
+    listed = " ".join(line.strip() for line in sections[0])
+    if not listed.startswith("Unrecognized options: "):
+        return None
+    unread = listed.removeprefix("Unrecognized options: ").split(", ")
+    for before, arg in itertools.pairwise(["", *argv]):
+        flag, value = arg.split("=", 1) if arg.startswith("--") and "=" in arg else (before, arg)
+        if (flag.startswith("--") and "=" not in flag and flag not in unread and value in unread
+                and not value.startswith("--")):
+            parent, dot, last = flag[2:].replace("_", "-").rpartition(".")
+            name = last.removeprefix("no-")
+            on, off = f"--{parent}{dot}{name}", f"--{parent}{dot}no-{name}"
+            return SplatuError(f"{flag} takes no value, got {value!r}", "on the command line",
+                               f"write {on} alone to turn it on, or {off} to turn it off")
+    return None
+
+
+def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str],
+                argv: Sequence[str] = ()) -> SplatuError | None:
+    """The one-line error for tyro's parse-error box `tyro_output` of the command line `argv`, or None when it is
+    not one. `subcommands` are named from the registry: tyro's own list is wrapped over lines of the box."""
     sections = _box_sections(tyro_output)
     if not sections:
         return None
     see_help = f"see `{help_command} --help`"
     if (plain := _plain_value_error(sections)) is not None:
         return SplatuError(plain, "on the command line", see_help)
+    if (switch := _value_after_switch(sections, argv)) is not None:
+        return switch
     hints = []
     misplaced = _misplaced(sections[0])
     unplaced = _options_without_subcommand(sections)

@@ -339,6 +339,22 @@ def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
 
 
 @pytest.mark.parametrize(("argv", "line"), [
+    (["--uncertainty.off", "True"], "--uncertainty.off takes no value, got 'True', on the command line, write "
+     "--uncertainty.off alone to turn it on, or --uncertainty.no-off to turn it off"),
+    (["--uncertainty.off=True"], "--uncertainty.off takes no value, got 'True', on the command line, write "
+     "--uncertainty.off alone to turn it on, or --uncertainty.no-off to turn it off"),
+    (["--no-progress", "false"], "--no-progress takes no value, got 'false', on the command line, write --progress "
+     "alone to turn it on, or --no-progress to turn it off"),
+    (["--steps=3", "4"], "unrecognized options: 4, on the command line, see `splatu train --help`"),  # not a switch
+])
+def test_a_value_after_a_boolean_flag_says_the_flag_takes_none(capsys, argv, line):
+    """`--uncertainty.off True` said "unrecognized options: True", of a word the user meant as the flag's value."""
+    with pytest.raises(SystemExit):
+        entrypoint(["train", "--data", "poster", *argv])
+    assert capsys.readouterr().err == f"error: {line}\n"
+
+
+@pytest.mark.parametrize(("argv", "line"), [
     (["train", "--downscale", "abc"], "--downscale takes a whole number (or None), got 'abc'"),
     (["train", "--downscale=2.5"], "--downscale takes a whole number (or None), got '2.5'"),
     (["train", "--steps", "1e3"], "--steps takes a whole number, got '1e3'"),
