@@ -40,7 +40,7 @@ from splatu.ensemble_training import counted_in_ensemble, enclosing_ensemble_loc
 from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
-from splatu.losses import refuse_copies_of_the_own_head
+from splatu.losses import UncertaintyLossConfig, refuse_copies_of_the_own_head
 from splatu.methods import method_of
 from splatu.run_dir import new_run_dir, point_latest, training_lock
 from splatu.train_config import (
@@ -82,6 +82,34 @@ def check_options(config: TrainConfig, typed: Collection[str]) -> None:
         refuse_copies_of_the_own_head(config.uncertainty, config.model.u_sh_degree)  # parses every head, too
     except SplatuError as err:
         raise blamed_on_preset(err, config, typed) from None
+
+
+UNCERTAINTY_OPTIONS = (*(f"uncertainty.{f.name}" for f in dataclasses.fields(UncertaintyLossConfig) if f.name != "off"),
+                       "model.u_sh_degree", "model.u_init_logit")
+"""The options only the uncertainty loss reads: with it off they change nothing but what config.yml records."""
+
+
+def refuse_uncertainty_options_without_the_loss(config: TrainConfig, typed: Collection[str]) -> None:
+    """Refuse `--method splatu` typed beside `--uncertainty.off` (which of the two trains?), and an uncertainty option
+    typed (in `typed`) for a run without the loss (--method splatfacto or ensemble, or --uncertainty.off), which would
+    never train and only be recorded as if it had. A preset file's or the defaults' values are not typed: a file may
+    hold them for the runs that train the loss."""
+    off_typed = "--uncertainty.off" in typed and config.uncertainty.off
+    if off_typed and "--method" in typed and config.method == "splatu":
+        raise SplatuError("--method splatu trains the uncertainty loss, which --uncertainty.off turns off",
+                          "in the options", "drop --uncertainty.off, or pass --method splatfacto for plain 3DGS")
+    given = [name for name in UNCERTAINTY_OPTIONS if option_flag(name) in typed]
+    if not config.uncertainty.off or not given:
+        return
+    listed = " ".join(f"{option_flag(name)} {option_value(config, name)}" for name in given)
+    if off_typed or config.method not in ("splatfacto", "ensemble"):  # the method turns the loss on otherwise
+        cause, other = "--uncertainty.off", "drop --uncertainty.off"
+    else:
+        members = " (its members are plain splatfacto)" if config.method == "ensemble" else ""
+        cause, other = f"--method {config.method}{members}", "pass --method splatu"
+    raise SplatuError(f"{listed} {'sets an option' if len(given) == 1 else 'set options'} of the uncertainty loss, "
+                      f"which {cause} does not train", "in the options", f"drop {'it' if len(given) == 1 else 'them'}, "
+                      f"or {other} to train the loss")
 
 
 def refuse_max_image_size_beside_downscale(data: DataConfig, typed: Collection[str]) -> None:
@@ -253,6 +281,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
         with enclosing_ensemble_lock(run_dir) as ensemble, training_lock(run_dir):
             return _resume_run(config, _resume_point(config.resume), run_dir, ensemble, wall_start, hooks, typed)
     typed = flags_off_preset(config) if typed is None else typed  # as the caller gave it, before the method's own
+    refuse_uncertainty_options_without_the_loss(config, typed)
     config = filed_as_trained(config)
     if config.degree_choice.on:
         config = with_choice_heads(config)

@@ -194,6 +194,40 @@ def test_an_error_in_an_option_says_in_before_it(capsys, tmp_path, argv, line):
     assert capsys.readouterr().err == f"error: {line}\n"
 
 
+@pytest.mark.parametrize(("argv", "line"), [
+    (["--method", "splatfacto", "--uncertainty.kind", "mean", "--uncertainty.lam", "0.3"],
+     "--uncertainty.kind mean --uncertainty.lam 0.3 set options of the uncertainty loss, which --method splatfacto "
+     "does not train, in the options, drop them, or pass --method splatu to train the loss"),
+    (["--method", "splatfacto", "--model.u-sh-degree", "1"],
+     "--model.u-sh-degree 1 sets an option of the uncertainty loss, which --method splatfacto does not train, in the "
+     "options, drop it, or pass --method splatu to train the loss"),
+    (["--method", "ensemble", "--uncertainty.threshold", "0.1"],
+     "--uncertainty.threshold 0.1 sets an option of the uncertainty loss, which --method ensemble (its members are "
+     "plain splatfacto) does not train, in the options, drop it, or pass --method splatu to train the loss"),
+    (["--uncertainty.off", "--uncertainty.kind", "weighted"],
+     "--uncertainty.kind weighted sets an option of the uncertainty loss, which --uncertainty.off does not train, in "
+     "the options, drop it, or drop --uncertainty.off to train the loss"),
+    (["--uncertainty.off", "--method=splatu", "--uncertainty.kind", "weighted"],
+     "--method splatu trains the uncertainty loss, which --uncertainty.off turns off, in the options, drop "
+     "--uncertainty.off, or pass --method splatfacto for plain 3DGS"),
+])
+def test_uncertainty_options_typed_for_a_run_without_the_loss_are_refused(capsys, tmp_path, argv, line):
+    """They were accepted, and config.yml recorded options that did nothing (the last only noted the run was filed
+    as splatfacto)."""
+    with pytest.raises(SystemExit):
+        entrypoint(["train", *argv, "--data", str(tmp_path / "absent")])
+    assert capsys.readouterr().err == f"error: {line}\n"
+
+
+@pytest.mark.parametrize(("preset", "argv"), [
+    ("model:\n  u_sh_degree: 1\nuncertainty:\n  lam: 0.2\n", ["--method", "splatfacto"]),  # the file's, not typed
+    ("", ["--method", "ensemble", "--uncertainty.no-off", "--uncertainty.lam", "0.2"]),  # members with the loss
+    ("", ["--method", "splatfacto", "--uncertainty.off"]),
+])
+def test_uncertainty_options_not_typed_or_trained_are_no_error(capsys, tmp_path, preset, argv):
+    assert _train_error(capsys, tmp_path, preset, *argv).startswith("error: scene not found, in ")
+
+
 def _train_error(capsys, tmp_path, preset: str, *flags: str) -> str:
     """What `splatu train` says (on stderr, exiting 2) with a preset file holding `preset`."""
     (tmp_path / "p.yaml").write_text(preset)
