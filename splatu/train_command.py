@@ -52,6 +52,7 @@ from splatu.train_config import (
     blamed_on_preset,
     blamed_on_saved,
     check_parts,
+    file_schedule,
     flags_given,
     flags_off_preset,
     from_dict,
@@ -60,6 +61,8 @@ from splatu.train_config import (
     option_value,
     own_length,
     preset_config,
+    preset_file_values,
+    preset_label,
     preset_values,
     scaled_schedule,
     with_display,
@@ -156,6 +159,33 @@ def schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
     return f"note: --steps {config.steps} {'; '.join(told)} (a flag typed beside --steps sets that value instead)"
 
 
+def file_schedule_note(config: TrainConfig, typed: Collection[str]) -> str | None:
+    """What to say when a preset file sets its steps but leaves schedule settings out (`file_schedule`): they follow
+    its steps, not the full recipe's 30000 that the file starts from. Not when a typed --steps rescaled them anyway
+    (`schedule_note` tells that), nor of a setting typed (the user's own)."""
+    values = preset_file_values(config.preset)
+    if "steps" not in values or ("--steps" in typed and config.steps != values["steps"]):
+        return None
+    left_out = [name for name in SCHEDULE if name not in values]
+    own = file_schedule(values)
+    told = [name for name in own if option_flag(name) not in typed]
+    if not told or values["steps"] == SPLATFACTO_STEPS:
+        return None
+    flags = " ".join(f"{option_flag(name)} {option_value(config, name)}" for name in told)
+    which = ("no schedule, so its schedule is" if len(left_out) == len(SCHEDULE)
+             else "part of the schedule, so the rest is")
+    return (f"note: {preset_label(config.preset)} sets steps: {values['steps']} and {which} splatfacto's scaled to "
+            f"{values['steps']} steps (× {values['steps']}/{SPLATFACTO_STEPS}): {flags} (a flag typed sets that value "
+            "instead)")
+
+
+def steps_source(config: TrainConfig, typed: Collection[str]) -> str:
+    """Where the run's length came from, as a note names it: `--steps`, or the preset's `steps:` when the file set it
+    and --steps was not typed (the user never typed a --steps to blame)."""
+    from_file = "--steps" not in typed and "steps" in preset_file_values(config.preset)
+    return f"{preset_label(config.preset)}'s steps:" if from_file else "--steps"
+
+
 def _why_kept(values: Mapping[str, Any]) -> str:
     """Why `schedule_note` kept a preset file's values (`values`): off the rule at the file's own length, or, when its
     steps is no length (the typed --steps replaced it), because there is no length to scale from."""
@@ -164,11 +194,12 @@ def _why_kept(values: Mapping[str, Any]) -> str:
     return f"not splatfacto's × its own length/{SPLATFACTO_STEPS}"
 
 
-def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
+def resolution_note(config: TrainConfig, extension: bool = False, steps_from: str = "--steps") -> str | None:
     """What to say when a run ends before its resolution schedule reaches full resolution: with a schedule not scaled
     to the run (flags typed beside --steps, a 1- or 2-step run, a preset file's own values) such a run trains only on
     downscaled images and is scored on full-resolution ones. An `extension` (--extend-to) keeps the run's
-    --resolution-interval, which --resume ignores: only a longer extension reaches full resolution."""
+    --resolution-interval, which --resume ignores: only a longer extension reaches full resolution. `steps_from`
+    names where a new run's length came from (`steps_source`)."""
     last = resolution_level(config.steps - 1, config.resolution_levels, config.resolution_interval)
     if last == 0:
         return None
@@ -181,7 +212,7 @@ def resolution_note(config: TrainConfig, extension: bool = False) -> str | None:
         why = " (a tenth of the steps, as in every preset)" if suggested == tenth else ""
         remedy = ("--resolution-levels 0 trains at full resolution throughout" if suggested == 0 else
                   f"--resolution-interval {suggested}{why} reaches full resolution at step {levels * suggested}")
-    flag = "--extend-to" if extension else "--steps"
+    flag = "--extend-to" if extension else steps_from
     return (f"note: {flag} {config.steps} ends at 1/{2 ** last} resolution, so no step trains on the images at the "
             f"size they loaded at (the schedule starts at 1/{2 ** levels} of it and doubles every "
             f"--resolution-interval {config.resolution_interval} steps); {remedy}")
@@ -295,8 +326,9 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
     console.print(scene_line(scene), soft_wrap=True)
     longest = max(max(c.width, c.height) for views in (scene.train, scene.eval, *scene.extra_eval.values())
                   for c in views.cameras)
-    notes = (schedule_note(config, typed), downscale_note(given, config.data, longest), resolution_note(config),
-             budget_note(config, scene))
+    notes = (schedule_note(config, typed), file_schedule_note(config, typed),
+             downscale_note(given, config.data, longest),
+             resolution_note(config, steps_from=steps_source(config, typed)), budget_note(config, scene))
     for note in notes:
         if note is not None:  # after the scene line, which a run's output starts with
             console.print(note, soft_wrap=True)

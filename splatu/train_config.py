@@ -205,6 +205,11 @@ def preset_path(preset: str) -> Path:
                       f"use one of {', '.join(known)} or a path to a YAML file")
 
 
+def preset_label(preset: str) -> str:
+    """How a note names preset `preset`: `preset fast` for a shipped one, else its file's path."""
+    return f"preset {preset}" if (CONFIGS_DIR / f"{preset}.yaml").is_file() else str(preset_path(preset))
+
+
 def from_dict(values: Mapping[str, Any], source: str = "a saved config") -> TrainConfig:
     return apply_values(TrainConfig(), values, source)
 
@@ -233,10 +238,11 @@ def option_flag(name: str) -> str:
 
 def _with_preset(config: TrainConfig, path: Path, overridden: Collection[str]) -> TrainConfig:
     """`config` with the preset file's values, less those of the flags `overridden` (which replace them anyway)."""
-    values = read_yaml(path)
-    values = without_options(values, {name for name in flat_options(values) if option_flag(name) in overridden})
+    raw = read_yaml(path)
+    values = without_options(raw, {name for name in flat_options(raw) if option_flag(name) in overridden})
+    own = {name: value for name, value in file_schedule(raw).items() if option_flag(name) not in overridden}
     try:
-        config = apply_values(config, values, str(path))
+        config = apply_values(apply_values(config, values, str(path)), nested_options(own), str(path))
         check_parts(config)
     except SplatuError as err:
         raise _blamed_on_file(err, path, values) from None
@@ -336,6 +342,17 @@ def own_length(values: Mapping[str, Any]) -> int | None:
     return own if type(own) is int and own >= 1 else None
 
 
+def file_schedule(values: Mapping[str, Any]) -> dict[str, int]:
+    """The `SCHEDULE` settings a preset file's `values` leave out, scaled to the file's own steps by
+    `splatfacto_schedule`: a file starts from the full 30000-step recipe, whose schedule a `steps: 300` alone left
+    at warmup 500 and refine every 100, so it never densified. None without a length of its own (no steps, or one
+    that is no length), whose schedule stays the recipe's."""
+    flat = flat_options(values)
+    if "steps" not in flat or (own := own_length(flat)) is None:
+        return {}
+    return {name: value for name, value in splatfacto_schedule(own).items() if name not in flat}
+
+
 def scaled_schedule(preset: str, steps: int, kept: Collection[str] = ()) -> dict[str, int] | None:
     """The settings `--steps steps` rescales in `preset`, with their values: None at the preset's own length (no
     rescale applies); else every `SCHEDULE` setting whose flag is not in `kept` (the flags typed) and whose preset
@@ -373,8 +390,21 @@ def rescaled(config: TrainConfig, steps: int, kept: Collection[str] = ()) -> Tra
 
 
 def preset_values(preset: str) -> dict[str, Any]:
-    """The options preset `preset`'s file sets, by dotted name, as the file writes them; none for the full recipe."""
-    return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
+    """The options preset `preset`'s file sets, by dotted name: as the file writes them, with the schedule it leaves
+    out scaled to its steps (`file_schedule`); none for the full recipe."""
+    if preset == FULL_RECIPE:
+        return {}
+    values = read_yaml(preset_path(preset))
+    return flat_options(values) | file_schedule(values)
+
+
+def preset_file_values(preset: str) -> dict[str, Any]:
+    """The options preset `preset`'s file itself writes, by dotted name (without `file_schedule`'s); none for the full
+    recipe or a file that cannot be read (a Python caller's, gone since: its values are all in the config)."""
+    try:
+        return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
+    except SplatuError:
+        return {}
 
 
 def _readable_preset_values(preset: str) -> dict[str, Any] | None:

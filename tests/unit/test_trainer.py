@@ -58,6 +58,7 @@ from splatu.train_config import (
     TrainConfig,
     check_parts,
     default_config,
+    file_schedule,
     flags_given,
     from_dict,
     load_config,
@@ -670,17 +671,48 @@ def test_a_train_command_parses_its_preset_file_once(tmp_path, monkeypatch):
     assert parsed(["--preset", str(custom)]).densify.refine_every == 8
 
 
-def test_steps_says_so_when_it_rescales_none_of_a_preset_files_schedule(tmp_path):
-    """A file that sets only its length keeps the full recipe's schedule (densifying to step 15000) and said nothing
-    of it: --steps, which rescales the presets, silently did not."""
+def test_a_preset_files_unset_schedule_follows_its_steps(tmp_path):
+    """A file starts from the full 30000-step recipe: `steps: 300` alone trained with warmup 500 and refine every
+    100, so it never densified nor raised the SH degree, and the only note blamed a --steps never typed."""
     custom = tmp_path / "mine.yaml"
-    custom.write_text("steps: 2000\ndensify:\n  max_gaussians: 5000\n")
+    custom.write_text("steps: 300\n")
+    assert schedule_of(parsed(["--preset", str(custom)])) == splatfacto_schedule(300)
+    assert note_of(["--preset", str(custom)]) is None  # no --steps typed: the file's own note tells it
+    config = parsed(["--preset", str(custom), "--densify.refine-every", "9"])
+    assert schedule_of(config) == {**splatfacto_schedule(300), "densify.refine_every": 9}  # a typed flag is kept
+    assert train_command.file_schedule_note(config, {"--preset", "--densify.refine-every"}) == (
+        f"note: {custom} sets steps: 300 and no schedule, so its schedule is splatfacto's scaled to 300 steps (× "
+        "300/30000): --resolution-interval 30 --model.sh-degree-interval 10 --densify.warmup-length 5 "
+        "--densify.stop-split-at 150 --densify.stop-screen-size-at 40 (a flag typed sets that value instead)")
+    custom.write_text("steps: 2000\ndensify:\n  max_gaussians: 5000\n")  # and --steps rescales it as the presets'
     assert note_of(["--preset", str(custom), "--steps", "4000", "--resolution-interval", "400"]) == (
-        "note: --steps 4000 keeps the preset's --model.sh-degree-interval 1000 --densify.warmup-length 500 "
-        "--densify.refine-every 100 --densify.stop-split-at 15000 --densify.stop-screen-size-at 4000, not splatfacto's "
-        "× its own length/30000 (a flag typed beside --steps sets that value instead)")
+        "note: --steps 4000 rescales the schedule to splatfacto's × 4000/30000: --model.sh-degree-interval 133 "
+        "--densify.warmup-length 67 --densify.refine-every 13 --densify.stop-split-at 2000 "
+        "--densify.stop-screen-size-at 533 (a flag typed beside --steps sets that value instead)")
+    assert schedule_of(parsed(["--preset", str(custom), "--steps", "4000"])) == splatfacto_schedule(4000)
     every_flag = [option_flag(name) + "=1" for name in SCHEDULE]
     assert note_of(["--preset", str(custom), "--steps", "4000", *every_flag]) is None  # all typed: nothing to tell
+
+
+def test_notes_of_a_preset_files_length_name_the_file_not_steps(tmp_path):
+    """"--steps 300 ends at 1/4 resolution" was said of a run whose 300 steps were the file's, --steps never typed."""
+    custom = tmp_path / "mine.yaml"
+    custom.write_text("steps: 300\nresolution_interval: 3000\n")
+    config = parsed(["--preset", str(custom)])
+    assert train_command.steps_source(config, {"--preset"}) == f"{custom}'s steps:"
+    note = train_command.resolution_note(config, steps_from=train_command.steps_source(config, {"--preset"}))
+    assert note is not None and note.startswith(f"note: {custom}'s steps: 300 ends at 1/4 resolution")
+    assert train_command.file_schedule_note(config, {"--preset"}).startswith(
+        f"note: {custom} sets steps: 300 and part of the schedule, so the rest is splatfacto's scaled to 300 steps")
+    assert train_command.steps_source(config, {"--preset", "--steps"}) == "--steps"
+
+
+def test_the_shipped_presets_are_their_files_alone():
+    """Every schedule setting is in configs/fast.yaml and quality.yaml: the unset schedule's rule adds nothing."""
+    for name in ("fast", "quality"):
+        assert file_schedule(read_yaml(preset_path(name))) == {}
+        assert preset_config(name) == apply_values(preset_config("none"), {**read_yaml(preset_path(name)),
+                                                                           "preset": name}, name)
 
 
 def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
@@ -689,8 +721,8 @@ def test_a_preset_files_own_schedule_value_off_the_rule_is_kept(tmp_path):
     config = parsed(["--preset", str(custom), "--steps", "4000"])
     assert config.resolution_interval == 100  # the file's own choice (the rule gives 200 at its 2000 steps)
     assert config.densify.refine_every == 13  # the rule's at 2000, so rescaled
-    # left out of the file: the full recipe's values, off the rule at 2000 steps, so kept
-    assert config.densify.stop_split_at == 15000 and config.model.sh_degree_interval == 1000
+    # left out of the file: the rule's at its 2000 steps (`file_schedule`), so rescaled too
+    assert config.densify.stop_split_at == 2000 and config.model.sh_degree_interval == 133
 
 
 @pytest.mark.parametrize(("length", "read"), [("0", "0"), ("2000.0", "2000.0"), ("true", "True"), ("long", "'long'")])
