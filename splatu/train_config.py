@@ -7,6 +7,8 @@ The presets scale every step-based setting (`SCHEDULE`) by one factor s = steps 
 `splatfacto_schedule` computes it (tests/unit/test_trainer.py checks each preset file against it), so
 iterations, the resolution schedule and densification move together instead of as scattered constants.
 `--steps N` typed for a new run applies the same rule at N (`scaled_schedule`), as gsplat's `steps_scaler` does.
+A user's preset file starts from the full recipe; the schedule settings it leaves out follow its own steps by the
+same rule (`file_schedule`), so `steps: 300` alone densifies as a 300-step run should.
 
 Which flags were typed (for --steps, a --max-image-size beside --downscale, a preset file's value blamed on the
 file) is the command line's say (`flags_given`); Python code calling `train` has none, so there a flag counts
@@ -80,7 +82,8 @@ class TrainConfig:
     method: Annotated[str, tyro.conf.arg(help=method_help())] = "splatu"
     preset: str = FULL_RECIPE
     """Preset whose values are the defaults: a name in configs/ (fast, quality) or a YAML path; none (FULL_RECIPE)
-    = the full splatfacto recipe, these dataclass defaults."""
+    = the full splatfacto recipe, these dataclass defaults. A YAML file starts from that recipe, the step-based
+    settings it leaves out scaled to its own steps (copy configs/fast.yaml to start from fast)."""
     steps: int = SPLATFACTO_STEPS
     """Number of optimisation steps (one training image per step). Typed for a new run with another length than
     the preset's, it rescales the step-based schedule (resolution levels, SH degree, densification) to the splatfacto
