@@ -106,13 +106,17 @@ def say_at_once(line: str) -> None:
     """Write `line` to stderr from a signal handler, which may have interrupted rich's console or sys.stderr mid-write:
     os.write to the descriptor passes their buffers and locks by. On a terminal the live bar's line is erased first,
     so the line stands on its own and the bar redraws below it. A stderr without a descriptor (a test's capture) gets
-    a plain write."""
+    a plain write. Nothing it raises leaves it: an exception out of a handler ends the step where it stood, unsaved,
+    and `train ... 2>&1 | tee log` meets a pipe whose reader the same Ctrl-C has just ended (BrokenPipeError)."""
     try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):
-        sys.stderr.write(line + "\n")
+        try:
+            fd = sys.stderr.fileno()
+        except (AttributeError, OSError, ValueError):
+            sys.stderr.write(line + "\n")
+            return
+        os.write(fd, (("\r\x1b[2K" if os.isatty(fd) else "") + line + "\n").encode(errors="replace"))
+    except Exception:  # any failure to tell must not cost the stop its checkpoint
         return
-    os.write(fd, (("\r\x1b[2K" if os.isatty(fd) else "") + line + "\n").encode(errors="replace"))
 
 
 @contextmanager
@@ -133,10 +137,10 @@ def deferred_interrupt(announce: Callable[[int], str] | None = None) -> Iterator
             flag.aborted = True
             raise KeyboardInterrupt
         flag.requested, flag.signal_number, flag.first_at = True, signum, now
+        if flag.at_once:  # the stop's own message follows at once; a line written under a nested bar is redrawn over
+            raise KeyboardInterrupt
         if announce is not None:
             say_at_once(announce(signum))
-        if flag.at_once:
-            raise KeyboardInterrupt
 
     previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:

@@ -1139,6 +1139,22 @@ def test_a_stop_says_so_at_once_and_a_second_signal_in_the_same_instant_is_the_s
         assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
 
 
+def test_a_stop_whose_line_cannot_be_written_still_saves(tmp_path):
+    """`splatu train ... 2>&1 | tee log` and Ctrl-C: the same signal ends tee, so the stop line meets a pipe with no
+    reader. The handler's BrokenPipeError would end the step where it stood, with no checkpoint; it must be dropped."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    reader, writer = os.pipe()
+    child = subprocess.Popen([sys.executable, "-c", STOPPED_IN_STEP_2, str(tmp_path)], stdout=subprocess.PIPE,
+                             stderr=writer, text=True, env=env)
+    os.close(writer)
+    assert child.stdout.readline() == "in step 2\n"
+    os.close(reader)  # as tee ends at the Ctrl-C
+    child.send_signal(signal.SIGINT)
+    child.communicate(timeout=120)
+    run_dir = (tmp_path / "outputs" / "tiny" / "splatu" / "latest").resolve()
+    assert [p.name for p in list_checkpoints(run_dir)] == ["step-0000002.pt"]
+
+
 @pytest.mark.parametrize(("step", "kernels"), [(1, True), (2, False)])
 def test_the_stop_line_says_the_first_steps_kernels_are_compiling(tmp_path, scene, capsys, monkeypatch, step,
                                                                    kernels):
@@ -1481,11 +1497,13 @@ def test_a_checkpoint_inside_no_run_trains_on_in_a_new_run_and_says_so(tmp_path,
 
     new_dir, err = resume(str(stray), "--output-dir", "elsewhere")
     assert new_dir.resolve().parent == tmp_path / "elsewhere" / "tiny" / "splatu"
-    assert (f"{stray} is not inside a run folder: training continues from its step 7 of 12 in a new run, {new_dir}"
-            in err.splitlines()) and "ignoring" not in err
+    assert (f"{stray} is not inside a run folder: training continues from step_000007.pt (step 7 of 12) in a new "
+            f"run, {new_dir}" in err.splitlines()) and "ignoring" not in err
     assert json.loads((new_dir / "summary.json").read_text())["steps"] == 12
-    copy_of_its_checkpoints, _ = resume(str(downloads))  # a folder of checkpoints is no run either
+    copy_of_its_checkpoints, err = resume(str(downloads))  # a folder of checkpoints is no run either
     assert copy_of_its_checkpoints.resolve().parent == tmp_path / "outputs" / "tiny" / "splatu"
+    assert (f"{downloads} holds no config.yml, so it is no run folder: training continues from step-0000007.pt (step "
+            f"7 of 12) in a new run, {copy_of_its_checkpoints}") in err.splitlines()
     assert sorted(downloads.rglob("*")) == copied  # nothing written beside the copies
     runs = sorted((tmp_path / "outputs" / "tiny" / "splatu").iterdir())
     scene.center = scene.center + 1  # the data moved: refused before a run folder is made for it
