@@ -61,9 +61,9 @@ from splatu.train_config import (
     option_value,
     own_length,
     preset_config,
-    preset_file_values,
     preset_label,
     preset_values,
+    readable_preset_values,
     scaled_schedule,
     with_display,
 )
@@ -163,7 +163,7 @@ def file_schedule_note(config: TrainConfig, typed: Collection[str]) -> str | Non
     """What to say when a preset file sets its steps but leaves schedule settings out (`file_schedule`): they follow
     its steps, not the full recipe's 30000 that the file starts from. Not when a typed --steps rescaled them anyway
     (`schedule_note` tells that), nor of a setting typed (the user's own)."""
-    values = preset_file_values(config.preset)
+    values = readable_preset_values(config.preset, as_written=True) or {}
     if "steps" not in values or ("--steps" in typed and config.steps != values["steps"]):
         return None
     left_out = [name for name in SCHEDULE if name not in values]
@@ -182,7 +182,7 @@ def file_schedule_note(config: TrainConfig, typed: Collection[str]) -> str | Non
 def steps_source(config: TrainConfig, typed: Collection[str]) -> str:
     """Where the run's length came from, as a note names it: `--steps`, or the preset's `steps:` when the file set it
     and --steps was not typed (the user never typed a --steps to blame)."""
-    from_file = "--steps" not in typed and "steps" in preset_file_values(config.preset)
+    from_file = "--steps" not in typed and "steps" in (readable_preset_values(config.preset, as_written=True) or {})
     return f"{preset_label(config.preset)}'s steps:" if from_file else "--steps"
 
 
@@ -446,8 +446,11 @@ def _resume_in_new_run(config: TrainConfig, path: Path, wall_start: float, hooks
     fitting_frame(checkpoint, saved, scene)
     run_dir = new_run_dir(saved.output_dir, scene.name, saved.method)
     point_latest(run_dir)
-    console.print(f"{path} is not inside a run folder: training continues from its step {step} of {saved.steps} in "
-                  f"a new run, {run_dir}", soft_wrap=True)
+    named = Path(config.resume).expanduser()  # a folder named as a run, but without the config.yml a run writes first
+    why = (f"{named} holds no config.yml, so it is no run folder" if named.is_dir()
+           else f"{path} is not inside a run folder")
+    console.print(f"{why}: training continues from {path.name} (step {step} of {saved.steps}) in a new run, {run_dir}",
+                  soft_wrap=True)
     console.print(scene_line(scene), soft_wrap=True)
     with training_lock(run_dir):
         train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)

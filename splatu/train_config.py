@@ -297,7 +297,7 @@ def blamed_on_preset(err: SplatuError, config: TrainConfig, typed: Collection[st
     stays the flag's. A range error is worded as the file's own are; any other keeps the check's own fix, with the
     file's keys for their flags: a flag replacing the file's value need not help (a file's eval_every beside a typed
     --eval-split contiguous is refused at any value, as a typed --eval-every would be)."""
-    values = _readable_preset_values(config.preset)
+    values = readable_preset_values(config.preset)
     if not values:  # the full recipe, or a Python caller's preset file gone since: the check's error as it is
         return err
     mine = flat_options(to_dict(config))
@@ -392,30 +392,21 @@ def rescaled(config: TrainConfig, steps: int, kept: Collection[str] = ()) -> Tra
     return apply_values(config, {"steps": steps, **nested_options(scaled)}, f"--steps {steps}")
 
 
-def preset_values(preset: str) -> dict[str, Any]:
+def preset_values(preset: str, as_written: bool = False) -> dict[str, Any]:
     """The options preset `preset`'s file sets, by dotted name: as the file writes them, with the schedule it leaves
-    out scaled to its steps (`file_schedule`); none for the full recipe."""
+    out scaled to its steps (`file_schedule`) unless `as_written`; none for the full recipe."""
     if preset == FULL_RECIPE:
         return {}
     values = read_yaml(preset_path(preset))
-    return flat_options(values) | file_schedule(values)
+    return flat_options(values) | ({} if as_written else file_schedule(values))
 
 
-def preset_file_values(preset: str) -> dict[str, Any]:
-    """The options preset `preset`'s file itself writes, by dotted name (without `file_schedule`'s); none for the full
-    recipe or a file that cannot be read (a Python caller's, gone since: its values are all in the config)."""
-    try:
-        return {} if preset == FULL_RECIPE else flat_options(read_yaml(preset_path(preset)))
-    except SplatuError:
-        return {}
-
-
-def _readable_preset_values(preset: str) -> dict[str, Any] | None:
+def readable_preset_values(preset: str, as_written: bool = False) -> dict[str, Any] | None:
     """`preset_values`, or None when the preset cannot be read: a config built in Python names its preset only as
     where its values came from, and the file may be gone (a relative path from another folder), which a new run,
     whose values are all in the config, never needed."""
     try:
-        return preset_values(preset)
+        return preset_values(preset, as_written)
     except SplatuError:
         return None
 
@@ -426,7 +417,7 @@ def flags_off_preset(config: TrainConfig) -> set[str]:
     gives (the file's values, else the defaults, with the schedule `--steps N` rescales at the config's length), and
     --steps at another length than the preset's. A flag that repeats that value cannot be told from it; none is
     told from a preset file gone since the config was made (a new run does not need it: its values are in `config`)."""
-    values = _readable_preset_values(config.preset)
+    values = readable_preset_values(config.preset)
     if values is None:
         return set()
     scaled = scaled_schedule(config.preset, config.steps) or {}
