@@ -13,7 +13,7 @@ import dataclasses
 import io
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
@@ -23,7 +23,7 @@ from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
 from splatu.interrupts import Interrupted, exit_code
 from splatu.option_help import hand_option_help_to_tyro
-from splatu.usage_errors import unknown_subcommand, usage_error
+from splatu.usage_errors import switch_flags, unknown_subcommand, usage_error
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,8 @@ def main(argv: Sequence[str], debug: bool = False) -> None:
         hand_option_help_to_tyro(type(defaults[name]))
     descriptions = {name: cmd.description for name, cmd in commands.items()}
     config_type = tyro.extras.subcommand_type_from_defaults(defaults, descriptions=descriptions)
-    config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", list(commands), debug)
+    switches = switch_flags(defaults[chosen]) if chosen else frozenset()
+    config = _parse(config_type, argv, f"splatu {chosen}" if chosen else "splatu", list(commands), debug, switches)
     name = next(n for n, d in defaults.items() if type(d) is type(config))
     commands[name].run(config, list(argv[1:]))
 
@@ -70,9 +71,11 @@ def _stand_in(name: str) -> Any:
     return dataclasses.make_dataclass(name.replace("-", "_"), [], frozen=True)()
 
 
-def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands: Sequence[str], debug: bool) -> Any:
+def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands: Sequence[str], debug: bool,
+           switches: Collection[str]) -> Any:
     """tyro.cli with what it prints to stderr held back: a parse-error box is retold as one `SplatuError` line
-    (unless --debug); anything else (tyro's warnings, a box we cannot read) is passed on as it was."""
+    (unless --debug); anything else (tyro's warnings, a box we cannot read) is passed on as it was. `switches`: the
+    chosen command's boolean flags."""
     captured = io.StringIO()
     error = None
     try:
@@ -86,7 +89,7 @@ def _parse(config_type: Any, argv: Sequence[str], help_command: str, subcommands
             )
     except SystemExit as stop:
         if stop.code not in (0, None) and not debug:
-            error = usage_error(captured.getvalue(), help_command, subcommands, argv)
+            error = usage_error(captured.getvalue(), help_command, subcommands, argv, switches)
         if error is None:
             raise
         raise error from None

@@ -9,10 +9,12 @@ Anything that does not read as such a box is left to tyro's own output.
 from __future__ import annotations
 
 import ast
+import dataclasses
 import difflib
 import itertools
 import re
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
+from typing import Any
 
 from splatu.errors import SplatuError
 
@@ -187,18 +189,31 @@ def _closest_first(names: list[str], problem: list[str]) -> list[str]:
     return sorted(names, key=lambda name: -max(difflib.SequenceMatcher(None, flag, name).ratio() for flag in typed))
 
 
-def _value_after_switch(sections: list[list[str]], argv: Sequence[str]) -> SplatuError | None:
-    """The error for a value typed after a boolean flag (`--uncertainty.off True`, `--no-progress=false`), which
-    tyro lists as an unrecognized option alone ("unrecognized options: True"); None for any other box. A flag that
-    tyro recognised and that left the word after it unread is one that takes no value."""
+def switch_flags(config: Any, prefix: str = "") -> frozenset[str]:
+    """The boolean flags of a command's config instance, both spellings tyro gives each (`--uncertainty.off`,
+    `--uncertainty.no-off`), nested configs included: only these take no value."""
+    flags: set[str] = set()
+    for field in dataclasses.fields(config):
+        value, name = getattr(config, field.name), field.name.replace("_", "-")
+        if isinstance(value, bool):
+            flags |= {f"--{prefix}{name}", f"--{prefix}no-{name}"}
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            flags |= switch_flags(value, f"{prefix}{name}.")
+    return frozenset(flags)
+
+
+def _value_after_switch(sections: list[list[str]], argv: Sequence[str],
+                        switches: Collection[str]) -> SplatuError | None:
+    """The error for a value typed after a boolean flag (one of `switches`: `--uncertainty.off True`,
+    `--no-progress=false`), which tyro lists as an unrecognized option alone ("unrecognized options: True"); None for
+    any other box, such as a value typed twice (`--steps 5 5`), whose flag takes one."""
     listed = " ".join(line.strip() for line in sections[0])
     if not listed.startswith("Unrecognized options: "):
         return None
     unread = listed.removeprefix("Unrecognized options: ").split(", ")
     for before, arg in itertools.pairwise(["", *argv]):
         flag, value = arg.split("=", 1) if arg.startswith("--") and "=" in arg else (before, arg)
-        if (flag.startswith("--") and "=" not in flag and flag not in unread and value in unread
-                and not value.startswith("--")):
+        if flag.replace("_", "-") in switches and value in unread and not value.startswith("--"):
             parent, dot, last = flag[2:].replace("_", "-").rpartition(".")
             name = last.removeprefix("no-")
             on, off = f"--{parent}{dot}{name}", f"--{parent}{dot}no-{name}"
@@ -208,16 +223,17 @@ def _value_after_switch(sections: list[list[str]], argv: Sequence[str]) -> Splat
 
 
 def usage_error(tyro_output: str, help_command: str, subcommands: Sequence[str],
-                argv: Sequence[str] = ()) -> SplatuError | None:
+                argv: Sequence[str] = (), switches: Collection[str] = ()) -> SplatuError | None:
     """The one-line error for tyro's parse-error box `tyro_output` of the command line `argv`, or None when it is
-    not one. `subcommands` are named from the registry: tyro's own list is wrapped over lines of the box."""
+    not one. `subcommands` are named from the registry: tyro's own list is wrapped over lines of the box.
+    `switches`: the chosen command's boolean flags (`switch_flags`)."""
     sections = _box_sections(tyro_output)
     if not sections:
         return None
     see_help = f"see `{help_command} --help`"
     if (plain := _plain_value_error(sections)) is not None:
         return SplatuError(plain, "on the command line", see_help)
-    if (switch := _value_after_switch(sections, argv)) is not None:
+    if (switch := _value_after_switch(sections, argv, switches)) is not None:
         return switch
     hints = []
     misplaced = _misplaced(sections[0])
