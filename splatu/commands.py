@@ -14,6 +14,7 @@ from typing import Any
 
 from splatu.cli import Command
 from splatu.errors import SplatuError
+from splatu.run_dir import DEMO_RUN
 
 
 def _lazy(module: str, name: str) -> Callable[..., Any]:
@@ -27,10 +28,6 @@ def _lazy(module: str, name: str) -> Callable[..., Any]:
 def _config_only(run: Callable[[Any], None]) -> Callable[[Any, Sequence[str]], None]:
     """A command that needs only its parsed config."""
     return lambda config, argv: run(config)
-
-
-DEMO_RUN = Path("outputs/poster/splatu/latest")
-"""Where --load of render-uncertainty, export and eval-ause points when not given: the run `make demo` trains."""
 
 
 def _loading(run: Callable[[Any], None], alternative: str = "") -> Callable[[Any, Sequence[str]], None]:

@@ -13,13 +13,14 @@ from splatu.checkpoint import load_run, resolve_checkpoint, run_folder
 from splatu.errors import SplatuError, creatable_dir
 from splatu.interrupts import saying_what_is_left
 from splatu.ply import save_ply
+from splatu.run_dir import DEMO_RUN
 
 
 @dataclass
 class ExportConfig:
     """Options of `splatu export`."""
 
-    load: Path = Path("outputs/poster/splatu/latest")
+    load: Path = DEMO_RUN
     """A training run directory (its newest checkpoint is exported) or one of its checkpoint files."""
     output: Path | None = None
     """The .ply to write; default: <run>/exports/splat-<checkpoint's name>.ply, e.g. splat-step-0001000.ply (a finished

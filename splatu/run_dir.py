@@ -19,6 +19,10 @@ LOCK_ATTEMPTS, LOCK_RETRY_SECONDS = 25, 0.02
 shared for an instant, and a render polling a run must not make a `--resume` starting then refuse."""
 
 
+DEMO_RUN = Path("outputs/poster/splatu/latest")
+"""Where --load of render-uncertainty, export and eval-ause points when not given: the run `make demo` trains."""
+
+
 def new_run_dir(output_dir: Path, scene: str, method: str) -> Path:
     """Create a fresh timestamped run directory."""
     return new_timestamped_dir(Path(output_dir) / scene / method)
