@@ -60,21 +60,23 @@ def save_colour_bar(path: Path, scale: ColourScale) -> None:
     plt.close(fig)
 
 
-def save_panel(path: Path, rgb: np.ndarray, uncertainty: np.ndarray, u_scale: ColourScale,
+def save_panel(path: Path, rgb: np.ndarray, uncertainty: np.ndarray, u_scale: ColourScale, gt: np.ndarray | None = None,
                error: np.ndarray | None = None, e_scale: ColourScale | None = None) -> None:
-    """Side by side: render | uncertainty | error (the error only when ground truth exists)."""
-    columns = 3 if error is not None else 2
-    height, width = uncertainty.shape
-    fig, axes = plt.subplots(1, columns, figsize=(columns * (3.2 * width / height + 0.9), 3.6))
-    axes[0].imshow(np.clip(rgb, 0.0, 1.0))
-    _image_axes(axes[0], "render")
-    im = axes[1].imshow(uncertainty, vmin=u_scale.vmin, vmax=u_scale.vmax, cmap=u_scale.cmap)
-    _image_axes(axes[1], u_scale.label)
-    fig.colorbar(im, ax=axes[1], fraction=0.046, pad=0.04)
+    """Side by side: ground truth | render | uncertainty | error, the first and last only for views with ground truth.
+    The photo beside the render shows what the error column measures, as nerfstudio's eval images pair them."""
+    images = ([("ground truth", np.clip(gt, 0.0, 1.0), None)] if gt is not None else []) + [
+        ("render", np.clip(rgb, 0.0, 1.0), None), (u_scale.label, uncertainty, u_scale)]
     if error is not None and e_scale is not None:
-        im = axes[2].imshow(error, vmin=e_scale.vmin, vmax=e_scale.vmax, cmap=e_scale.cmap)
-        _image_axes(axes[2], e_scale.label)
-        fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.04)
+        images.append((e_scale.label, error, e_scale))
+    height, width = uncertainty.shape
+    fig, axes = plt.subplots(1, len(images), figsize=(len(images) * (3.2 * width / height + 0.9), 3.6))
+    for ax, (title, image, scale) in zip(axes, images, strict=True):
+        if scale is None:
+            ax.imshow(image)
+        else:
+            fig.colorbar(ax.imshow(image, vmin=scale.vmin, vmax=scale.vmax, cmap=scale.cmap), ax=ax, fraction=0.046,
+                         pad=0.04)
+        _image_axes(ax, title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

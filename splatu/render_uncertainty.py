@@ -10,7 +10,7 @@ written in full, see `swap_in`):
     png/NAME_{rgb,uncertainty,depth,alpha}.png   colour-mapped on one scale shared by all views (render.json's
                                                  uncertainty_scale and depth_scale); depth black where alpha is 0
     colorbar_{uncertainty,depth,error}.png       the legends of those shared scales (error's only when GT exists)
-    panels/NAME.png                              render | uncertainty | error (error when GT exists)
+    panels/NAME.png                              GT | render | uncertainty | error (GT and error when GT exists)
     maps/                                        the layout `eval-ause --maps` scores (when GT exists)
     orbit.gif                                    for --views orbit
     render.json                                  per-view mean uncertainty, elevations, the orbit's shape, timings,
@@ -78,6 +78,7 @@ from splatu.orbit import (
     orbit_along,
     plan_orbit,
 )
+from splatu.run_dir import DEMO_RUN
 from splatu.train_progress import view_progress
 from splatu.uncertainty_options import UncertaintyOptions
 from splatu.world_frame import normalised_world_to_camera, scene_frame
@@ -97,7 +98,7 @@ MAX_GIF_FPS = 50
 class RenderUncertaintyConfig:
     """Options of `splatu render-uncertainty`."""
 
-    load: Path = Path("outputs/poster/splatu/latest")
+    load: Path = DEMO_RUN
     """A training run directory, or one of its checkpoint files, or an ensemble run (rendered with --method ensemble
     by default)."""
     uncertainty: Annotated[UncertaintyOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=UncertaintyOptions)
@@ -384,7 +385,7 @@ def write_view(out: Path, view: RenderedView, scales: dict[str, ColourScale]) ->
         write_png(out / "png" / f"{view.name}_{key}.png", image, FREE_AND_RERUN)
     error = None if view.gt is None else np.abs(view.maps["rgb"] - view.gt).sum(axis=-1)
     save_panel(out / "panels" / f"{view.name}.png", view.maps["rgb"], view.maps["uncertainty"],
-               scales["uncertainty"], error, scales.get("error"))
+               scales["uncertainty"], view.gt, error, scales.get("error"))
 
 
 def pinned_load(load: Path, written: str) -> Path:

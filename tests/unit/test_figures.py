@@ -10,9 +10,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from splatu import figures
 from splatu.ause import FRACTIONS, Curves
 from splatu.errors import SplatuError
-from splatu.figures import SpeedPoint, distinct_oracles, method_lines, plot_sparsification, plot_speed_against_error
+from splatu.figures import (
+    ColourScale,
+    SpeedPoint,
+    distinct_oracles,
+    method_lines,
+    plot_sparsification,
+    plot_speed_against_error,
+)
 
 # as the study writes them: a method measured in one budget only, baselines with no PSNR of their own
 BUDGETS = {
@@ -62,3 +70,19 @@ def test_every_figure_is_closed_once_written_or_refused(tmp_path: Path) -> None:
     with pytest.raises(SplatuError):
         plot_sparsification(tmp_path / "taken.png", curves, "poster", "mae")
     assert plt.get_fignums() == []
+
+
+def test_a_panel_shows_the_ground_truth_beside_the_render_and_its_error_only_when_there_is_one(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    titles: list[str] = []
+    monkeypatch.setattr(figures, "_image_axes", lambda ax, title: titles.append(title))
+    rgb, gt = np.full((8, 12, 3), 0.25), np.full((8, 12, 3), 0.75)
+    uncertainty, error = np.linspace(0.0, 1.0, 96).reshape(8, 12), np.abs(rgb - gt).sum(-1)
+    u_scale, e_scale = ColourScale(0.0, 1.0, "viridis", "U"), ColourScale(0.0, 3.0, "magma", "|error|")
+    figures.save_panel(tmp_path / "gt.png", rgb, uncertainty, u_scale, gt, error, e_scale)
+    assert titles == ["ground truth", "render", "U", "|error|"]
+    titles.clear()
+    figures.save_panel(tmp_path / "none.png", rgb, uncertainty, u_scale)
+    assert titles == ["render", "U"]
+    with_gt, without = mpimg.imread(tmp_path / "gt.png"), mpimg.imread(tmp_path / "none.png")
+    assert with_gt.shape[1] > 1.8 * without.shape[1]  # four columns against two
