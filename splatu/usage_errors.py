@@ -9,13 +9,13 @@ Anything that does not read as such a box is left to tyro's own output.
 from __future__ import annotations
 
 import ast
-import dataclasses
 import difflib
 import itertools
 import re
 from collections.abc import Collection, Sequence
 from typing import Any
 
+from splatu.config_values import flat_options, to_dict
 from splatu.errors import SplatuError
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")  # tyro colours its boxes when stdout is a terminal
@@ -189,16 +189,15 @@ def _closest_first(names: list[str], problem: list[str]) -> list[str]:
     return sorted(names, key=lambda name: -max(difflib.SequenceMatcher(None, flag, name).ratio() for flag in typed))
 
 
-def switch_flags(config: Any, prefix: str = "") -> frozenset[str]:
-    """The boolean flags of a command's config instance, both spellings tyro gives each (`--uncertainty.off`,
-    `--uncertainty.no-off`), nested configs included: only these take no value."""
+def switch_flags(config: Any) -> frozenset[str]:
+    """The boolean flags of a command's config instance, as tyro spells each (`--uncertainty.off`,
+    `--uncertainty.no-off`), and by its last name alone too, as a config nested with tyro's OmitArgPrefixes takes it
+    (render-uncertainty's `--density-aware`): only these take no value."""
     flags: set[str] = set()
-    for field in dataclasses.fields(config):
-        value, name = getattr(config, field.name), field.name.replace("_", "-")
+    for name, value in flat_options(to_dict(config)).items():
         if isinstance(value, bool):
-            flags |= {f"--{prefix}{name}", f"--{prefix}no-{name}"}
-        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
-            flags |= switch_flags(value, f"{prefix}{name}.")
+            parent, dot, last = name.replace("_", "-").rpartition(".")
+            flags |= {f"--{parent}{dot}{last}", f"--{parent}{dot}no-{last}", f"--{last}", f"--no-{last}"}
     return frozenset(flags)
 
 
@@ -206,14 +205,16 @@ def _value_after_switch(sections: list[list[str]], argv: Sequence[str],
                         switches: Collection[str]) -> SplatuError | None:
     """The error for a value typed after a boolean flag (one of `switches`: `--uncertainty.off True`,
     `--no-progress=false`), which tyro lists as an unrecognized option alone ("unrecognized options: True"); None for
-    any other box, such as a value typed twice (`--steps 5 5`), whose flag takes one."""
+    any other box, such as a value typed twice (`--steps 5 5`), whose flag takes one. A flag tyro left unread is no
+    flag of the command, whatever its name."""
     listed = " ".join(line.strip() for line in sections[0])
     if not listed.startswith("Unrecognized options: "):
         return None
     unread = listed.removeprefix("Unrecognized options: ").split(", ")
     for before, arg in itertools.pairwise(["", *argv]):
         flag, value = arg.split("=", 1) if arg.startswith("--") and "=" in arg else (before, arg)
-        if flag.replace("_", "-") in switches and value in unread and not value.startswith("--"):
+        if (flag.replace("_", "-") in switches and flag not in unread and value in unread
+                and not value.startswith("--")):
             parent, dot, last = flag[2:].replace("_", "-").rpartition(".")
             name = last.removeprefix("no-")
             on, off = f"--{parent}{dot}{name}", f"--{parent}{dot}no-{name}"

@@ -383,12 +383,21 @@ def test_a_parse_error_is_one_line_with_the_fix(capsys, argv, said, hint):
     (["--steps", "5", "5"], "unrecognized options: 5, on the command line, see `splatu train --help`"),  # twice
     (["--no-progress", "--steps", "5", "5"], "unrecognized options: 5, on the command line"),  # a switch elsewhere
     (["--uncertainty.off", "--steps", "5", "--bogus", "5"], "unrecognized options: --bogus, 5, on the command line"),
+    (["--off", "True"], "unrecognized options: --off, True, on the command line"),  # a last name, but no flag here
 ])
 def test_a_value_after_a_boolean_flag_says_the_flag_takes_none(capsys, argv, line):
     """`--uncertainty.off True` said "unrecognized options: True", of a word the user meant as the flag's value."""
     with pytest.raises(SystemExit):
         entrypoint(["train", "--data", "poster", *argv])
     assert capsys.readouterr().err.startswith(f"error: {line}")
+
+
+def test_a_value_after_a_boolean_flag_of_a_config_without_its_prefix_says_the_flag_takes_none(capsys):
+    """render-uncertainty takes its uncertainty options without the `uncertainty.` prefix (tyro's OmitArgPrefixes)."""
+    with pytest.raises(SystemExit):
+        entrypoint(["render-uncertainty", "--density-aware", "true"])
+    assert capsys.readouterr().err.startswith("error: --density-aware takes no value, got 'true', on the command "
+                                              "line, write --density-aware alone to turn it on, or --no-density-aware")
 
 
 @pytest.mark.parametrize(("argv", "line"), [
