@@ -41,7 +41,8 @@ class ModelConfig:
     antipodal loss's area under the sparsification curve (MAE) reads 0.100 / 0.078 / 0.074 / 0.070 for degrees
     0 / 1 / 2 / 3, AUSE-MAE 0.409 / 0.373 / 0.330 for 1 / 2 / 3 (the weighted loss's study read 0.431 / 0.421 /
     0.392 / 0.341 for 0-3), so the default is 3; fox needs only 1 (docs/results.md). --degree-choice.on picks it
-    per scene."""
+    per scene. At 0, U has no direction: u(d) = u(−d), so it tells only whether training views saw a Gaussian,
+    not from where."""
     u_init_logit: float = 2.0
     """Initial uncertainty logit: u starts at sigmoid(2) ≈ 0.88 everywhere (unseen means uncertain)."""
     init_opacity: float = 0.1

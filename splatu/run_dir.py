@@ -44,12 +44,43 @@ def new_timestamped_dir(parent: Path) -> Path:
 
 def point_latest(run_dir: Path) -> Path:
     """Make <run_dir>/../latest a relative symlink to `run_dir`, replaced atomically."""
-    link = run_dir.parent / LATEST
+    return _point_link(run_dir.parent / LATEST, run_dir.name)
+
+
+def _point_link(link: Path, target: str) -> Path:
     tmp = temporary_sibling(link)
     tmp.unlink(missing_ok=True)
-    tmp.symlink_to(run_dir.name, target_is_directory=True)
+    tmp.symlink_to(target, target_is_directory=True)
     os.replace(tmp, link)
     return link
+
+
+UNSTARTED = {"config.yml", LOCK_FILE}
+"""All a run folder holds before its first step: a run whose command failed then has nothing worth keeping."""
+
+
+@contextmanager
+def latest_new_run(output_dir: Path, scene: str, method: str) -> Iterator[Path]:
+    """A new run folder (`new_run_dir`) with `latest` pointed at it. A user error (`SplatuError`) that ends the
+    command before the run wrote anything but its config.yml removes the folder and points `latest` back, so that
+    render-uncertainty's default --load does not find a stub of a command that failed. A stop by Ctrl-C keeps it:
+    such a run is one `--resume` restarts."""
+    run_dir = new_run_dir(output_dir, scene, method)
+    link = run_dir.parent / LATEST
+    before = os.readlink(link) if link.is_symlink() else None
+    point_latest(run_dir)
+    try:
+        yield run_dir
+    except SplatuError:
+        if {p.name for p in run_dir.iterdir()} <= UNSTARTED:
+            for leftover in run_dir.iterdir():
+                leftover.unlink()
+            run_dir.rmdir()
+            if before is None:
+                link.unlink(missing_ok=True)
+            else:
+                _point_link(link, before)
+        raise
 
 
 @contextmanager

@@ -42,7 +42,7 @@ from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import UncertaintyLossConfig, refuse_copies_of_the_own_head
 from splatu.methods import method_of
-from splatu.run_dir import new_run_dir, point_latest, training_lock
+from splatu.run_dir import latest_new_run, training_lock
 from splatu.train_config import (
     DEFAULT_PRESET,
     DISPLAY_OPTIONS,
@@ -334,9 +334,7 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
             console.print(note, soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
-    run_dir = new_run_dir(config.output_dir, scene.name, config.method)
-    point_latest(run_dir)
-    with training_lock(run_dir):
+    with latest_new_run(config.output_dir, scene.name, config.method) as run_dir, training_lock(run_dir):
         if config.ensemble > 1:
             train_locked_ensemble(config, scene, run_dir, wall_start, hooks)
         else:
@@ -444,15 +442,13 @@ def _resume_in_new_run(config: TrainConfig, path: Path, wall_start: float, hooks
     scene = load_scene(saved.data)
     refuse_unscorable_sets(scene)
     fitting_frame(checkpoint, saved, scene)
-    run_dir = new_run_dir(saved.output_dir, scene.name, saved.method)
-    point_latest(run_dir)
     named = Path(config.resume).expanduser()  # a folder named as a run, but without the config.yml a run writes first
     why = (f"{named} holds no config.yml, so it is no run folder" if named.is_dir()
            else f"{path} is not inside a run folder")
-    console.print(f"{why}: training continues from {path.name} (step {step} of {saved.steps}) in a new run, {run_dir}",
-                  soft_wrap=True)
-    console.print(scene_line(scene), soft_wrap=True)
-    with training_lock(run_dir):
+    with latest_new_run(saved.output_dir, scene.name, saved.method) as run_dir, training_lock(run_dir):
+        console.print(f"{why}: training continues from {path.name} (step {step} of {saved.steps}) in a new run, "
+                      f"{run_dir}", soft_wrap=True)
+        console.print(scene_line(scene), soft_wrap=True)
         train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
     return run_dir
 

@@ -224,6 +224,40 @@ def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path,
     assert load_config(new_dir / "config.yml").output_dir == tmp_path / "d" / "outputs"
 
 
+def test_a_command_that_fails_before_its_first_step_leaves_no_stub_run_and_latest_where_it_was(tmp_path, scene,
+                                                                                            monkeypatch):
+    """A user error after the run folder is made (here in building the model, for a new run and for a checkpoint
+    trained on in a new run) removes the folder and points `latest` back: render-uncertainty's default --load must
+    not find a stub of a command that failed. A folder holding more than its config.yml is kept."""
+    finished = train_command.train(tiny_config(tmp_path, steps=2, checkpoint_every=0))
+    method_dir = finished.parent
+
+    def refused(*args, **kwargs):
+        raise SplatuError("refused for the test", "in the test", "none")
+
+    monkeypatch.setattr(trainer, "fresh_state", refused)
+    with pytest.raises(SplatuError, match="refused for the test"):
+        train_command.train(tiny_config(tmp_path, steps=2))
+    stray = tmp_path / "elsewhere" / "step.pt"
+    stray.parent.mkdir()
+    shutil.copy(list_checkpoints(finished)[-1], stray)
+    monkeypatch.setattr(trainer, "restored_state", refused)
+    with pytest.raises(SplatuError, match="refused for the test"):
+        train_command.train(dataclasses.replace(tiny_config(tmp_path), resume=stray))
+    assert sorted(p.name for p in method_dir.iterdir()) == sorted([finished.name, "latest"])
+    assert (method_dir / "latest").resolve() == finished.resolve()
+
+    (method_dir / "latest").unlink()  # no run was latest before: none is after
+    with pytest.raises(SplatuError), run_dir_module.latest_new_run(tmp_path / "outputs", "tiny", "splatu") as made:
+        (made / "config.yml").write_text("steps: 2\n")
+        raise SplatuError("after the config only", "in the test", "none")
+    assert not made.exists() and not (method_dir / "latest").is_symlink()
+    with pytest.raises(SplatuError), run_dir_module.latest_new_run(tmp_path / "outputs", "tiny", "splatu") as kept:
+        (kept / "metrics.jsonl").write_text("{}\n")  # a step ran: what it logged is kept, with `latest` on it
+        raise SplatuError("after a step", "in the test", "none")
+    assert kept.is_dir() and (method_dir / "latest").resolve() == kept.resolve()
+
+
 def test_a_run_writes_its_layout_and_its_config_loads_back(tmp_path, scene):
     config = tiny_config(tmp_path, steps=4, checkpoint_every=0)
     run_dir = train_command.train(config)
