@@ -152,14 +152,16 @@ class DensityController:
             return counts
         reset_interval = cfg.refine_every * cfg.reset_alpha_every
         with torch.no_grad():
-            cull = self._cull_mask(step, model, views_per_epoch)
-            oversized = self._oversized(step, model, 1.0)
+            cull = self._cull_mask(model, views_per_epoch)
+            too_big = self._oversized(step, model, 1.0) | self._too_big_on_screen(step)
             densifying = step < cfg.stop_split_at and step % reset_interval >= cfg.refine_every + cfg.pause_after_reset
             if densifying:
-                # splatfacto culls after densifying: an oversized parent stays if split into children small enough
+                # splatfacto culls after densifying: a parent too big in the world or on screen is split instead
+                # when its gradient asks for it, into children that stay if small enough in the world (a child's
+                # screen size is measured anew, over the next window)
                 children_oversized = self._oversized(step, model, SPLIT_SCALE_DIVISOR)
                 clone, split = self._densify_masks(step, model, cull | children_oversized)
-                cull |= oversized & ~split
+                cull |= too_big & ~split
                 append = self._new_rows(model, clone, split)
                 keep = ~(cull | split)
                 optimizers.replace_rows(model, keep, append)
@@ -168,7 +170,7 @@ class DensityController:
             elif step < cfg.stop_split_at:  # the pause after an opacity reset: no edit at all, as splatfacto
                 cull = torch.zeros_like(cull)
             else:
-                cull |= oversized
+                cull |= too_big
                 if cull.any():
                     optimizers.replace_rows(model, ~cull, None)
                     self._edit_rows(~cull, 0)
@@ -192,16 +194,24 @@ class DensityController:
         assert self.steps_without_contribution is not None
         self.steps_without_contribution = torch.cat([self.steps_without_contribution[keep], torch.zeros(appended)])
 
-    def _cull_mask(self, step: int, model: GaussianModel, views_per_epoch: int) -> Tensor:
+    def _cull_mask(self, model: GaussianModel, views_per_epoch: int) -> Tensor:
+        """Rows culled whatever densification does: too faint, or no contribution to any view for a whole window.
+        Rows too big (`_oversized`, `_too_big_on_screen`) are culled only if not split."""
         cfg = self.cfg
-        assert self.max_screen_size is not None and self.steps_without_contribution is not None
+        assert self.steps_without_contribution is not None
         cull = torch.sigmoid(model.opacity_logits) < cfg.cull_alpha_thresh
-        if step > cfg.refine_every * cfg.reset_alpha_every and step < cfg.stop_screen_size_at:
-            cull |= self.max_screen_size > cfg.cull_screen_size
         if cfg.prune_never_contributing:
             window = max(cfg.contribution_window, 2 * views_per_epoch - 1)
             cull |= self.steps_without_contribution >= window
         return cull
+
+    def _too_big_on_screen(self, step: int) -> Tensor:
+        """Rows that covered more than cull_screen_size of a view's larger side in this window: none until the first
+        opacity reset, nor from stop_screen_size_at on."""
+        cfg = self.cfg
+        assert self.max_screen_size is not None
+        culling = cfg.refine_every * cfg.reset_alpha_every < step < cfg.stop_screen_size_at
+        return (self.max_screen_size > cfg.cull_screen_size) & culling
 
     def _oversized(self, step: int, model: GaussianModel, shrink: float) -> Tensor:
         """Rows whose largest world scale, divided by `shrink` (a split's), exceeds cull_scale_thresh × extent; none
@@ -251,7 +261,7 @@ class DensityController:
         quats = model.quats.detach()[split].repeat_interleave(samples, dim=0)
         offsets = _rotate(quats, torch.randn(scales.shape, generator=self.generator) * scales)
         rows["means"][n_clone:] += offsets
-        rows["log_scales"][n_clone:] = torch.log(scales / SPLIT_SCALE_DIVISOR)
+        rows["log_scales"][n_clone:] -= math.log(SPLIT_SCALE_DIVISOR)  # in log space: exp underflows below −103
         return rows
 
     def _reset_opacity(self, model: GaussianModel, optimizers: Optimizers) -> int:

@@ -402,3 +402,41 @@ def test_a_large_gaussian_is_split_when_its_children_are_small_enough_to_keep():
     assert len(children) == 2 and _row_of(model, 1) == [] and _row_of(model, 2) == []
     assert torch.allclose(model.log_scales[children].exp(), torch.full((2, 3), 0.6 / SPLIT_SCALE_DIVISOR))
     _assert_aligned(model, optimizers)
+
+
+def test_a_high_gradient_gaussian_too_big_on_screen_is_split_not_deleted():
+    """splatfacto splits first and culls what results, and a split child's screen size starts at 0: a
+    high-gradient Gaussian covering 20% of the screen (above cull_screen_size = 0.15) is replaced by its two
+    children; a low-gradient one as big is culled, and neither child is judged by its parent's screen size."""
+    model, optimizers = _tagged_model()
+    grads = torch.full((N,), LOW)
+    grads[0] = HIGH
+    radii = torch.full((N,), 2)
+    radii[:2] = 20
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=2)  # size culling from step 21
+    controller = DensityController(cfg, 1.0, torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, radii, torch.full((N,), 0.5)), SIZE, SIZE)
+
+    counts = controller.refine(30, model, optimizers, views_per_epoch=1)
+
+    assert (counts["split"], counts["pruned"]) == (1, 1)
+    assert len(_row_of(model, 0)) == 2 and _row_of(model, 1) == [] and len(model) == N
+    _assert_aligned(model, optimizers)
+
+
+def test_a_split_child_of_a_minute_gaussian_keeps_a_finite_log_scale():
+    """A child's log-scale is its parent's minus log 1.6, taken in log space: exp(−110) is 0 in float32, whose log
+    would be −inf and stop the training as a non-finite update."""
+    model, optimizers = _tagged_model()
+    with torch.no_grad():
+        model.log_scales[0] = torch.tensor([-1.0, -1.0, -110.0])
+    grads = torch.full((N,), LOW)
+    grads[0] = HIGH
+    controller = DensityController(DensifyConfig(warmup_length=0, refine_every=10), 1.0,
+                                   torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, torch.full((N,), 10), torch.full((N,), 0.5)), SIZE, SIZE)  # 10%: split
+
+    assert controller.refine(10, model, optimizers, views_per_epoch=1)["split"] == 1
+    children = model.log_scales.detach()[_row_of(model, 0)]
+    assert torch.isfinite(children).all()
+    assert torch.allclose(children[:, 2], torch.tensor(-110.0 - math.log(SPLIT_SCALE_DIVISOR)))
