@@ -65,12 +65,13 @@ class ViewUncertainty:
 
     @property
     def coverage(self) -> float:
-        """The view's mean alpha: how much of it the model covers (a view of empty space: mean U 1, coverage 0)."""
+        """The view's mean alpha: how much of it the model covers (a view of empty space: coverage 0)."""
         return float(self.alpha.mean())
 
     @property
     def mean_uncertainty(self) -> float:
-        """The view's mean U: what a planner ranks candidate views by (empty space counts as unknown, U = 1)."""
+        """The view's mean U: what a planner ranks candidate views by. A view of nothing ranks first (see the class's
+        docstring) but for an ensemble run, whose std reads 0 there: open it with `density_aware=True` for that."""
         return float(self.uncertainty.mean())
 
 

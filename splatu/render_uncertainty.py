@@ -115,8 +115,10 @@ class RenderUncertaintyConfig:
     OpenGL camera-to-world transform_matrix; fl_x, fl_y, cx, cy, w and h at the scene's full resolution, and a
     distorted capture's k1, k2, p1, p2 (K is then undistorted as the loader's is), at the top level or per frame, as
     nerfstudio writes them. They render at the run's --downscale, as its own cameras do. A COLMAP images.txt pose
-    [R(qvec) | tvec] is written as its inverse with the y and z columns negated. Empty space counts as U = 1, so a
-    view of nothing ranks first (render.json gives each view's coverage)."""
+    [R(qvec) | tvec] is written as its inverse with the y and z columns negated. Empty space reads the highest U (1;
+    residual's is just below), so a view of nothing ranks first, with every method but two: an ensemble run's std
+    reads 0 there (its members agree on nothing), so such a view ranks last unless --density-aware, and random reads
+    noise (0.5 on average). render.json gives each view's coverage."""
     off_centre_ok: bool = False
     """With --cameras: its cameras are tiles or crops of larger photos (a tile scene's own, say), whose principal
     point lies far off-centre or off the image by design; without it such a camera is refused, as a K made for
@@ -593,7 +595,7 @@ def write_render(out: Path, views: list[RenderedView], config: RenderUncertainty
         # files are close0_*), to match a ranking to the candidates, to scene_cameras and to nearest_training_view
         "per_view": [{"name": v.name, "source_name": v.source_name,
                       "mean_uncertainty": float(v.maps["uncertainty"].mean()),
-                      "coverage": float(v.maps["alpha"].mean()),  # a view of empty space reads U = 1 but shows nothing
+                      "coverage": float(v.maps["alpha"].mean()),  # empty space reads the highest U (not the ensemble's)
                       "elevation_degrees": v.elevation_degrees, "nearest_training_view": v.nearest_training_view}
                      for v in views],
     }

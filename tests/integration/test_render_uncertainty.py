@@ -1549,6 +1549,26 @@ def test_an_ensemble_training_its_members_is_named_as_such_not_as_a_run_without_
             assert "Traceback" not in err
 
 
+def test_a_view_of_nothing_ranks_first_for_an_ensemble_only_when_density_aware_as_the_docs_say(tiny_run, tmp_path,
+                                                                                               capsys):
+    """The docs said empty space reads U = 1 for every method, so a view of nothing ranks first; an ensemble's std
+    reads 0 there (such a view ranked last), and only density_aware counts it: the docs now say so where they rank."""
+    from splatu.query import ViewUncertainty, open_run
+
+    ensemble = _finished_ensemble(tiny_run, tmp_path / "ensemble")
+    w2c, K, width, height = next(iter(open_run(tiny_run).scene_cameras().values()))
+    nothing = w2c.copy()
+    nothing[2, 3] -= 1e4  # the whole scene far behind the camera
+    plain = open_run(ensemble).render(nothing, K, width, height)
+    aware = open_run(ensemble, density_aware=True).render(nothing, K, width, height)
+    assert plain.coverage == 0.0 and plain.mean_uncertainty == 0.0 and aware.mean_uncertainty == pytest.approx(1.0)
+    with pytest.raises(SystemExit):
+        entrypoint(["render-uncertainty", "--help"])
+    cameras_help = " ".join(capsys.readouterr().out.replace("│", " ").split())  # the help box wraps each option
+    assert "so such a view ranks last unless --density-aware" in cameras_help
+    assert "density_aware=True" in ViewUncertainty.mean_uncertainty.__doc__
+
+
 def test_the_query_offers_every_uncertainty_method_but_random():
     """QueryMethod spells the methods out for type checkers: a method added to render-uncertainty must reach open_run
     too."""
