@@ -174,6 +174,10 @@ def open_run(path: str | Path, head: str | None = None, method: QueryMethod | No
     own_ensemble = method is None and is_ensemble
     if method is None:
         method = own_method(is_ensemble)
+    if method == "random":  # a baseline for eval-ause's scores, not a ranking
+        raise SplatuError("method=\"random\" is not offered from Python: its uniform noise would rank candidate "
+                          "views at random (it is eval-ause's baseline)", "in open_run",
+                          f"pass method= one of {method_list(QUERY_METHODS)}")
     if method not in QUERY_METHODS:
         raise SplatuError(f"unknown method {method!r}", "in open_run",
                           f"pass method= one of {method_list(QUERY_METHODS)}")
@@ -258,9 +262,9 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if not intrinsics.isfinite().all():  # said apart from the shape: "got shape (3, 3)" read as no fault at all
         raise SplatuError(f"K has non-finite entries (NaN or Inf): {intrinsics.tolist()}", "in RunQuery.render",
                           "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in finite pixels")
-    sizes = [_pixels(n) for n in (width, height)]
+    sizes = [_pixels(n, name) for n, name in ((width, "width"), (height, "height"))]
     # no larger than the loaders take: a 10⁶ × 10⁶ image would need terabytes, and fail in torch's allocator
-    if not all(n is not None and 0 < n <= MAX_IMAGE_SIDE for n in sizes):
+    if not all(0 < n <= MAX_IMAGE_SIDE for n in sizes):
         raise SplatuError(f"the image size must be positive integers up to {MAX_IMAGE_SIDE}, got {width}×{height}",
                           "in RunQuery.render", "pass width and height in pixels")
     fix = "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels of this image size"
@@ -289,15 +293,24 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     return w2c, intrinsics, width, height
 
 
-def _pixels(n: object) -> int | None:
+def _pixels(n: object, name: str) -> int:
     """`n` as an int if it is a whole number: a Python, numpy or torch integer (a nerfstudio `Cameras`' width is a
-    one-element tensor, which was refused as not one), but not a bool (True is 1) nor a float; else None."""
+    one-element tensor), or an integral float (`W * scale` gives 144.0); else one line naming its type or value: a
+    bool (True is 1), a fraction or a string ("144" read from a file) was told apart from a bad size by nothing."""
+    where, fix = "in RunQuery.render", "pass width and height as whole numbers of pixels (int(...) of a string)"
     if isinstance(n, bool) or (isinstance(n, Tensor) and n.dtype == torch.bool):
-        return None
+        raise SplatuError(f"the image {name} is a bool ({bool(n)}), not a number of pixels", where, fix)
     try:
         return operator.index(n)  # type: ignore[arg-type]
     except TypeError:
-        return None
+        pass
+    if isinstance(n, float | np.floating) or (isinstance(n, Tensor) and n.numel() == 1 and n.is_floating_point()):
+        value = float(n)  # type: ignore[arg-type]
+        if value.is_integer():
+            return int(value)
+        raise SplatuError(f"the image {name} {value!r} is not a whole number of pixels", where,
+                          "round it (int(round(...))) and scale K by the same factor")
+    raise SplatuError(f"the image {name} is a {type(n).__name__} ({n!r:.40}), not a number of pixels", where, fix)
 
 
 def _on_host(value: object) -> object:

@@ -891,8 +891,9 @@ def test_a_pose_as_a_file_rounds_it_renders_and_a_scaled_one_is_refused(tiny_run
         run.render(scaled, camera.K.numpy(), camera.width, camera.height)
 
 
-def test_an_image_size_as_numpy_gives_it_renders_and_a_bool_or_float_one_is_refused(tiny_run):
-    """Sizes read from an array of them (np.int64) are whole numbers and render; True (a 1) and 48.0 are not sizes."""
+def test_an_image_size_as_numpy_gives_it_or_an_integral_float_renders_and_a_bool_or_fraction_is_refused(tiny_run):
+    """Sizes read from an array of them (np.int64) are whole numbers and render, as is 48.0 (W * scale gives one);
+    True (a 1), 48.5 or "80" are not sizes, and the error says which (it said "got 48×80" of a string)."""
     from splatu.query import open_run
 
     run = open_run(tiny_run)
@@ -901,8 +902,14 @@ def test_an_image_size_as_numpy_gives_it_renders_and_a_bool_or_float_one_is_refu
     assert isinstance(width, np.int64)
     view = run.render(np.eye(4), K, width, height)
     assert view.rgb.shape == (80, 48, 3) and np.array_equal(view.rgb, run.render(np.eye(4), K, 48, 80).rgb)
-    for size in ((True, True), (48.0, 80)):
-        with pytest.raises(SplatuError, match="the image size must be positive integers"):
+    # an integral float (W * scale) is a size; a string, a bool or a fraction says what it is
+    assert np.array_equal(run.render(np.eye(4), K, 48.0, np.float32(80.0)).rgb, view.rgb)
+    for size, message in (((True, True), "the image width is a bool (True), not a number of pixels"),
+                          ((48.5, 80), "the image width 48.5 is not a whole number of pixels"),
+                          ((48, "80"), "the image height is a str ('80'), not a number of pixels"),
+                          ((48, float("nan")), "the image height nan is not a whole number of pixels"),
+                          ((48.0, -80.0), "positive integers up to")):
+        with pytest.raises(SplatuError, match=re.escape(message)):
             run.render(np.eye(4), K, *size)
     wide = np.array([[4e4, 0.0, 24.0], [0.0, 4e4, 4.0], [0.0, 0.0, 1.0]])  # a plausible focal length for that width
     with pytest.raises(SplatuError, match=f"positive integers up to {MAX_IMAGE_SIDE}"):  # larger than the loaders take
@@ -1023,8 +1030,10 @@ def test_open_run_errors_give_a_python_caller_a_way_on(tiny_run, tmp_path):
         error.value)
     with pytest.raises(SplatuError, match='method="ensemble" needs an ensemble run'):
         open_run(tiny_run, method="ensemble")
-    for method in ("random", "angel"):
-        with pytest.raises(SplatuError, match=f"unknown method '{method}'") as error:
+    # random is no typo: it is left out on purpose, which "unknown method 'random'" hid
+    for method, message in (("random", 'method="random" is not offered from Python: its uniform noise would rank'),
+                            ("angel", "unknown method 'angel'")):
+        with pytest.raises(SplatuError, match=re.escape(message)) as error:
             open_run(tiny_run, method=method)
         assert "angle" in error.value.fix and "random" not in error.value.fix
     with pytest.raises(SplatuError, match="no uncertainty head 'kind=mean'") as error:

@@ -1737,14 +1737,16 @@ def test_a_pose_being_optimised_names_its_nearest_training_view_as_render_takes_
         assert name == "b.png" and angle == pytest.approx(0.0, abs=1e-3) and distance == pytest.approx(0.0, abs=1e-6)
 
 
-def test_an_image_size_given_as_an_integer_tensor_is_taken_and_a_float_one_refused():
+def test_an_image_size_given_as_an_integer_tensor_is_taken_and_a_fractional_one_refused():
     """A nerfstudio `Cameras`' width and height are integer tensors: they were refused as not positive integers (a
-    0-d one printed as its value, "got 48×80"). A float or bool tensor is still refused."""
+    0-d one printed as its value, "got 48×80"). An integral float tensor is a size too; a fraction or a bool is not."""
     from splatu.query import _checked_camera
 
     K = np.array([[40.0, 0.0, 24.0], [0.0, 40.0, 40.0], [0.0, 0.0, 1.0]])
-    *_, width, height = _checked_camera(np.eye(4), K, torch.tensor([48]), torch.tensor(80), False)
-    assert (width, height) == (48, 80) and type(width) is int and type(height) is int
-    for size, shown in (((torch.tensor(48.0), 80), "got 48.0×80"), ((torch.tensor(True), 80), "got True×80")):
+    for given in ((torch.tensor([48]), torch.tensor(80)), (torch.tensor(48.0), torch.tensor([80.0]))):
+        *_, width, height = _checked_camera(np.eye(4), K, *given, False)
+        assert (width, height) == (48, 80) and type(width) is int and type(height) is int
+    for size, shown in (((torch.tensor(48.5), 80), "width 48.5 is not a whole number"),
+                        ((torch.tensor(True), 80), "width is a bool (True)")):
         with pytest.raises(SplatuError, match=re.escape(shown)):
             _checked_camera(np.eye(4), K, *size, False)
