@@ -47,8 +47,12 @@ class MapEntry:
 
 
 def safe_name(name: str) -> str:
-    """A view name usable as a file stem: the last component's extension removed, path separators made `_`."""
-    return str(PurePosixPath(name.replace("\\", "/").strip("/")).with_suffix("")).replace("/", "_")
+    """A view name usable as a file stem: the last component's extension removed, path separators made `_`; "." and
+    ".." dropped and a leading dot made `_`, so that no file is hidden (`../../x` was written as `.._.._x_*.npy`,
+    which `ls` leaves out). "" when no component is left."""
+    parts = [part for part in name.replace("\\", "/").split("/") if part not in ("", ".", "..")]
+    parts = ["_" * (len(part) - len(part.lstrip("."))) + part.lstrip(".") for part in parts]
+    return "_".join([*parts[:-1], PurePosixPath(parts[-1]).stem]) if parts else ""
 
 
 LONGEST_SUFFIX = len("_uncertainty.npy")
@@ -58,10 +62,10 @@ NAME_MAX = 255
 
 
 def _unwritable(name: str) -> str | None:
-    """What keeps a view name from naming files, if anything: a --cameras file_path of "", "." or "/" (no stem: a
-    ValueError deep in pathlib), one holding a NUL byte (a ValueError from open) or one too long for the file system
+    """What keeps a view name from naming files, if anything: a --cameras file_path of "", ".", ".." or "/" (no stem:
+    a ValueError deep in pathlib), one holding a NUL byte (a ValueError from open) or one too long for the file system
     (an OSError whose advice was to free disk space)."""
-    if not PurePosixPath(name.replace("\\", "/").strip("/")).name:
+    if not safe_name(name):
         return "has no file name"
     if "\0" in name:
         return "holds a NUL character"

@@ -5,6 +5,7 @@ import errno
 import json
 import multiprocessing
 import os
+import re
 import signal
 from pathlib import Path
 
@@ -313,8 +314,20 @@ def test_view_names_become_file_stems_and_two_that_would_share_files_are_refused
             file_stems(clash)
 
 
+def test_no_view_name_becomes_a_hidden_file():
+    """A --cameras file_path of `../../x` was written as `.._.._x_*.npy`, which `ls` hides: "." and ".." are dropped
+    and a leading dot becomes `_`, and two names that then meet are refused as any other pair."""
+    names = ["../../x", ".hidden.png", "./a/../b.jpg", "..y", "..\\z.png", "c/.d"]
+    stems = file_stems(names)
+    assert stems == ["x", "_hidden", "a_b", "__y", "z", "c__d"]
+    assert not any(stem.startswith(".") for stem in stems)
+    with pytest.raises(SplatuError, match=re.escape("'../x' and 'x' would both be written as 'x'")):
+        file_stems(["../x", "x"])
+
+
 @pytest.mark.parametrize(("name", "problem"), [("", "has no file name"), (".", "has no file name"),
-                                               ("/", "has no file name"), ("a\0b", "NUL"),
+                                               ("/", "has no file name"), ("../..", "has no file name"),
+                                               ("a\0b", "NUL"),
                                                ("x" * 240, "longer than the 239 bytes")])
 def test_a_view_name_no_file_can_take_is_one_line_naming_the_camera_file(name, problem):
     # a --cameras file_path of "" or "." was a pathlib ValueError traceback, a NUL one open()'s, and one of 300
