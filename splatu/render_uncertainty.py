@@ -542,6 +542,28 @@ def run(config: RenderUncertaintyConfig) -> None:
                     f"({record['render_seconds_per_view']:.2f} s/view median) to {out}; the most uncertain is "
                     f"{most['source_name']} (mean U {most['mean_uncertainty']:.3f}, coverage {most['coverage']:.0%})",
                     soft_wrap=True)
+    for line in ranking(record["per_view"]):
+        Console().print(line, soft_wrap=True, highlight=False, markup=False)  # a file_path may hold [brackets]
+
+
+RANKED = 5
+"""Views the command lists by mean U after its summary: candidates of empty space tie at the top, and the summary's
+one name was the first of them."""
+
+
+def ranking(per_view: list[dict[str, Any]]) -> list[str]:
+    """The `RANKED` views of highest mean U, one line each with its coverage and nearest training view (render.json
+    holds them all); nothing for a single view, which the summary names."""
+    if len(per_view) < 2:
+        return []
+    ranked = sorted(per_view, key=lambda view: -view["mean_uncertainty"])[:RANKED]
+    lines = [f"by mean U ({len(ranked)} of {len(per_view)}; render.json lists every view):"]
+    for place, view in enumerate(ranked, 1):
+        nearest = view["nearest_training_view"]
+        seen = "" if nearest is None else f", {nearest['angle_degrees']:.1f}° from {nearest['name']}"
+        lines.append(f"  {place}. {view['source_name']} (mean U {view['mean_uncertainty']:.3f}, coverage "
+                     f"{view['coverage']:.0%}{seen})")
+    return lines
 
 
 def left_by_a_stop(out: Path, earlier: tuple[int, int] | None) -> str:

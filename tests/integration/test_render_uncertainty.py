@@ -1128,8 +1128,26 @@ def test_render_json_names_each_candidate_as_its_file_does(tiny_run, tmp_path, c
     per_view = record["per_view"]
     assert [(v["name"], v["source_name"]) for v in per_view] == [("near0", "near0.5"), ("far_2", "far/2.0")]
     assert all((tmp_path / "out" / "npy" / f"{v['name']}_uncertainty.npy").is_file() for v in per_view)
-    most = max(per_view, key=lambda v: v["mean_uncertainty"])["source_name"]
-    assert f"the most uncertain is {most} (" in capsys.readouterr().out
+    most, other = (v["source_name"] for v in sorted(per_view, key=lambda v: -v["mean_uncertainty"]))
+    out = capsys.readouterr().out
+    assert f"the most uncertain is {most} (" in out
+    assert f"\n  1. {most} (mean U " in out and f"\n  2. {other} (mean U " in out and "° from " in out
+
+
+def test_the_command_lists_the_views_of_highest_mean_u_not_only_the_first_of_a_tie():
+    """Candidates of empty space tie at U = 1, and the summary named one of them: the command lists five, each
+    with its coverage and nearest training view, most uncertain first, ties in the file's order."""
+    def view(name: str, u: float, coverage: float) -> dict:
+        return {"source_name": name, "mean_uncertainty": u, "coverage": coverage,
+                "nearest_training_view": {"name": "train/3.png", "angle_degrees": 12.345, "distance": 0.5}}
+
+    per_view = [view("seen", 0.2, 0.9), *(view(f"empty{k}", 1.0, 0.0) for k in range(4)), view("edge", 0.6, 0.4),
+                view("side", 0.4, 0.7)]
+    lines = render_uncertainty.ranking(per_view)
+    assert lines[0] == "by mean U (5 of 7; render.json lists every view):"
+    assert [line.split()[1] for line in lines[1:]] == ["empty0", "empty1", "empty2", "empty3", "edge"]
+    assert lines[5] == "  5. edge (mean U 0.600, coverage 40%, 12.3° from train/3.png)"
+    assert render_uncertainty.ranking(per_view[:1]) == []  # the summary line names a single view
 
 
 def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny_run, tmp_path, capsys):
