@@ -41,7 +41,14 @@ from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished
 from splatu.data.assemble import choose_split, scene_normalization
 from splatu.data.config import DataConfig
-from splatu.data.frames import FLOAT32_MAX, MAX_IMAGE_SIDE, checked_matrix, downscaled, refuse_implausible_focal
+from splatu.data.frames import (
+    FLOAT32_MAX,
+    MAX_IMAGE_SIDE,
+    checked_matrix,
+    downscaled,
+    refuse_implausible_focal,
+    refuse_unaffordable_render,
+)
 from splatu.data.principal_point import misplaced_principal_point
 from splatu.data.resolve import POSTER, read_scene_files, scene_path
 from splatu.errors import SplatuError
@@ -119,7 +126,8 @@ class RunQuery:
         its arguments alone, as gsplat's rasterizer is: no hidden read of the scene's files (which may have
         moved), the same answer in every process, and a pasted K is still checked unless the caller vouches for it.
         """
-        w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height, off_centre_ok)
+        w2c, intrinsics, width, height = _checked_camera(world_to_camera, K, width, height, off_centre_ok,
+                                                         len(self.models))
         camera = Camera(intrinsics, normalised_world_to_camera(w2c, self.frame), width, height)
         if float(torch.cat([camera.world_to_camera.abs().flatten(), intrinsics.abs().flatten()]).max()) > FLOAT32_MAX:
             raise SplatuError("the camera lies beyond float32's range (±3.4e38) in the model's frame, where it renders",
@@ -248,10 +256,11 @@ def scene_cameras(recorded: DataConfig, frame: WorldTransform, data: str | Path 
 
 
 def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor, width: int, height: int,
-                    off_centre_ok: bool) -> tuple[Tensor, Tensor, int, int]:
+                    off_centre_ok: bool, members: int = 1) -> tuple[Tensor, Tensor, int, int]:
     """The camera as float64 tensors and int sizes, or one clear error: a wrong shape, a non-finite entry, a pose
     that is not a rigid motion, a bad size, or a K of another image size or orientation (unless `off_centre_ok`
-    vouches for a tile's principal point) would otherwise render a wrong or blank image without a word."""
+    vouches for a tile's principal point) would otherwise render a wrong or blank image without a word; a size a
+    render of `members` models has not the memory for would grow until the OS killed the process."""
     # the loaders' own check of a pose (finite, rigid within their tolerance, last row 0 0 0 1; 3x4 or 4x4)
     w2c = torch.from_numpy(checked_matrix(_on_host(world_to_camera), "in RunQuery.render's world_to_camera",
                                           "pass an OpenCV world-to-camera pose without scale"))
@@ -267,6 +276,8 @@ def _checked_camera(world_to_camera: np.ndarray | Tensor, K: np.ndarray | Tensor
     if not all(0 < n <= MAX_IMAGE_SIDE for n in sizes):
         raise SplatuError(f"the image size must be positive integers up to {MAX_IMAGE_SIDE}, got {width}×{height}",
                           "in RunQuery.render", "pass width and height in pixels")
+    refuse_unaffordable_render([(sizes[0], sizes[1])], members, "in RunQuery.render",
+                               "pass a smaller width and height, and scale K's first two rows by the same factor")
     fix = "pass K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels of this image size"
     if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
         raise SplatuError("K's focal lengths must be positive", "in RunQuery.render", fix)

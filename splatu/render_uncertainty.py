@@ -43,6 +43,7 @@ from splatu.atomic import (
 from splatu.baselines import UncertaintyRender, UncertaintySource
 from splatu.camera import Camera
 from splatu.checkpoint import pinned_unless_finished, run_folder
+from splatu.data.frames import refuse_unaffordable_render
 from splatu.data.images import write_png
 from splatu.data.nerfstudio import read_cameras, transforms_file
 from splatu.data.scene import CameraScene, Scene, Views
@@ -199,15 +200,19 @@ def _evenly(count: int, limit: int, closed: bool = False) -> list[int]:
 
 
 def view_spec(scene: Scene | CameraScene, which: ViewSet, config: RenderUncertaintyConfig,
-              downscale: int = 1) -> ViewSpec:
+              downscale: int = 1, members: int = 1) -> ViewSpec:
     """Cameras of the eval or train split (with their ground truth: `scene` is then a `Scene`), a generated orbit, or
-    the --cameras file's, at the run's `downscale` as its own cameras are."""
+    the --cameras file's, at the run's `downscale` as its own cameras are; those refused if a render of `members`
+    models would not fit in memory (the scene's own views trained here)."""
     frame = scene_frame(scene)  # the run's own (build_method checked), also for checkpoints older than its record
     if which == "cameras":
         assert config.cameras is not None  # run() refuses --views cameras without it
         cameras = [dataclasses.replace(c, world_to_camera=normalised_world_to_camera(c.world_to_camera, frame))
                    for c in read_cameras(config.cameras, downscale, config.off_centre_ok)]
         keep = _evenly(len(cameras), config.max_views)
+        refuse_unaffordable_render([(cameras[i].width, cameras[i].height) for i in keep], members,
+                                   f"in {config.cameras}", "give smaller w and h, scaling fl_x, fl_y, cx and cy with "
+                                   "them, or split the frames over several files")
         return ViewSpec([cameras[i] for i in keep], file_stems([cameras[i].name for i in keep], f"in {config.cameras}"),
                         depth_unit=frame.scale)
     if which == "orbit":
@@ -523,7 +528,7 @@ def run(config: RenderUncertaintyConfig) -> None:
     earlier = file_identity(out / "render.json")
     with saying_what_is_left(lambda: left_by_a_stop(out, earlier)):
         scene, built = _setup(run_info, options, config.views)
-        spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1)
+        spec = view_spec(scene, config.views, config, run_info.config.data.downscale or 1, len(run_info.models))
         if spec.note is not None:
             Console(stderr=True).print(spec.note, soft_wrap=True)
         views, seconds = render_views(built.source, spec)

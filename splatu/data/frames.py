@@ -7,6 +7,7 @@ Loaders only parse their format, at full size; downscaling, splitting, normalisa
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -24,6 +25,47 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_IMAGE_SIDE = 1 << 16
 """Larger than any camera's image side: pycolmap stores sizes unsigned, so a negative one reads as ~1.8e19, and
 OpenCV's undistortion takes 32-bit sizes, so a nerfstudio w of 3e9 was an OpenCV traceback."""
+
+RENDER_BYTES_PER_PIXEL = 240
+"""Peak memory one render of one model takes per pixel: 206 bytes on the poster run (its 2000-step ours run) from
+1920×1080 to 5120×2880 (peak RSS 985 to 3481 MiB), 226 between 3840×2160 and 5120×2880, read as resource.getrusage's
+ru_maxrss after `open_run(RUN).render(w2c, K, W, H)` of its first scene camera with K scaled to W×H, one process per
+size; `/usr/bin/time -v splatu render-uncertainty --load RUN --cameras FILE` of that camera at 3840×2160 peaked at
+2.2 GB, at 1920×1080 at 1.1 GB."""
+MEMBER_BYTES_PER_PIXEL = 25
+"""What each further ensemble member adds per pixel: 10 members at 1920×1080 peaked 1113 MiB above their loading,
+one model 653 MiB (the members' renders are all held to take their std)."""
+RETAINED_BYTES_PER_PIXEL = 6 * 8
+"""What render-uncertainty holds per pixel of each view rendered until all are written: rgb, depth, alpha and U as
+float64."""
+RENDER_BASE_BYTES = 1 << 30
+"""Python, torch, the model and matplotlib: render-uncertainty's peak RSS at a few pixels was 0.7 GB on the poster."""
+
+
+def physical_memory() -> int | None:
+    """The machine's physical memory in bytes, or None where the OS does not say (os.sysconf is POSIX)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def refuse_unaffordable_render(sizes: list[tuple[int, int]], members: int, where: str, fix: str) -> None:
+    """One line when rendering views of these sizes, each side within MAX_IMAGE_SIDE, would need more memory than the
+    machine has (`RENDER_BYTES_PER_PIXEL`): a 14400×25600 render grew to 21 GB before the OS killed it. All but the
+    largest view count only what is kept of them (`RETAINED_BYTES_PER_PIXEL`), as render-uncertainty keeps them."""
+    physical = physical_memory()
+    if physical is None or not sizes:
+        return
+    width, height = max(sizes, key=lambda size: size[0] * size[1])
+    per_pixel = RENDER_BYTES_PER_PIXEL + MEMBER_BYTES_PER_PIXEL * (members - 1)
+    kept = sum(w * h for w, h in sizes) - width * height
+    estimate = RENDER_BASE_BYTES + per_pixel * width * height + RETAINED_BYTES_PER_PIXEL * kept
+    if estimate > physical:
+        views = "" if len(sizes) == 1 else f" (and {len(sizes) - 1} more views kept until written)"
+        raise SplatuError(f"a {width}×{height} render{views} needs about {estimate / 1e9:.1f} GB (~{per_pixel} bytes "
+                          f"per pixel), more than this machine's {physical / 1e9:.1f} GB of memory", where, fix)
+
 
 ROTATION_TOLERANCE = 1e-3
 """How far Rᵀ·R of a pose may be from the identity: poses written with a few decimals, or in float32, are off by

@@ -916,6 +916,34 @@ def test_an_image_size_as_numpy_gives_it_or_an_integral_float_renders_and_a_bool
         run.render(np.eye(4), wide, MAX_IMAGE_SIDE + 1, 8)
 
 
+def test_a_size_the_machine_has_not_the_memory_for_is_refused_before_rendering(tiny_run, tmp_path, monkeypatch,
+                                                                               capsys):
+    """Each side was checked alone: a 14400×25600 render was taken and grew to 21 GB before the OS killed it. The
+    query and --cameras refuse a size whose render would not fit in the machine's memory, naming both; checked
+    against a machine said to have 23 GB, so nothing large is allocated."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data import frames
+    from splatu.data.resolve import load_scene
+    from splatu.query import open_run
+
+    monkeypatch.setattr(frames, "physical_memory", lambda: 23 * 10**9)
+    run = open_run(tiny_run)
+    K = np.array([[4e4, 0.0, 7200.0], [0.0, 4e4, 12800.0], [0.0, 0.0, 1.0]])
+    with pytest.raises(SplatuError, match=re.escape("a 14400×25600 render needs about 89.5 GB (~240 bytes per pixel), "
+                                                    "more than this machine's 23.0 GB of memory")) as error:
+        run.render(np.eye(4), K, 14400, 25600)
+    assert "smaller width and height" in error.value.fix
+    assert run.render(np.eye(4), K / np.array([[100.0], [100.0], [1.0]]), 144, 256).rgb.shape == (256, 144, 3)
+    source = json.loads(Path(load_scene(run_data(load_any_run(tiny_run))).source).read_text())
+    candidates = tmp_path / "huge.json"
+    frame = dict(source["frames"][0], file_path="huge")
+    big = {"w": 14400, "h": 25600, "fl_x": 4e4, "fl_y": 4e4, "cx": 7200.0, "cy": 12800.0}
+    candidates.write_text(json.dumps({**{k: v for k, v in source.items() if k != "frames"}, **big, "frames": [frame]}))
+    line = _one_line(capsys, ["render-uncertainty", "--load", str(tiny_run), "--cameras", str(candidates),
+                              "--output", str(tmp_path / "out")])
+    assert "a 14400×25600 render needs about 89.5 GB" in line and f"in {candidates}" in line and "fl_x" in line
+
+
 def test_the_scenes_own_cameras_render_as_the_run_saw_them(tiny_run, tmp_path):
     """`scene_cameras` names every view with its data-frame pose, K and size, so `render(*camera)` is the run's own
     render of it; a scene that is not there, or another one, is one line."""

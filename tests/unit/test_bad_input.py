@@ -1750,3 +1750,20 @@ def test_an_image_size_given_as_an_integer_tensor_is_taken_and_a_fractional_one_
                         ((torch.tensor(True), 80), "width is a bool (True)")):
         with pytest.raises(SplatuError, match=re.escape(shown)):
             _checked_camera(np.eye(4), K, *size, False)
+
+
+def test_a_render_is_refused_by_its_memory_estimate_with_members_and_kept_views_counted(monkeypatch):
+    """The estimate grows with the largest view's pixels, with each ensemble member, and with what render-uncertainty
+    keeps of every other view; a machine that does not say its memory refuses nothing."""
+    from splatu.data import frames
+
+    gigabyte = 10**9
+    monkeypatch.setattr(frames, "physical_memory", lambda: 4 * gigabyte)
+    fits = [(3840, 2160)]  # 1 GiB + 240 B × 8.3 Mpx ≈ 3.1 GB
+    frames.refuse_unaffordable_render(fits, 1, "in cams.json", "give smaller w and h")
+    with pytest.raises(SplatuError, match=re.escape("a 3840×2160 render needs about 6.0 GB (~590 bytes per pixel)")):
+        frames.refuse_unaffordable_render(fits, 15, "in cams.json", "give smaller w and h")  # 14 more members
+    with pytest.raises(SplatuError, match=re.escape("(and 4 more views kept until written) needs about 4.7 GB")):
+        frames.refuse_unaffordable_render(fits * 5, 1, "in cams.json", "give smaller w and h")
+    monkeypatch.setattr(frames, "physical_memory", lambda: None)
+    frames.refuse_unaffordable_render([(65536, 65536)], 1, "in cams.json", "give smaller w and h")
