@@ -549,6 +549,23 @@ def run(config: RenderUncertaintyConfig) -> None:
                     soft_wrap=True)
     for line in ranking(record["per_view"]):
         Console().print(line, soft_wrap=True, highlight=False, markup=False)  # a file_path may hold [brackets]
+    note = None if config.views != "cameras" else blind_candidates_note(record["per_view"], config.cameras)
+    if note is not None:
+        Console(stderr=True).print(note, soft_wrap=True, highlight=False, markup=False)
+
+
+BLIND_COVERAGE = 0.01
+"""A candidate whose model covers less than this of its pixels sees (next to) nothing of the scene."""
+
+
+def blind_candidates_note(per_view: list[dict[str, Any]], cameras: Path | None) -> str | None:
+    """A note when no candidate sees the model: their poses are then likely in another frame (another scene's, a
+    viewer's, or a COLMAP world-to-camera not inverted), and ranking them by U ranks only empty space."""
+    if not per_view or max(view["coverage"] for view in per_view) >= BLIND_COVERAGE:
+        return None
+    return (f"note: none of the {len(per_view)} candidate cameras of {cameras} sees the model (each covers under "
+            f"{BLIND_COVERAGE:.0%} of its pixels); if they should, give their poses in the data's own frame, the frame "
+            "of the scene's camera poses (see --cameras in --help), not another scene's or a viewer's")
 
 
 RANKED = 5

@@ -1178,6 +1178,31 @@ def test_the_command_lists_the_views_of_highest_mean_u_not_only_the_first_of_a_t
     assert render_uncertainty.ranking(per_view[:1]) == []  # the summary line names a single view
 
 
+def test_candidates_that_see_none_of_the_model_get_a_note_on_their_frame(tiny_run, tmp_path, capsys):
+    """Poses from another scene or a viewer's frame see nothing, and their ranking then ranks empty space: the command
+    says so once none covers 1% of its pixels, and says nothing when one sees the model."""
+    from splatu.baselines.load import load_any_run, run_data
+    from splatu.data.resolve import load_scene
+
+    scene = load_scene(run_data(load_any_run(tiny_run)))
+    source = json.loads(Path(scene.source).read_text())
+    seen = source["frames"][0]
+    away = []
+    for k in (1, 2):  # moved far along the camera's back axis (OpenGL: +z): the scene lies far in front, unseen
+        matrix = np.array(seen["transform_matrix"])
+        matrix[:3, 3] += 1e4 * k * matrix[:3, 2]
+        away.append(dict(seen, file_path=f"away{k}", transform_matrix=matrix.tolist()))
+    header = {k: v for k, v in source.items() if k != "frames"}
+    blind, mixed = tmp_path / "blind.json", tmp_path / "mixed.json"
+    blind.write_text(json.dumps({**header, "frames": away}))
+    mixed.write_text(json.dumps({**header, "frames": [*away, seen]}))
+    _render(tiny_run, "--cameras", str(blind), "--output", str(tmp_path / "blind"))
+    err = capsys.readouterr().err
+    assert f"note: none of the 2 candidate cameras of {blind} sees the model" in " ".join(err.split())
+    _render(tiny_run, "--cameras", str(mixed), "--output", str(tmp_path / "mixed"))
+    assert "sees the model" not in capsys.readouterr().err
+
+
 def test_candidate_cameras_from_a_file_render_as_the_same_training_views_do(tiny_run, tmp_path, capsys):
     """`--views cameras`: poses straight from a transforms.json (the data's frame), here three of the stand-in's own
     training frames, give the maps `--views train` gives those views."""
