@@ -87,7 +87,8 @@ def _stub_run_and_scene(monkeypatch, tmp_path) -> list[str]:
     """`splatu render-uncertainty` arguments that render views a and b of a stubbed run into tmp_path/render."""
     from splatu import render_uncertainty as R
 
-    run_info = SimpleNamespace(member_steps=None, config=SimpleNamespace(data=SimpleNamespace(downscale=1)))
+    run_info = SimpleNamespace(member_steps=None, models=[None],
+                               config=SimpleNamespace(data=SimpleNamespace(downscale=1)))
     scene = SimpleNamespace(train=SimpleNamespace(cameras=[], names=[]))
     spec = SimpleNamespace(note=None, cameras=[SimpleNamespace(world_to_camera=None, name=n) for n in "ab"],
                            depth_unit=1.0, orbit=None)
@@ -96,7 +97,8 @@ def _stub_run_and_scene(monkeypatch, tmp_path) -> list[str]:
     monkeypatch.setattr(R, "_setup", lambda *args: (scene, SimpleNamespace(source=None, setup_seconds=0.0)))
     monkeypatch.setattr(R, "view_spec", lambda *args: spec)
     monkeypatch.setattr(R, "render_views", lambda source, spec: ([_view("a", True), _view("b", True)], [0.1, 0.1]))
-    monkeypatch.setattr(R, "nearest_training_views", lambda *args: [SimpleNamespace(_asdict=dict)] * 2)
+    nearest = SimpleNamespace(_asdict=lambda: {"name": "t.png", "angle_degrees": 1.0, "distance": 0.1})
+    monkeypatch.setattr(R, "nearest_training_views", lambda *args: [nearest] * 2)
     monkeypatch.setattr(R, "train_timing", lambda run: {"train_step_seconds": None, "train_wall_seconds": None})
     return ["render-uncertainty", "--load", str(tmp_path), "--output", str(tmp_path / "render")]
 
