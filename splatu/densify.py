@@ -51,7 +51,8 @@ class DensifyConfig:
     """No clone, split or opacity reset from this step on (culling continues)."""
     cull_screen_size: float = 0.15
     """Cull Gaussians whose screen radius exceeded this fraction of the image size (after the first opacity
-    reset and before stop_screen_size_at, as splatfacto)."""
+    reset and before stop_screen_size_at, as splatfacto), unless split instead: a child's screen size is measured
+    anew."""
     split_screen_size: float = 0.05
     """Split high-gradient Gaussians whose screen radius exceeded this fraction (before stop_screen_size_at)."""
     stop_screen_size_at: int = 4000
@@ -160,7 +161,7 @@ class DensityController:
                 # when its gradient asks for it, into children that stay if small enough in the world (a child's
                 # screen size is measured anew, over the next window)
                 children_oversized = self._oversized(step, model, SPLIT_SCALE_DIVISOR)
-                clone, split = self._densify_masks(step, model, cull | children_oversized)
+                clone, split = self._densify_masks(step, model, cull | children_oversized, too_big)
                 cull |= too_big & ~split
                 append = self._new_rows(model, clone, split)
                 keep = ~(cull | split)
@@ -221,8 +222,11 @@ class DensityController:
             return torch.zeros(len(model), dtype=torch.bool, device=model.log_scales.device)
         return model.log_scales.exp().amax(-1) / shrink > cfg.cull_scale_thresh * self.scene_extent
 
-    def _densify_masks(self, step: int, model: GaussianModel, cull: Tensor) -> tuple[Tensor, Tensor]:
-        """Clone and split masks over the current rows, trimmed to the Gaussian budget.
+    def _densify_masks(self, step: int, model: GaussianModel, cull: Tensor, too_big: Tensor
+                       ) -> tuple[Tensor, Tensor]:
+        """Clone and split masks over the current rows, trimmed to the Gaussian budget. `too_big` rows are culled
+        unless split: one that is a candidate is split (never cloned, whose copy would keep its size), and one that
+        is not frees its row.
 
         Budget: rows kept after this refinement + new rows ≤ max_gaussians. A clone costs 1 row, a split
         n_split_samples − 1 (its parent is removed). When the candidates do not all fit, the ones with the
@@ -236,10 +240,11 @@ class DensityController:
         large = model.log_scales.exp().amax(-1) > cfg.densify_size_thresh * self.scene_extent
         if step < cfg.stop_screen_size_at:
             large |= self.max_screen_size > cfg.split_screen_size
+        large |= too_big  # split, even with a cull_screen_size below split_screen_size (splatfacto's: 0.15, 0.05)
         split = candidate & large
         clone = candidate & ~large
         cost = clone.long() + split.long() * (cfg.n_split_samples - 1)
-        room = cfg.max_gaussians - int((~cull).sum())
+        room = cfg.max_gaussians - int((~(cull | (too_big & ~candidate))).sum())
         if int(cost.sum()) > room:
             order = torch.argsort(torch.where(candidate, mean_grad, -1.0), descending=True, stable=True)
             fits = torch.cumsum(cost[order], 0) <= max(room, 0)

@@ -440,3 +440,41 @@ def test_a_split_child_of_a_minute_gaussian_keeps_a_finite_log_scale():
     children = model.log_scales.detach()[_row_of(model, 0)]
     assert torch.isfinite(children).all()
     assert torch.allclose(children[:, 2], torch.tensor(-110.0 - math.log(SPLIT_SCALE_DIVISOR)))
+
+
+def test_a_row_culled_for_its_screen_size_frees_its_place_in_the_budget():
+    """A low-gradient Gaussian too big on screen is culled in this refinement, so its row is room for a clone: at a
+    budget of N, the high-gradient row 0 is cloned and the model stays at N."""
+    model, optimizers = _tagged_model()
+    grads = torch.full((N,), LOW)
+    grads[0] = HIGH
+    radii = torch.full((N,), 2)
+    radii[1] = 20  # 20% of the screen, low gradient: culled
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=2, max_gaussians=N)
+    controller = DensityController(cfg, 1.0, torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, radii, torch.full((N,), 0.5)), SIZE, SIZE)
+
+    counts = controller.refine(30, model, optimizers, views_per_epoch=1)
+
+    assert (counts["cloned"], counts["pruned"]) == (1, 1) and len(model) == N
+    _assert_aligned(model, optimizers)
+
+
+def test_a_gaussian_too_big_on_screen_is_split_even_below_the_split_screen_size():
+    """With cull_screen_size under split_screen_size, a high-gradient Gaussian small in the world but too big on
+    screen would be a clone candidate, and its clone, whose screen size starts at 0, would outlive the cull: it is
+    split instead."""
+    model, optimizers = _tagged_model()
+    grads = torch.full((N,), LOW)
+    grads[0] = HIGH
+    radii = torch.full((N,), 2)
+    radii[0] = 4  # 4% of the screen: above cull_screen_size 0.03, below split_screen_size 0.05
+    cfg = DensifyConfig(warmup_length=0, refine_every=10, reset_alpha_every=2, cull_screen_size=0.03)
+    controller = DensityController(cfg, 1.0, torch.Generator().manual_seed(0))
+    controller.observe(_raster(grads, radii, torch.full((N,), 0.5)), SIZE, SIZE)
+
+    counts = controller.refine(30, model, optimizers, views_per_epoch=1)
+
+    assert (counts["cloned"], counts["split"], counts["pruned"]) == (0, 1, 0)
+    assert len(_row_of(model, 0)) == 2 and len(model) == N + 1
+    _assert_aligned(model, optimizers)
