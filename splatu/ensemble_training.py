@@ -22,7 +22,7 @@ from splatu.ensemble_dirs import enclosing_ensemble, ensemble_members
 from splatu.errors import SplatuError
 from splatu.interrupts import TrainingInterrupted, signal_of
 from splatu.json_files import is_finite_number, read_json
-from splatu.run_dir import training_lock
+from splatu.run_dir import Began, training_lock
 from splatu.train_config import TrainConfig, from_dict, load_config, save_config, with_display
 from splatu.train_progress import console
 from splatu.trainer import train_locked_run
@@ -48,17 +48,6 @@ def train_member(member: TrainConfig, scene: Scene, member_dir: Path, hooks: Seq
     train_locked_run(saved, scene, member_dir, hooks, checkpoint, began=began)
 
 
-@dataclasses.dataclass
-class Began:
-    """Passed to `train_locked_run` as its `began`: whether a session's training began, so that a session refused
-    before it (one that did no work) is not counted in an ensemble's wall time."""
-
-    trained: bool = False
-
-    def __call__(self) -> None:
-        self.trained = True
-
-
 def recorded_sessions(run_dir: Path) -> list[float]:
     """The wall times of an ensemble run's earlier sessions (ensemble_sessions.json), read before any training so
     that a damaged file is a one-line error then, not one that hides how the session ended."""
@@ -82,7 +71,7 @@ def train_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start:
 
 
 def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall_start: float,
-                          hooks: Sequence[StepHook]) -> dict[str, Any]:
+                          hooks: Sequence[StepHook], began: Began | None = None) -> dict[str, Any]:
     """N members differing only in seed (seed + k), then ensemble.json with their dirs and wall time; the caller
     holds `run_dir`'s `training_lock`.
 
@@ -94,13 +83,14 @@ def train_locked_ensemble(config: TrainConfig, scene: Scene, run_dir: Path, wall
     (`counted_in_ensemble`). A session that trains none did no work and adds nothing: every member finished
     already, or it was refused before a member's training began (`train_locked_run`'s `began`: a member's
     lock held by another `splatu train`, a checkpoint that does not fit the scene). A session killed
-    outright (SIGKILL, power loss) cannot record itself and is missing from the sum.
+    outright (SIGKILL, power loss) cannot record itself and is missing from the sum. `began`: the caller's, to
+    learn the same (`latest_new_run`).
     """
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yml")
     members = ensemble_members(run_dir, config)
     sessions = recorded_sessions(run_dir)
-    began = Began()
+    began = Began() if began is None else began
     try:
         for k, member_dir in enumerate(members):
             member = dataclasses.replace(config, seed=config.seed + k, ensemble=1)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import fcntl
 import os
+import shutil
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from splatu.atomic import temporary_sibling
@@ -55,31 +57,40 @@ def _point_link(link: Path, target: str) -> Path:
     return link
 
 
-UNSTARTED = {"config.yml", LOCK_FILE}
-"""All a run folder holds before its first step: a run whose command failed then has nothing worth keeping."""
+@dataclass
+class Began:
+    """Passed to `train_locked_run` as its `began`: whether a session's training began (its state built and fitting
+    the scene), so that a session refused before it, which did no work, is not counted in an ensemble's wall time
+    nor kept as a run (`latest_new_run`)."""
+
+    trained: bool = False
+
+    def __call__(self) -> None:
+        self.trained = True
 
 
 @contextmanager
-def latest_new_run(output_dir: Path, scene: str, method: str) -> Iterator[Path]:
-    """A new run folder (`new_run_dir`) with `latest` pointed at it. A user error (`SplatuError`) that ends the
-    command before the run wrote anything but its config.yml removes the folder and points `latest` back, so that
-    render-uncertainty's default --load does not find a stub of a command that failed. A stop by Ctrl-C keeps it:
-    such a run is one `--resume` restarts."""
+def latest_new_run(output_dir: Path, scene: str, method: str) -> Iterator[tuple[Path, Began]]:
+    """A new run folder (`new_run_dir`) with `latest` pointed at it, and the `Began` to pass to its training. A user
+    error (`SplatuError`) before its training began removes the folder, which then holds only what this command
+    wrote (config.yml, an ensemble's member folders), and points `latest` back if no other run has taken it since:
+    render-uncertainty's default --load must not find a stub of a command that failed. A stop by Ctrl-C keeps it,
+    as a run that `--resume` restarts."""
     run_dir = new_run_dir(output_dir, scene, method)
     link = run_dir.parent / LATEST
     before = os.readlink(link) if link.is_symlink() else None
     point_latest(run_dir)
+    began = Began()
     try:
-        yield run_dir
+        yield run_dir, began
     except SplatuError:
-        if {p.name for p in run_dir.iterdir()} <= UNSTARTED:
-            for leftover in run_dir.iterdir():
-                leftover.unlink()
-            run_dir.rmdir()
-            if before is None:
-                link.unlink(missing_ok=True)
-            else:
-                _point_link(link, before)
+        if not began.trained:
+            shutil.rmtree(run_dir, ignore_errors=True)
+            if link.is_symlink() and os.readlink(link) == run_dir.name:  # else a run started since holds it
+                if before is None:
+                    link.unlink(missing_ok=True)
+                else:
+                    _point_link(link, before)
         raise
 
 

@@ -334,11 +334,11 @@ def train(config: TrainConfig, hooks: Sequence[StepHook] = (), typed: Collection
             console.print(note, soft_wrap=True)
     if config.degree_choice.on:
         held_out_block(len(scene.train), config.degree_choice.held_out)  # too few views: fail before the run folder
-    with latest_new_run(config.output_dir, scene.name, config.method) as run_dir, training_lock(run_dir):
+    with latest_new_run(config.output_dir, scene.name, config.method) as (run_dir, began), training_lock(run_dir):
         if config.ensemble > 1:
-            train_locked_ensemble(config, scene, run_dir, wall_start, hooks)
+            train_locked_ensemble(config, scene, run_dir, wall_start, hooks, began)
         else:
-            train_locked_run(config, scene, run_dir, hooks, wall_start=wall_start)
+            train_locked_run(config, scene, run_dir, hooks, wall_start=wall_start, began=began)
     return run_dir
 
 
@@ -445,11 +445,11 @@ def _resume_in_new_run(config: TrainConfig, path: Path, wall_start: float, hooks
     named = Path(config.resume).expanduser()  # a folder named as a run, but without the config.yml a run writes first
     why = (f"{named} holds no config.yml, so it is no run folder" if named.is_dir()
            else f"{path} is not inside a run folder")
-    with latest_new_run(saved.output_dir, scene.name, saved.method) as run_dir, training_lock(run_dir):
+    with latest_new_run(saved.output_dir, scene.name, saved.method) as (run_dir, began), training_lock(run_dir):
         console.print(f"{why}: training continues from {path.name} (step {step} of {saved.steps}) in a new run, "
                       f"{run_dir}", soft_wrap=True)
         console.print(scene_line(scene), soft_wrap=True)
-        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start)
+        train_locked_run(saved, scene, run_dir, hooks, checkpoint, wall_start, began)
     return run_dir
 
 

@@ -248,14 +248,20 @@ def test_a_command_that_fails_before_its_first_step_leaves_no_stub_run_and_lates
     assert (method_dir / "latest").resolve() == finished.resolve()
 
     (method_dir / "latest").unlink()  # no run was latest before: none is after
-    with pytest.raises(SplatuError), run_dir_module.latest_new_run(tmp_path / "outputs", "tiny", "splatu") as made:
-        (made / "config.yml").write_text("steps: 2\n")
-        raise SplatuError("after the config only", "in the test", "none")
+    outputs = tmp_path / "outputs"
+    with pytest.raises(SplatuError), run_dir_module.latest_new_run(outputs, "tiny", "splatu") as (made, _):
+        (made / "members" / "0").mkdir(parents=True)  # an ensemble's first member, set up but not begun
+        (made / "members" / "0" / "config.yml").write_text("steps: 2\n")
+        raise SplatuError("before training began", "in the test", "none")
     assert not made.exists() and not (method_dir / "latest").is_symlink()
-    with pytest.raises(SplatuError), run_dir_module.latest_new_run(tmp_path / "outputs", "tiny", "splatu") as kept:
-        (kept / "metrics.jsonl").write_text("{}\n")  # a step ran: what it logged is kept, with `latest` on it
-        raise SplatuError("after a step", "in the test", "none")
+    with pytest.raises(SplatuError), run_dir_module.latest_new_run(outputs, "tiny", "splatu") as (kept, began):
+        began()  # a step's non-finite update, say: the run is kept, and the error names it
+        raise SplatuError("after training began", "in the test", "none")
     assert kept.is_dir() and (method_dir / "latest").resolve() == kept.resolve()
+    with pytest.raises(SplatuError), run_dir_module.latest_new_run(outputs, "tiny", "splatu") as (failed, _):
+        run_dir_module.point_latest(kept)  # another training took `latest` meanwhile: it keeps it
+        raise SplatuError("before training began", "in the test", "none")
+    assert not failed.exists() and (method_dir / "latest").resolve() == kept.resolve()
 
 
 def test_a_run_writes_its_layout_and_its_config_loads_back(tmp_path, scene):
