@@ -16,6 +16,7 @@ per cent, and --downscale N rounds each image side, so K scales by new side / ol
 from __future__ import annotations
 
 import dataclasses
+import math
 import operator
 import warnings
 from collections.abc import Mapping
@@ -309,18 +310,24 @@ def _pixels(n: object, name: str) -> int:
     one-element tensor), or an integral float (`W * scale` gives 144.0); else one line naming its type or value: a
     bool (True is 1), a fraction or a string ("144" read from a file) was told apart from a bad size by nothing."""
     where, fix = "in RunQuery.render", "pass width and height as whole numbers of pixels (int(...) of a string)"
-    if isinstance(n, bool) or (isinstance(n, Tensor) and n.dtype == torch.bool):
+    if isinstance(n, Tensor | np.ndarray):
+        if n.size != 1 if isinstance(n, np.ndarray) else n.numel() != 1:
+            raise SplatuError(f"the image {name} is an array of shape {tuple(n.shape)}, not a number of pixels", where,
+                              fix)
+        n = n.item()  # one element, numpy's or torch's, as the Python number it holds
+    if isinstance(n, bool | np.bool_):
         raise SplatuError(f"the image {name} is a bool ({bool(n)}), not a number of pixels", where, fix)
     try:
         return operator.index(n)  # type: ignore[arg-type]
     except TypeError:
         pass
-    if isinstance(n, float | np.floating) or (isinstance(n, Tensor) and n.numel() == 1 and n.is_floating_point()):
-        value = float(n)  # type: ignore[arg-type]
+    if isinstance(n, float | np.floating):
+        value = float(n)
         if value.is_integer():
             return int(value)
         raise SplatuError(f"the image {name} {value!r} is not a whole number of pixels", where,
-                          "round it (int(round(...))) and scale K by the same factor")
+                          "round it (int(round(...))) and scale K by the same factor" if math.isfinite(value)
+                          else fix)
     raise SplatuError(f"the image {name} is a {type(n).__name__} ({n!r:.40}), not a number of pixels", where, fix)
 
 

@@ -1743,11 +1743,15 @@ def test_an_image_size_given_as_an_integer_tensor_is_taken_and_a_fractional_one_
     from splatu.query import _checked_camera
 
     K = np.array([[40.0, 0.0, 24.0], [0.0, 40.0, 40.0], [0.0, 0.0, 1.0]])
-    for given in ((torch.tensor([48]), torch.tensor(80)), (torch.tensor(48.0), torch.tensor([80.0]))):
+    for given in ((torch.tensor([48]), torch.tensor(80)), (torch.tensor(48.0), torch.tensor([80.0])),
+                  (np.array(48.0), np.array([80])), (np.float32(48.0), np.int64(80))):
         *_, width, height = _checked_camera(np.eye(4), K, *given, False)
         assert (width, height) == (48, 80) and type(width) is int and type(height) is int
     for size, shown in (((torch.tensor(48.5), 80), "width 48.5 is not a whole number"),
-                        ((torch.tensor(True), 80), "width is a bool (True)")):
+                        ((torch.tensor(True), 80), "width is a bool (True)"),
+                        ((np.bool_(True), 80), "width is a bool (True)"),
+                        ((torch.tensor([True, False]), 80), "width is an array of shape (2,), not a number"),
+                        ((np.array([48, 80]), 80), "width is an array of shape (2,), not a number")):
         with pytest.raises(SplatuError, match=re.escape(shown)):
             _checked_camera(np.eye(4), K, *size, False)
 
