@@ -311,7 +311,8 @@ def _pixels(n: object, name: str) -> int:
     bool (True is 1), a fraction or a string ("144" read from a file) was told apart from a bad size by nothing."""
     where, fix = "in RunQuery.render", "pass width and height as whole numbers of pixels (int(...) of a string)"
     if isinstance(n, Tensor | np.ndarray):
-        if n.size != 1 if isinstance(n, np.ndarray) else n.numel() != 1:
+        count = n.size if isinstance(n, np.ndarray) else n.numel()
+        if count != 1:
             raise SplatuError(f"the image {name} is an array of shape {tuple(n.shape)}, not a number of pixels", where,
                               fix)
         n = n.item()  # one element, numpy's or torch's, as the Python number it holds
