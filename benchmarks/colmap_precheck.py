@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import tempfile
 import time
 from collections.abc import Callable
@@ -27,7 +26,7 @@ import numpy as np
 
 from splatu.data import colmap
 from splatu.data.pycolmap_quiet import pycolmap
-from splatu.provenance import measured_on
+from splatu.provenance import measured_on, source_revision
 
 REPO = Path(__file__).resolve().parents[1]
 TRACK_LENGTHS = (2, 10)
@@ -125,13 +124,6 @@ def median_ms(run: Callable[[], object], runs: int) -> tuple[float, list[float]]
     return statistics.median(times), times
 
 
-def current_revision() -> str:
-    """HEAD's short hash, marked when splatu/ differs from it."""
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout
-    dirty = subprocess.run(["git", "status", "--porcelain", "splatu"], cwd=REPO, capture_output=True, text=True).stdout
-    return head.strip() + (" + uncommitted changes" if dirty.strip() else "")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--points", type=int, default=1_000_000, help="3D points in the model")
@@ -159,7 +151,7 @@ def main() -> None:
         "ms_precheck_per_mb": round(ms_precheck / total_mb, 2),
         "ms_pycolmap_read": round(ms_pycolmap), "ms_pycolmap_read_runs": [round(t) for t in pycolmap_runs],
         "ms_iterate_lines_endings_kept": round(ms_kept), "ms_iterate_lines_universal_newlines": round(ms_universal),
-        "seconds_to_write_model": round(written, 1), "revision": current_revision(), "measured_on": measured_on(),
+        "seconds_to_write_model": round(written, 1), "revision": source_revision(), "measured_on": measured_on(),
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")

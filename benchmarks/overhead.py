@@ -35,6 +35,7 @@ from splatu.allocator import keep_freed_memory
 from splatu.data.resolve import load_scene
 from splatu.densify import DensityController
 from splatu.losses import uncertainty_loss
+from splatu.provenance import measured_on
 from splatu.rasterizer.kernels import kernels_compiled, set_compile
 from splatu.train_config import TrainConfig, preset_config
 
@@ -139,7 +140,7 @@ def isolated_extra_seconds(state: training_step.TrainState, config: TrainConfig,
 
 
 def main(args: Args) -> None:
-    result = measure(args)
+    result = {**measure(args), "measured_on": measured_on()}
     path = args.json or RESULTS / ("overhead.json" if result["compiled_kernels"] else "overhead_eager.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2))

@@ -37,6 +37,7 @@ import tyro
 
 from splatu.allocator import keep_freed_memory
 from splatu.errors import SplatuError
+from splatu.provenance import source_revision
 
 REPO = Path(__file__).resolve().parents[1]
 BASE_PACKAGE = "splatu_base"
@@ -194,13 +195,6 @@ def ratio_summary(prefix: str, base_ms: list[float], current_ms: list[float]) ->
     }
 
 
-def current_revision() -> str:
-    """HEAD's short hash, marked when the working tree differs from it."""
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout
-    dirty = subprocess.run(["git", "status", "--porcelain", "splatu"], cwd=REPO, capture_output=True, text=True).stdout
-    return head.strip() + (" + uncommitted changes" if dirty.strip() else "")
-
-
 def main(config: AbConfig) -> None:
     if config.pairs < 1:
         raise SystemExit("error: --pairs must be at least 1")
@@ -235,7 +229,7 @@ def main(config: AbConfig) -> None:
                   f"{r[f'{prefix}ratio_median']:15.3f} {q[0]:6.3f}–{q[1]:.3f}")
         print(f"{'':45s} image differs by ≤ {r['max_abs_image_difference']:.2g}, gradients by ≤ "
               f"{r['max_abs_gradient_difference']:.2g}; pairs {r['contributing_pairs']}")
-    report = {"base": commit, "current": current_revision(), "pairs": config.pairs,
+    report = {"base": commit, "current": source_revision(), "pairs": config.pairs,
               "kernels": "eager" if config.eager else "torch.compile", "threads": torch.get_num_threads(),
               "cases": results}
     config.json.parent.mkdir(parents=True, exist_ok=True)

@@ -86,7 +86,7 @@ def run_one(scene: str, preset: str, sh_degree: int | None, seed: int, data: Dat
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "wall_seconds": wall, "train_seconds": summary["train_seconds"],
            "train_compile_seconds": summary["train_compile_seconds"], "run_dir": str(run_dir),
-           **{k: v for k, v in measured_on().items() if k in ("date", "cpu")}}
+           **{k: v for k, v in measured_on().items() if k in ("date", "revision", "cpu")}}
     for set_name, metrics in summary["eval"].items():
         for key, value in metrics.items():
             if key != "num_images":

@@ -106,6 +106,18 @@ def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
     return -10.0 * math.log10(max(mse, PSNR_MSE_FLOOR))
 
 
+IGNORED_BECAUSE = {
+    "threshold": "it weights each Gaussian the view sees by its max blend weight, instead of a hard threshold",
+    "num_dirs": "only kind mean draws random directions",
+}
+USED_BY = {"threshold": "antipodal or mean", "num_dirs": "mean"}
+
+
+def ignored_by(kind: str, key: str) -> bool:
+    """Whether loss `kind` never reads setting `key`: weighted has no threshold, and only mean has random directions."""
+    return (key == "threshold" and kind == "weighted") or (key == "num_dirs" and kind != "mean")
+
+
 @dataclass
 class UncertaintyLossConfig:
     off: bool = False
@@ -123,10 +135,11 @@ class UncertaintyLossConfig:
     only where w > λ/(1−λ) (0.43 at λ = 0.3): seen from opposite sides (or at u-SH degree 0, where u has no
     direction), a Gaussian that never gives any pixel more than that ends up uncertain from both."""
     threshold: float = 0.05
-    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean); in (0, 0.99]
-    (α is clamped at 0.99), though a run saved with 0 or above 0.99 still loads (see `validate`)."""
+    """Supervise Gaussians whose max blend weight T·α in this view is at least this (antipodal, mean; weighted has no
+    threshold and refuses one); in (0, 0.99] (α is clamped at 0.99), though a run saved with 0 or above 0.99 still
+    loads (see `validate`)."""
     num_dirs: int = 16
-    """Number of random unit directions that estimate ū (kind = mean)."""
+    """Number of random unit directions that estimate ū (kind = mean; the other kinds refuse one)."""
     weight: float = 1.0
     """Scale of the uncertainty loss in the total loss."""
     extra_heads: tuple[str, ...] = ()
@@ -153,6 +166,27 @@ class UncertaintyLossConfig:
                 raise SplatuError(f"uncertainty threshold = {loss.threshold} is above {ALPHA_MAX}, the largest blend"
                                   f" weight (α is clamped there), so it would supervise no Gaussian{named}", where,
                                   "use e.g. 0.05")
+        self.refuse_settings_the_kind_ignores()
+
+    def refuse_settings_the_kind_ignores(self) -> None:
+        """A setting its loss kind never reads (`ignored_by`), set away from its default or typed in a head, would be
+        recorded as if it had trained: `--uncertainty.kind weighted --uncertainty.threshold 0.2` trained as without
+        the threshold. A head's inherited values are not its own: only the keys its spec types are checked."""
+        for key in ("threshold", "num_dirs"):
+            value = getattr(self, key)
+            if ignored_by(self.kind, key) and value != getattr(UncertaintyLossConfig, key):
+                flag = f"--uncertainty.{key.replace('_', '-')}"
+                raise SplatuError(f"{flag} {value} has no effect with --uncertainty.kind {self.kind}: "
+                                  f"{IGNORED_BECAUSE[key]}", f"in {flag}",
+                                  f"drop it, or use --uncertainty.kind {USED_BY[key]}")
+        for spec in self.extra_heads:
+            typed = _head_values(spec)
+            kind = typed.get("kind", self.kind)
+            for key in typed:
+                if ignored_by(str(kind), key):
+                    raise SplatuError(f"{key}={typed[key]} has no effect in uncertainty head {spec!r}, whose kind is "
+                                      f"{kind}: {IGNORED_BECAUSE[key]}", IN_HEADS,
+                                      f"drop {key}, or give the head kind {USED_BY[key].replace(' or ', ' or kind ')}")
 
     def check_loadable(self) -> None:
         """Raise a one-line SplatuError for settings the loss cannot use. Threshold 0 passes: runs trained with it

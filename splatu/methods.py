@@ -55,15 +55,33 @@ def method_help() -> str:
     return f"Registered method; it sets defaults before the other flags. {listed}"
 
 
+def loss_setting(name: str, config: TrainConfig) -> bool | None:
+    """Whether registered method `name` turns the uncertainty loss on (True: splatu) or off (False: splatfacto,
+    ensemble) for `config`, or None if it leaves `--uncertainty.off` as given; read from its configure, so that a new
+    entry needs no other code to be told apart."""
+    configure = get_method(name).configure
+    given_on, given_off = (dataclasses.replace(config, uncertainty=dataclasses.replace(  # heads need the loss on
+        config.uncertainty, off=off, extra_heads=())) for off in (False, True))
+    trains_on, trains_off = (not configure(c).uncertainty.off for c in (given_on, given_off))
+    return trains_on if trains_on == trains_off else None
+
+
+def _kind(config: TrainConfig) -> tuple[bool, bool]:
+    """What sets methods apart where they are filed: whether the loss trains, and whether several models do."""
+    return config.uncertainty.off, config.ensemble > 1
+
+
 def method_of(config: TrainConfig) -> str:
     """The registered method `config` trains: the one it names unless a flag undid it (`--uncertainty.off` makes
     `splatu` plain splatfacto), so a run is filed and summarised as what it is, not as what it was called. A method
     fits only as many models as it trains: an ensemble whose members keep the uncertainty loss is no splatu run
-    (its `latest` would be an ensemble that `render-uncertainty` refuses), so it keeps the name it was given."""
+    (its `latest` would be an ensemble that `render-uncertainty` refuses), so it keeps the name it was given. Only
+    that kind (`_kind`) is compared: a flag that overrides another of a method's settings (a budget) leaves the run
+    filed under the method it named."""
     if config.method not in METHODS:  # a name the registry does not know (from Python): nothing to compare with
         return config.method
     candidates = [config.method, *(name for name in METHODS if name != config.method)]
-    return next((name for name in candidates if METHODS[name].configure(config) == config
+    return next((name for name in candidates if _kind(METHODS[name].configure(config)) == _kind(config)
                  and METHODS[name].ensemble == (config.ensemble > 1)), config.method)
 
 

@@ -41,7 +41,7 @@ from splatu.errors import SplatuError, creatable_dir
 from splatu.evaluation import refuse_unscorable_sets
 from splatu.interrupts import TrainingInterrupted, exit_code, sigterm_as_ctrl_c
 from splatu.losses import UncertaintyLossConfig, refuse_copies_of_the_own_head
-from splatu.methods import method_of
+from splatu.methods import METHODS, loss_setting, method_of
 from splatu.run_dir import latest_new_run, training_lock
 from splatu.train_config import (
     DEFAULT_PRESET,
@@ -98,18 +98,21 @@ def refuse_uncertainty_options_without_the_loss(config: TrainConfig, typed: Coll
     never train and only be recorded as if it had. A preset file's or the defaults' values are not typed: a file may
     hold them for the runs that train the loss."""
     off_typed = "--uncertainty.off" in typed and config.uncertainty.off
-    if off_typed and "--method" in typed and config.method == "splatu":
-        raise SplatuError("--method splatu trains the uncertainty loss, which --uncertainty.off turns off",
-                          "in the options", "drop --uncertainty.off, or pass --method splatfacto for plain 3DGS")
+    setting = loss_setting(config.method, config)
+    if off_typed and "--method" in typed and setting:
+        plain = next(name for name in METHODS if loss_setting(name, config) is False and not METHODS[name].ensemble)
+        raise SplatuError(f"--method {config.method} trains the uncertainty loss, which --uncertainty.off turns off",
+                          "in the options", f"drop --uncertainty.off, or pass --method {plain} for plain 3DGS")
     given = [name for name in UNCERTAINTY_OPTIONS if option_flag(name) in typed]
     if not config.uncertainty.off or not given:
         return
     listed = " ".join(f"{option_flag(name)} {option_value(config, name)}" for name in given)
-    if off_typed or config.method not in ("splatfacto", "ensemble"):  # the method turns the loss on otherwise
+    if off_typed or setting is not False:  # the method would train the loss: the flag turned it off
         cause, other = "--uncertainty.off", "drop --uncertainty.off"
     else:
-        members = " (its members are plain splatfacto)" if config.method == "ensemble" else ""
-        cause, other = f"--method {config.method}{members}", "pass --method splatu"
+        members = " (its members are plain splatfacto)" if METHODS[config.method].ensemble else ""
+        trained = next(name for name in METHODS if loss_setting(name, config) and not METHODS[name].ensemble)
+        cause, other = f"--method {config.method}{members}", f"pass --method {trained}"
     raise SplatuError(f"{listed} {'sets an option' if len(given) == 1 else 'set options'} of the uncertainty loss, "
                       f"which {cause} does not train", "in the options", f"drop {'it' if len(given) == 1 else 'them'}, "
                       f"or {other} to train the loss")

@@ -50,21 +50,64 @@ def physical_memory() -> int | None:
         return None
 
 
+NO_CGROUP_LIMIT = 1 << 62
+"""cgroup v1 writes "no limit" as about 2⁶³ rounded down to a page (9223372036854771712); v2 writes "max"."""
+
+
+def cgroup_memory_limit(proc_cgroup: Path = Path("/proc/self/cgroup"),
+                        root: Path = Path("/sys/fs/cgroup")) -> int | None:
+    """The tightest memory limit of this process's cgroup and its ancestors (v2 memory.max, v1 memory.limit_in_bytes),
+    or None without one: a container's limit, not the host's memory, is where the kernel kills a render (a container
+    limited to 8 GB on a 64 GB host)."""
+    try:
+        lines = proc_cgroup.read_text().splitlines()
+    except OSError:
+        return None
+    limits = []
+    for line in lines:
+        fields = line.split(":", 2)
+        if len(fields) != 3:
+            continue
+        _, controllers, path = fields
+        if not controllers:
+            base = root if (root / "cgroup.controllers").exists() else root / "unified"
+            name = "memory.max"
+        elif "memory" in controllers.split(","):
+            base, name = root / "memory", "memory.limit_in_bytes"
+        else:
+            continue
+        parts = [part for part in path.split("/") if part]
+        for depth in range(len(parts) + 1):
+            try:
+                text = base.joinpath(*parts[:depth], name).read_text().strip()
+            except OSError:
+                continue
+            if text.isdigit() and int(text) < NO_CGROUP_LIMIT:
+                limits.append(int(text))
+    return min(limits, default=None)
+
+
+def usable_memory() -> int | None:
+    """The memory this process may use: the machine's, or its container's limit where that is lower."""
+    known = [limit for limit in (physical_memory(), cgroup_memory_limit()) if limit is not None]
+    return min(known, default=None)
+
+
 def refuse_unaffordable_render(sizes: list[tuple[int, int]], members: int, where: str, fix: str) -> None:
     """One line when rendering views of these sizes, each side within MAX_IMAGE_SIDE, would need more memory than the
-    machine has (`RENDER_BYTES_PER_PIXEL`): a 14400×25600 render grew to 21 GB before the OS killed it. All but the
-    largest view count only what is kept of them (`RETAINED_BYTES_PER_PIXEL`), as render-uncertainty keeps them."""
-    physical = physical_memory()
-    if physical is None or not sizes:
+    process may use (`RENDER_BYTES_PER_PIXEL`): a 14400×25600 render grew to 21 GB before the OS killed it. All but
+    the largest view count only what is kept of them (`RETAINED_BYTES_PER_PIXEL`), as render-uncertainty keeps them."""
+    usable = usable_memory()
+    if usable is None or not sizes:
         return
     width, height = max(sizes, key=lambda size: size[0] * size[1])
     per_pixel = RENDER_BYTES_PER_PIXEL + MEMBER_BYTES_PER_PIXEL * (members - 1)
     kept = sum(w * h for w, h in sizes) - width * height
     estimate = RENDER_BASE_BYTES + per_pixel * width * height + RETAINED_BYTES_PER_PIXEL * kept
-    if estimate > physical:
+    if estimate > usable:
         views = "" if len(sizes) == 1 else f" (and {len(sizes) - 1} more views kept until written)"
         raise SplatuError(f"a {width}×{height} render{views} needs about {estimate / 1e9:.1f} GB (~{per_pixel} bytes "
-                          f"per pixel), more than this machine's {physical / 1e9:.1f} GB of memory", where, fix)
+                          f"per pixel), more than the {usable / 1e9:.1f} GB of memory this process may use", where, fix)
 
 
 ROTATION_TOLERANCE = 1e-3

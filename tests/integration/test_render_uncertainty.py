@@ -926,11 +926,11 @@ def test_a_size_the_machine_has_not_the_memory_for_is_refused_before_rendering(t
     from splatu.data.resolve import load_scene
     from splatu.query import open_run
 
-    monkeypatch.setattr(frames, "physical_memory", lambda: 23 * 10**9)
+    monkeypatch.setattr(frames, "usable_memory", lambda: 23 * 10**9)
     run = open_run(tiny_run)
     K = np.array([[4e4, 0.0, 7200.0], [0.0, 4e4, 12800.0], [0.0, 0.0, 1.0]])
     with pytest.raises(SplatuError, match=re.escape("a 14400×25600 render needs about 89.5 GB (~240 bytes per pixel), "
-                                                    "more than this machine's 23.0 GB of memory")) as error:
+                                                    "more than the 23.0 GB of memory this process may use")) as error:
         run.render(np.eye(4), K, 14400, 25600)
     assert "smaller width and height" in error.value.fix
     assert run.render(np.eye(4), K / np.array([[100.0], [100.0], [1.0]]), 144, 256).rgb.shape == (256, 144, 3)

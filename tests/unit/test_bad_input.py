@@ -1756,18 +1756,53 @@ def test_an_image_size_given_as_an_integer_tensor_is_taken_and_a_fractional_one_
             _checked_camera(np.eye(4), K, *size, False)
 
 
+def test_the_memory_a_render_may_use_is_the_tightest_cgroup_limit_on_the_process_path(tmp_path, monkeypatch):
+    """A container's limit, not the host's memory, is where the kernel kills a render: the limit of the process's
+    cgroup or any ancestor counts (v1 and v2), and "max" or v1's ~2⁶³ mean none."""
+    from splatu.data import frames
+
+    proc = tmp_path / "cgroup"
+    v1 = tmp_path / "v1"
+    (v1 / "memory" / "docker" / "abc").mkdir(parents=True)
+    (v1 / "memory" / "memory.limit_in_bytes").write_text("9223372036854771712\n")
+    (v1 / "memory" / "docker" / "memory.limit_in_bytes").write_text(f"{6 * 2**30}\n")
+    (v1 / "memory" / "docker" / "abc" / "memory.limit_in_bytes").write_text(f"{8 * 2**30}\n")
+    proc.write_text("12:cpu,cpuacct:/docker/abc\n4:memory:/docker/abc\n0::/\n")
+    assert frames.cgroup_memory_limit(proc, v1) == 6 * 2**30
+    (v1 / "memory" / "docker" / "memory.limit_in_bytes").write_text("9223372036854771712\n")
+    assert frames.cgroup_memory_limit(proc, v1) == 8 * 2**30
+
+    v2 = tmp_path / "v2"
+    (v2 / "user.slice" / "app").mkdir(parents=True)
+    (v2 / "cgroup.controllers").write_text("memory\n")
+    (v2 / "user.slice" / "memory.max").write_text("max\n")
+    (v2 / "user.slice" / "app" / "memory.max").write_text(f"{3 * 2**30}\n")
+    proc.write_text("0::/user.slice/app\n")
+    assert frames.cgroup_memory_limit(proc, v2) == 3 * 2**30
+    (v2 / "user.slice" / "app" / "memory.max").write_text("max\n")
+    assert frames.cgroup_memory_limit(proc, v2) is None
+    assert frames.cgroup_memory_limit(tmp_path / "absent", v2) is None
+
+    monkeypatch.setattr(frames, "physical_memory", lambda: 64 * 2**30)
+    monkeypatch.setattr(frames, "cgroup_memory_limit", lambda: 8 * 2**30)
+    with pytest.raises(SplatuError, match=re.escape("more than the 8.6 GB of memory this process may use")):
+        frames.refuse_unaffordable_render([(7680, 4320)], 1, "in cams.json", "give smaller w and h")  # ~9.0 GB
+    monkeypatch.setattr(frames, "cgroup_memory_limit", lambda: None)
+    frames.refuse_unaffordable_render([(7680, 4320)], 1, "in cams.json", "give smaller w and h")
+
+
 def test_a_render_is_refused_by_its_memory_estimate_with_members_and_kept_views_counted(monkeypatch):
     """The estimate grows with the largest view's pixels, with each ensemble member, and with what render-uncertainty
     keeps of every other view; a machine that does not say its memory refuses nothing."""
     from splatu.data import frames
 
     gigabyte = 10**9
-    monkeypatch.setattr(frames, "physical_memory", lambda: 4 * gigabyte)
+    monkeypatch.setattr(frames, "usable_memory", lambda: 4 * gigabyte)
     fits = [(3840, 2160)]  # 1 GiB + 240 B × 8.3 Mpx ≈ 3.1 GB
     frames.refuse_unaffordable_render(fits, 1, "in cams.json", "give smaller w and h")
     with pytest.raises(SplatuError, match=re.escape("a 3840×2160 render needs about 6.0 GB (~590 bytes per pixel)")):
         frames.refuse_unaffordable_render(fits, 15, "in cams.json", "give smaller w and h")  # 14 more members
     with pytest.raises(SplatuError, match=re.escape("(and 4 more views kept until written) needs about 4.7 GB")):
         frames.refuse_unaffordable_render(fits * 5, 1, "in cams.json", "give smaller w and h")
-    monkeypatch.setattr(frames, "physical_memory", lambda: None)
+    monkeypatch.setattr(frames, "usable_memory", lambda: None)
     frames.refuse_unaffordable_render([(65536, 65536)], 1, "in cams.json", "give smaller w and h")

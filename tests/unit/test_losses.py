@@ -146,9 +146,9 @@ def test_a_new_run_may_not_use_a_threshold_no_blend_weight_reaches():
             config.validate()
 
 
-def _single_gaussian(u_degree: int) -> tuple[GaussianModel, Camera]:
+def _single_gaussian(u_degree: int, u_init_logit: float = 2.0) -> tuple[GaussianModel, Camera]:
     """One opaque Gaussian 3 units in front of a camera at the origin, seen along +z."""
-    cfg = ModelConfig(sh_degree=0, u_sh_degree=u_degree, init_opacity=0.95)
+    cfg = ModelConfig(sh_degree=0, u_sh_degree=u_degree, init_opacity=0.95, u_init_logit=u_init_logit)
     model = GaussianModel.from_points(torch.tensor([[0.2, -0.1, 3.0]]), None, cfg, torch.Generator())
     with torch.no_grad():
         model.log_scales.fill_(math.log(0.3))
@@ -180,6 +180,20 @@ def test_antipodal_loss_makes_the_seen_side_certain_and_the_other_uncertain():
     seen, opposite = _u_seen_and_opposite(model, camera)
     assert seen < 0.2
     assert opposite > 0.7
+
+
+def test_the_antipodal_term_makes_the_side_opposite_the_view_uncertain():
+    """Started certain from everywhere (u = 0.12), only λ·(1 − u(−d)) raises u(−d): without it (λ = 0) lowering u(d)
+    moves u(−d) only as a side effect of the shared coefficients (0.32 after these steps, against 0.98). From the
+    default start (u = 0.88) the two read alike, so the test above cannot tell them apart."""
+    opposite = {}
+    for lam in (0.0, 0.3):
+        model, camera = _single_gaussian(u_degree=1, u_init_logit=-2.0)
+        assert _u_seen_and_opposite(model, camera) == pytest.approx((0.1192, 0.1192), abs=1e-4)
+        _train_u(model, camera, UncertaintyLossConfig(kind="antipodal", lam=lam))
+        seen, opposite[lam] = _u_seen_and_opposite(model, camera)
+        assert seen < 0.05
+    assert opposite[0.3] > 0.9 and opposite[0.0] < 0.5
 
 
 @pytest.mark.parametrize("kind", ["mean", "weighted"])

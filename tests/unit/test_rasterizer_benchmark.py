@@ -74,6 +74,10 @@ def test_quick_run_writes_the_issue_s_json_schema_and_a_table(tmp_path) -> None:
     assert case["ours_contributing_pairs"] == case["contributing_pairs"]  # counted apart, and they agree
     assert case["ns_per_pair"] == pytest.approx(1e6 * total / case["contributing_pairs"], rel=0.01)
     assert written["measured_on"]["torch"] == torch.__version__
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=BENCHMARKS.parent, capture_output=True,
+                          text=True)
+    if head.returncode == 0:  # a figure is quoted with its commit: the file holds it
+        assert written["measured_on"]["revision"].split()[0] == head.stdout.strip()
     assert case["name"] in run.stdout and "ns_per_pair" in run.stdout  # the same figures as a table
 
 

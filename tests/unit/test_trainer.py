@@ -44,7 +44,7 @@ from splatu.densify import DensifyConfig, DensityController
 from splatu.ensemble_training import ENSEMBLE_SESSIONS, recorded_sessions
 from splatu.errors import SplatuError
 from splatu.losses import UncertaintyLossConfig, photometric_loss
-from splatu.methods import METHODS, get_method, method_of
+from splatu.methods import METHODS, Method, get_method, method_of
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
 from splatu.ply import load_ply
@@ -158,6 +158,23 @@ def test_one_training_step_decreases_the_loss(tmp_path):
 def _mean_loss(config: TrainConfig) -> TrainConfig:
     """The `mean` uncertainty loss: the one that draws random numbers, from its own stream."""
     return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, kind="mean"))
+
+
+def test_a_seed_gives_the_same_run_twice_and_another_seed_another_run(tmp_path, scene):
+    """--seed fixes everything random in training (view order, random backgrounds, the uncertainty loss's
+    directions): two runs of one seed agree bit for bit, through densification; another seed does not."""
+    def trained(folder: str, seed: int) -> tuple[dict[int, float], GaussianModel]:
+        config = tiny_config(tmp_path / folder, seed=seed, train_background="random",
+                             uncertainty=UncertaintyLossConfig(kind="mean"))
+        run_dir = train_command.train(config)
+        return losses_of(run_dir), load_run(run_dir).model
+
+    (losses_a, model_a), (losses_b, model_b), (losses_c, model_c) = (trained(f, s) for f, s in
+                                                                      (("a", 3), ("b", 3), ("c", 4)))
+    assert losses_a == losses_b and len(losses_a) == 12
+    for name in GaussianModel.PARAM_NAMES:
+        assert torch.equal(getattr(model_a, name), getattr(model_b, name)), name
+    assert losses_c != losses_a and not torch.equal(model_c.means, model_a.means)
 
 
 def test_resume_after_ctrl_c_equals_an_uninterrupted_run_step_for_step(tmp_path, scene):
@@ -969,6 +986,28 @@ def test_a_run_is_named_after_the_method_its_options_train():
     assert method_of(with_loss) == "ensemble"
     assert method_of(dataclasses.replace(preset_config("fast", "splatfacto"), ensemble=3)) == "ensemble"
     assert method_of(dataclasses.replace(splatu, ensemble=3)) == "splatu"  # no method trains it: its own name
+
+
+def test_a_new_registered_method_needs_no_other_code_to_be_filed_and_checked(monkeypatch):
+    """A method added as one registry entry (a plain model with a bigger budget) keeps its name when a flag overrides
+    its budget (it was filed as splatfacto), and an uncertainty option typed for it names it as the method that does
+    not train the loss (it blamed an --uncertainty.off never typed)."""
+    from splatu.train_command import refuse_uncertainty_options_without_the_loss
+
+    def big(config: TrainConfig) -> TrainConfig:
+        plain = METHODS["splatfacto"].configure(config)
+        return dataclasses.replace(plain, densify=dataclasses.replace(plain.densify, max_gaussians=90_000))
+
+    monkeypatch.setitem(METHODS, "splatfacto-big", Method("Plain 3DGS with a larger budget.", big))
+    config = METHODS["splatfacto-big"].configure(dataclasses.replace(preset_config("fast"), method="splatfacto-big"))
+    assert method_of(config) == "splatfacto-big"
+    overridden = dataclasses.replace(config, densify=dataclasses.replace(config.densify, max_gaussians=5000))
+    assert method_of(overridden) == "splatfacto-big"
+    assert method_of(METHODS["splatu"].configure(config)) == "splatu"  # --uncertainty.no-off: it trains the loss
+    with pytest.raises(SplatuError, match=re.escape("--uncertainty.lam 0.3 sets an option of the uncertainty loss, "
+                                                    "which --method splatfacto-big does not train")) as error:
+        refuse_uncertainty_options_without_the_loss(config, ["--method", "--uncertainty.lam"])
+    assert error.value.fix == "drop it, or pass --method splatu to train the loss"
 
 
 def test_uncertainty_off_files_the_run_under_splatfacto(tmp_path, scene):
