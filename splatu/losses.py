@@ -107,8 +107,9 @@ def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
 
 
 IGNORED_BECAUSE = {
-    "threshold": "it weights each Gaussian the view sees by its max blend weight, instead of a hard threshold",
-    "num_dirs": "only kind mean draws random directions",
+    "threshold": "that loss weights each Gaussian the view sees by its max blend weight, instead of a hard "
+                 "threshold",
+    "num_dirs": "only the mean loss draws random directions",
 }
 USED_BY = {"threshold": "antipodal or mean", "num_dirs": "mean"}
 
@@ -171,12 +172,15 @@ class UncertaintyLossConfig:
     def refuse_settings_the_kind_ignores(self) -> None:
         """A setting its loss kind never reads (`ignored_by`), set away from its default or typed in a head, would be
         recorded as if it had trained: `--uncertainty.kind weighted --uncertainty.threshold 0.2` trained as without
-        the threshold. A head's inherited values are not its own: only the keys its spec types are checked."""
+        the threshold (which then only set the visibility baselines' cutoff, splatu/baselines/load.py). A head's
+        inherited values are not its own: only the keys its spec types are checked."""
+        if self.off:  # a preset file may hold the loss's settings for the runs that train it
+            return
         for key in ("threshold", "num_dirs"):
             value = getattr(self, key)
             if ignored_by(self.kind, key) and value != getattr(UncertaintyLossConfig, key):
                 flag = f"--uncertainty.{key.replace('_', '-')}"
-                raise SplatuError(f"{flag} {value} has no effect with --uncertainty.kind {self.kind}: "
+                raise SplatuError(f"{flag} {value} is not read by the loss --uncertainty.kind {self.kind} trains: "
                                   f"{IGNORED_BECAUSE[key]}", f"in {flag}",
                                   f"drop it, or use --uncertainty.kind {USED_BY[key]}")
         for spec in self.extra_heads:
@@ -184,8 +188,8 @@ class UncertaintyLossConfig:
             kind = typed.get("kind", self.kind)
             for key in typed:
                 if ignored_by(str(kind), key):
-                    raise SplatuError(f"{key}={typed[key]} has no effect in uncertainty head {spec!r}, whose kind is "
-                                      f"{kind}: {IGNORED_BECAUSE[key]}", IN_HEADS,
+                    raise SplatuError(f"{key}={typed[key]} is not read by the loss of uncertainty head {spec!r}, "
+                                      f"whose kind is {kind}: {IGNORED_BECAUSE[key]}", IN_HEADS,
                                       f"drop {key}, or give the head kind {USED_BY[key].replace(' or ', ' or kind ')}")
 
     def check_loadable(self) -> None:

@@ -59,11 +59,17 @@ def loss_setting(name: str, config: TrainConfig) -> bool | None:
     """Whether registered method `name` turns the uncertainty loss on (True: splatu) or off (False: splatfacto,
     ensemble) for `config`, or None if it leaves `--uncertainty.off` as given; read from its configure, so that a new
     entry needs no other code to be told apart."""
-    configure = get_method(name).configure
-    given_on, given_off = (dataclasses.replace(config, uncertainty=dataclasses.replace(  # heads need the loss on
-        config.uncertainty, off=off, extra_heads=())) for off in (False, True))
-    trains_on, trains_off = (not configure(c).uncertainty.off for c in (given_on, given_off))
+    if name not in METHODS:  # a name the registry does not know (from Python): nothing to read
+        return None
+    configure = METHODS[name].configure
+    trains_on, trains_off = (not configure(_with_loss_off(config, off)).uncertainty.off for off in (False, True))
     return trains_on if trains_on == trains_off else None
+
+
+def _with_loss_off(config: TrainConfig, off: bool) -> TrainConfig:
+    """`config` with the uncertainty loss off or on, and without extra heads, which a config with the loss off refuses
+    (a method's configure is tried on it to see what the method changes)."""
+    return dataclasses.replace(config, uncertainty=dataclasses.replace(config.uncertainty, off=off, extra_heads=()))
 
 
 def _kind(config: TrainConfig) -> tuple[bool, bool]:
@@ -81,7 +87,8 @@ def method_of(config: TrainConfig) -> str:
     if config.method not in METHODS:  # a name the registry does not know (from Python): nothing to compare with
         return config.method
     candidates = [config.method, *(name for name in METHODS if name != config.method)]
-    return next((name for name in candidates if _kind(METHODS[name].configure(config)) == _kind(config)
+    tried = _with_loss_off(config, config.uncertainty.off)
+    return next((name for name in candidates if _kind(METHODS[name].configure(tried)) == _kind(config)
                  and METHODS[name].ensemble == (config.ensemble > 1)), config.method)
 
 

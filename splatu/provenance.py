@@ -26,14 +26,19 @@ def source_revision() -> str:
     """The git commit splatu/ was measured at (short hash), marked when splatu/ differs from it; "unknown" outside a
     git checkout (an installed package). A figure is quoted with its commit, which the file must then hold."""
     repo = Path(__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "splatu"], cwd=repo, capture_output=True, text=True)
-    except OSError:  # no git
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.TimeoutExpired):  # no git, or a hung one
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    top = git("rev-parse", "--show-toplevel")  # a package installed inside another project's checkout is not ours
+    head = git("rev-parse", "--short", "HEAD")
+    if top is None or head is None or Path(top).resolve() != repo:
         return "unknown"
-    if head.returncode != 0:
-        return "unknown"
-    return head.stdout.strip() + (" + uncommitted changes" if dirty.stdout.strip() else "")
+    return head + (" + uncommitted changes" if git("status", "--porcelain", "splatu") else "")
 
 
 def measured_on() -> dict[str, Any]:

@@ -182,19 +182,19 @@ def test_an_option_out_of_range_or_unused_is_one_line_before_any_work(capsys, tm
      "uncertainty threshold = 0.0 is not a blend weight in (0, 0.99] in uncertainty head 'lam=0.1,threshold=0', "
      "in --uncertainty.extra-heads, use e.g. 0.05"),
     (["--uncertainty.kind", "weighted", "--uncertainty.threshold", "0.2"],
-     "--uncertainty.threshold 0.2 has no effect with --uncertainty.kind weighted: it weights each Gaussian the view "
-     "sees by its max blend weight, instead of a hard threshold, in --uncertainty.threshold, drop it, or use "
-     "--uncertainty.kind antipodal or mean"),
+     "--uncertainty.threshold 0.2 is not read by the loss --uncertainty.kind weighted trains: that loss weights each "
+     "Gaussian the view sees by its max blend weight, instead of a hard threshold, in --uncertainty.threshold, drop "
+     "it, or use --uncertainty.kind antipodal or mean"),
     (["--uncertainty.num-dirs", "32"],
-     "--uncertainty.num-dirs 32 has no effect with --uncertainty.kind antipodal: only kind mean draws random "
-     "directions, in --uncertainty.num-dirs, drop it, or use --uncertainty.kind mean"),
+     "--uncertainty.num-dirs 32 is not read by the loss --uncertainty.kind antipodal trains: only the mean loss draws "
+     "random directions, in --uncertainty.num-dirs, drop it, or use --uncertainty.kind mean"),
     (["--uncertainty.kind", "mean", "--uncertainty.extra-heads", "kind=weighted,threshold=0.2", "num_dirs=8"],
-     "threshold=0.2 has no effect in uncertainty head 'kind=weighted,threshold=0.2', whose kind is weighted: it "
-     "weights each Gaussian the view sees by its max blend weight, instead of a hard threshold, in "
-     "--uncertainty.extra-heads, drop threshold, or give the head kind antipodal or kind mean"),
+     "threshold=0.2 is not read by the loss of uncertainty head 'kind=weighted,threshold=0.2', whose kind is "
+     "weighted: that loss weights each Gaussian the view sees by its max blend weight, instead of a hard threshold, "
+     "in --uncertainty.extra-heads, drop threshold, or give the head kind antipodal or kind mean"),
     (["--uncertainty.extra-heads", "num_dirs=8"],
-     "num_dirs=8 has no effect in uncertainty head 'num_dirs=8', whose kind is antipodal: only kind mean draws random "
-     "directions, in --uncertainty.extra-heads, drop num_dirs, or give the head kind mean"),
+     "num_dirs=8 is not read by the loss of uncertainty head 'num_dirs=8', whose kind is antipodal: only the mean "
+     "loss draws random directions, in --uncertainty.extra-heads, drop num_dirs, or give the head kind mean"),
     (["--degree-choice.on", "--ensemble", "2"],
      "an ensemble's members must differ only in seed, but each would choose its own degrees, in --degree-choice.on "
      "with --ensemble, choose the degrees with one run, then train the ensemble with --model.sh-degree and "

@@ -182,6 +182,18 @@ def test_antipodal_loss_makes_the_seen_side_certain_and_the_other_uncertain():
     assert opposite > 0.7
 
 
+def test_settings_the_loss_kind_never_reads_are_refused_only_for_a_run_that_trains_it():
+    """A new run's weighted loss with a threshold, or antipodal with num_dirs, trained as without them; with the loss
+    off (splatfacto, an ensemble's members, whose resume validates members not yet begun) nothing reads them."""
+    with pytest.raises(SplatuError, match="is not read by the loss --uncertainty\\.kind weighted trains"):
+        UncertaintyLossConfig(kind="weighted", threshold=0.2).validate()
+    with pytest.raises(SplatuError, match="is not read by the loss --uncertainty\\.kind antipodal trains"):
+        UncertaintyLossConfig(num_dirs=32).validate()
+    UncertaintyLossConfig(kind="mean", threshold=0.2, num_dirs=32).validate()
+    UncertaintyLossConfig(off=True, kind="weighted", threshold=0.2, num_dirs=32).validate()
+    UncertaintyLossConfig(kind="weighted", threshold=0.2).check_loadable()  # a saved run still loads
+
+
 def test_the_antipodal_term_makes_the_side_opposite_the_view_uncertain():
     """Started certain from everywhere (u = 0.12), only λ·(1 − u(−d)) raises u(−d): without it (λ = 0) lowering u(d)
     moves u(−d) only as a side effect of the shared coefficients (0.32 after these steps, against 0.98). From the

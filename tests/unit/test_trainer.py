@@ -1008,6 +1008,12 @@ def test_a_new_registered_method_needs_no_other_code_to_be_filed_and_checked(mon
                                                     "which --method splatfacto-big does not train")) as error:
         refuse_uncertainty_options_without_the_loss(config, ["--method", "--uncertainty.lam"])
     assert error.value.fix == "drop it, or pass --method splatu to train the loss"
+    mine = dataclasses.replace(preset_config("fast"), method="mine")  # unregistered, from Python: nothing to check
+    refuse_uncertainty_options_without_the_loss(mine, ["--uncertainty.lam"])
+    # extra heads need the loss on: trying splatfacto's configure on them said the loss was off (--ensemble 3)
+    heads = dataclasses.replace(preset_config("fast"), ensemble=3, uncertainty=UncertaintyLossConfig(
+        extra_heads=("lam=0.1",)))
+    assert method_of(heads) == "splatu"
 
 
 def test_uncertainty_off_files_the_run_under_splatfacto(tmp_path, scene):
