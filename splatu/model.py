@@ -135,7 +135,8 @@ class GaussianModel(torch.nn.Module):
     @classmethod
     def from_points(cls, points: Tensor, colors: Tensor | None, cfg: ModelConfig,
                     generator: torch.Generator, u_heads: int = 1) -> GaussianModel:
-        """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation."""
+        """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation with splatfacto's
+        random rotations (`random_rotations`)."""
         cfg.validate()
         points = points.detach().to(torch.float32, copy=True).reshape(-1, 3)  # never alias the scene's points
         if points.shape[0] == 0:
@@ -152,8 +153,7 @@ class GaussianModel(torch.nn.Module):
             raise SplatuError(f"{colors.shape[0]} point colours for {n} points", "in the scene's point cloud",
                               "give one colour per point")
         log_scales = torch.log(mean_neighbour_distance(points, NEIGHBOURS)).unsqueeze(-1).repeat(1, 3)
-        quats = torch.zeros(n, 4)
-        quats[:, 0] = 1.0
+        quats = random_rotations(n, generator)
         opacity_logits = torch.full((n,), math.log(cfg.init_opacity / (1.0 - cfg.init_opacity)))
         sh_dc = rgb_to_sh(colors.clamp(0.0, 1.0)).unsqueeze(1)
         sh_rest = torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3)
@@ -237,6 +237,15 @@ def head_coefficients(u_sh: Tensor, channel: int, degree: int) -> Tensor:
     """(N, K_degree, 1): the SH of uncertainty head `channel`. The heads share one (N, K, heads) `u_sh` at the
     largest degree; a head trained at a lower degree owns only the leading coefficients of its channel."""
     return u_sh[:, :num_sh_bases(degree), channel:channel + 1]
+
+
+def random_rotations(n: int, generator: torch.Generator) -> Tensor:
+    """(n, 4) unit quaternions (wxyz) uniform over the rotations, as splatfacto starts its Gaussians. The initial
+    scales are isotropic, so no covariance changes, but the seed then sets where each Gaussian's optimisation starts:
+    an ensemble's members on a scene with SfM points began from identical models (REFERENCE §5 has them differ in
+    initialisation too)."""
+    quats = torch.randn(n, 4, generator=generator)
+    return quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def initial_u_sh(n: int, cfg: ModelConfig, heads: int) -> Tensor:

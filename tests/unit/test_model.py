@@ -14,6 +14,7 @@ from splatu.knn import mean_neighbour_distance
 from splatu.losses import photometric_loss
 from splatu.model import GaussianModel, ModelConfig
 from splatu.optim import OptimConfig, Optimizers
+from splatu.rasterizer.projection import quaternion_to_rotation
 from splatu.sh import C0, num_sh_bases
 
 
@@ -98,7 +99,12 @@ def test_from_points_follows_the_3dgs_initialisation():
     assert torch.allclose(model.log_scales.exp(), _brute_force_mean_distance(points, 3)[:, None].expand(-1, 3),
                           rtol=1e-4)
     assert torch.allclose(torch.sigmoid(model.opacity_logits), torch.full((200,), 0.1))
-    assert torch.equal(model.quats, torch.tensor([1.0, 0, 0, 0]).expand(200, 4))
+    # splatfacto's random rotations, set by the seed; the scales are isotropic, so every covariance is s²·I still
+    assert torch.allclose(model.quats.norm(dim=-1), torch.ones(200))
+    assert not torch.equal(model.quats, GaussianModel.from_points(points, colors, cfg, torch.Generator()).quats)
+    rotation, scale = quaternion_to_rotation(model.quats.detach()), model.log_scales.detach().exp()
+    covariance = rotation @ torch.diag_embed(scale**2) @ rotation.transpose(1, 2)
+    assert torch.allclose(covariance, torch.diag_embed(scale**2), atol=1e-6)
     dirs = torch.randn(200, 3, generator=g)
     with torch.no_grad():
         assert torch.allclose(model.colors(dirs, 2), colors, atol=1e-5)
