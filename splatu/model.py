@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import torch
 from torch import Tensor
@@ -47,6 +47,11 @@ class ModelConfig:
     """Initial uncertainty logit: u starts at sigmoid(2) ≈ 0.88 everywhere (unseen means uncertain)."""
     init_opacity: float = 0.1
     """Opacity of every Gaussian at initialisation."""
+    init_rotations: Literal["random", "identity"] = "random"
+    """random: splatfacto's rotations, drawn from the run's seed, so that an ensemble's members on a scene with SfM
+    points start from different models, as the paper's ensemble baseline asks; identity: the original 3DGS's. On
+    the poster stand-in, whose room and chair are boxes along the world axes, identity read 0.26 dB more on the
+    unseen block's observed pixels (mean of two seeds, docs/results.md)."""
     random_init_points: int = 50000
     """Number of random points when the scene has no initial points."""
     random_init_extent: float = 10.0
@@ -135,8 +140,8 @@ class GaussianModel(torch.nn.Module):
     @classmethod
     def from_points(cls, points: Tensor, colors: Tensor | None, cfg: ModelConfig,
                     generator: torch.Generator, u_heads: int = 1) -> GaussianModel:
-        """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation with splatfacto's
-        random rotations (`random_rotations`)."""
+        """Gaussians at SfM points (or random points when `points` is empty), 3DGS initialisation, with splatfacto's
+        random rotations unless `cfg.init_rotations` is identity."""
         cfg.validate()
         points = points.detach().to(torch.float32, copy=True).reshape(-1, 3)  # never alias the scene's points
         if points.shape[0] == 0:
@@ -153,7 +158,7 @@ class GaussianModel(torch.nn.Module):
             raise SplatuError(f"{colors.shape[0]} point colours for {n} points", "in the scene's point cloud",
                               "give one colour per point")
         log_scales = torch.log(mean_neighbour_distance(points, NEIGHBOURS)).unsqueeze(-1).repeat(1, 3)
-        quats = random_rotations(n, generator)
+        quats = random_rotations(n, generator) if cfg.init_rotations == "random" else identity_rotations(n)
         opacity_logits = torch.full((n,), math.log(cfg.init_opacity / (1.0 - cfg.init_opacity)))
         sh_dc = rgb_to_sh(colors.clamp(0.0, 1.0)).unsqueeze(1)
         sh_rest = torch.zeros(n, num_sh_bases(cfg.sh_degree) - 1, 3)
@@ -246,6 +251,13 @@ def random_rotations(n: int, generator: torch.Generator) -> Tensor:
     initialisation too)."""
     quats = torch.randn(n, 4, generator=generator)
     return quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def identity_rotations(n: int) -> Tensor:
+    """(n, 4) identity quaternions (wxyz), as the original 3DGS starts its Gaussians."""
+    quats = torch.zeros(n, 4)
+    quats[:, 0] = 1.0
+    return quats
 
 
 def initial_u_sh(n: int, cfg: ModelConfig, heads: int) -> Tensor:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -105,6 +106,11 @@ def test_from_points_follows_the_3dgs_initialisation():
     rotation, scale = quaternion_to_rotation(model.quats.detach()), model.log_scales.detach().exp()
     covariance = rotation @ torch.diag_embed(scale**2) @ rotation.transpose(1, 2)
     assert torch.allclose(covariance, torch.diag_embed(scale**2), atol=1e-6)
+    identity = dataclasses.replace(cfg, init_rotations="identity")  # the original 3DGS's, drawing nothing
+    state = g.get_state()
+    assert torch.equal(GaussianModel.from_points(points, colors, identity, g).quats,
+                       torch.tensor([1.0, 0, 0, 0]).expand(200, 4))
+    assert torch.equal(g.get_state(), state)
     dirs = torch.randn(200, 3, generator=g)
     with torch.no_grad():
         assert torch.allclose(model.colors(dirs, 2), colors, atol=1e-5)
