@@ -82,6 +82,9 @@ class ModelConfig:
                 raise SplatuError(f"{name} = {value} is out of range", f"in --model.{name.replace('_', '-')}",
                                   f"use a degree from 0 to {MAX_SH_DEGREE}")
         require_at_least(self.sh_degree_interval, 1, "--model.sh-degree-interval")
+        if self.init_rotations not in ("random", "identity"):  # from Python: anything else would read as identity
+            raise SplatuError(f"init_rotations = {self.init_rotations!r} is neither random nor identity",
+                              "in --model.init-rotations", "use random (splatfacto) or identity (3DGS)")
         if not 0.0 < self.init_opacity < 1.0:
             raise SplatuError(f"init_opacity = {self.init_opacity} is not in (0, 1)", "in --model.init-opacity",
                               "use e.g. 0.1")

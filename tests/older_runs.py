@@ -24,5 +24,7 @@ def saved_with(run_dir: Path, **changes: dict[str, Any]) -> None:
         torch.save({**state, "config": changed(state["config"])}, path)
 
 
-OLDER_VALUES: dict[str, dict[str, Any]] = {"uncertainty": {"threshold": 0.0}, "model": {"u_init_logit": 45.0}}
-"""Threshold 0, refused for new runs since 19c6c8f, and a u_init_logit beyond ±30, since 36d6409."""
+OLDER_VALUES: dict[str, dict[str, Any]] = {"uncertainty": {"threshold": 0.0, "num_dirs": 32},
+                                           "model": {"u_init_logit": 45.0}}
+"""Threshold 0, refused for new runs since 19c6c8f, a u_init_logit beyond ±30, since 36d6409, and a num_dirs the
+antipodal loss never read, since cb1418d."""

@@ -111,6 +111,8 @@ def test_from_points_follows_the_3dgs_initialisation():
     assert torch.equal(GaussianModel.from_points(points, colors, identity, g).quats,
                        torch.tensor([1.0, 0, 0, 0]).expand(200, 4))
     assert torch.equal(g.get_state(), state)
+    with pytest.raises(SplatuError, match="init_rotations = 'Identity' is neither random nor identity"):
+        dataclasses.replace(cfg, init_rotations="Identity").validate()
     dirs = torch.randn(200, 3, generator=g)
     with torch.no_grad():
         assert torch.allclose(model.colors(dirs, 2), colors, atol=1e-5)

@@ -598,6 +598,18 @@ def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
     assert not torch.equal(model_0.means, model_1.means)
     with pytest.raises(SplatuError, match="ensemble"):
         load_run(run_dir)
+    # they start from different models on a scene with points: before, every member began with identity rotations
+    start_0, start_1 = (trainer.fresh_state(c, scene).model for c in (config_0, config_1))
+    assert torch.equal(start_0.means, start_1.means) and not torch.equal(start_0.quats, start_1.quats)
+
+
+def test_a_run_saved_before_the_rotation_option_reads_as_the_identity_rotations_it_trained_with(tmp_path):
+    """Its restart from step 0, or an ensemble member not yet begun, must start as the run did, not as today's
+    default."""
+    saved = to_dict(preset_config("fast"))
+    assert from_dict(saved).model.init_rotations == "random"
+    del saved["model"]["init_rotations"]
+    assert from_dict(saved).model.init_rotations == "identity"
 
 
 def test_schedules_are_pure_functions_of_the_step():
