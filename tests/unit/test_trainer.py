@@ -161,8 +161,8 @@ def _mean_loss(config: TrainConfig) -> TrainConfig:
 
 
 def test_a_seed_gives_the_same_run_twice_and_another_seed_another_run(tmp_path, scene):
-    """--seed fixes everything random in training (view order, random backgrounds, the uncertainty loss's
-    directions): two runs of one seed agree bit for bit, through densification; another seed does not."""
+    """--seed fixes everything random in training (initial rotations, view order, random backgrounds, the uncertainty
+    loss's directions): two runs of one seed agree bit for bit, through densification; another seed does not."""
     def trained(folder: str, seed: int) -> tuple[dict[int, float], GaussianModel]:
         config = tiny_config(tmp_path / folder, seed=seed, train_background="random",
                              uncertainty=UncertaintyLossConfig(kind="mean"))
@@ -603,7 +603,7 @@ def test_ensemble_trains_members_that_differ_only_in_seed(tmp_path, scene):
     assert torch.equal(start_0.means, start_1.means) and not torch.equal(start_0.quats, start_1.quats)
 
 
-def test_a_run_saved_before_the_rotation_option_reads_as_the_identity_rotations_it_trained_with(tmp_path):
+def test_a_run_saved_before_the_rotation_option_reads_as_the_identity_rotations_it_trained_with():
     """Its restart from step 0, or an ensemble member not yet begun, must start as the run did, not as today's
     default."""
     saved = to_dict(preset_config("fast"))
