@@ -213,18 +213,17 @@ def preset_label(preset: str) -> str:
     return f"preset {preset}" if (CONFIGS_DIR / f"{preset}.yaml").is_file() else str(preset_path(preset))
 
 
-def from_dict(values: Mapping[str, Any], source: str = "a saved config") -> TrainConfig:
-    """A saved config (config.yml, a checkpoint's): an option it lacks was added after it was saved, so it reads as
-    what the run trained with then (`SAVED_BEFORE`), not as today's default."""
-    model = values.get("model")
-    if isinstance(model, Mapping):
-        values = {**values, "model": {**SAVED_BEFORE["model"], **model}}
-    return apply_values(TrainConfig(), values, source)
-
-
 SAVED_BEFORE = {"model": {"init_rotations": "identity"}}
 """What a saved run without these keys trained with: identity initial rotations before 3b6a78d (so that its restart
 from step 0, or its ensemble's members not yet begun, start as it did)."""
+
+
+def from_dict(values: Mapping[str, Any], source: str = "a saved config") -> TrainConfig:
+    """A saved config (config.yml, a checkpoint's): an option it lacks was added after it was saved, so it reads as
+    what the run trained with then (`SAVED_BEFORE`), not as today's default."""
+    older = {part: {**options, **values[part]} for part, options in SAVED_BEFORE.items()
+             if isinstance(values.get(part), Mapping)}
+    return apply_values(TrainConfig(), {**values, **older}, source)
 
 
 def save_config(config: TrainConfig, path: Path) -> None:
