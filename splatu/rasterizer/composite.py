@@ -98,7 +98,7 @@ class EntryView:
 
     gaussian: Tensor
     block: Tensor
-    t0: Tensor  # per entry, see kernels.sheared_entry_offsets
+    t0: Tensor  # per entry, see kernels.entry_geometry
     w0: Tensor
     p: Tensor
     r: Tensor
@@ -180,24 +180,11 @@ def take(values: Tensor, positions: slice | Tensor) -> Tensor:
 def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int) -> EntryView:
     gaussian = take(entries.gaussian, positions)
     block = take(entries.block, positions)
-    dtype = g.means2d.dtype
-    x0 = (block % entries.blocks_per_row) * entries.block_width
-    row = torch.div(block, entries.blocks_per_row, rounding_mode="floor")
-    mean = g.means2d.index_select(0, gaussian)
-    sheared_conic = columns(g.conic_planes, gaussian)
-    t0, w0, p, r = kernel("sheared_entry_offsets")(x0.to(dtype) + 0.5 - mean[:, 0], row.to(dtype) + 0.5 - mean[:, 1],
-                                                   g.swapped.index_select(0, gaussian), sheared_conic[1])
-    return EntryView(
-        gaussian=gaussian,
-        block=block,
-        t0=t0,
-        w0=w0,
-        p=p,
-        r=r,
-        sheared_conic=sheared_conic,
-        opacity=g.opacities.index_select(0, gaussian),
-        in_image_cols=width - x0,
+    t0, w0, p, r, sheared_conic, opacity, in_image_cols = kernel("entry_geometry")(
+        block, gaussian, g.means2d, g.conic_planes, g.swapped, g.opacities,
+        entries.blocks_per_row, entries.block_width, width,
     )
+    return EntryView(gaussian, block, t0, w0, p, r, sheared_conic, opacity, in_image_cols)
 
 
 def forward_chunk(

@@ -13,7 +13,7 @@ Per-entry inputs are (Q,), or for the conic (3, Q), rows A, S, Q, so that every 
 With the conic in sheared form (A, S, Q) (see projection.py), σ = ½A·t² + ½Q·w², t = v − S·w, where (v, w) is
 the pixel centre's offset from the mean, (dx, dy) or, for a `swapped` Gaussian, (dy, dx). Along a block only dx
 changes, by x: per entry t = t0 + p·x and w = w0 + r·x, with t0 and w0 at its first pixel and (p, r) = (1, 0), or
-(−S, 1) when swapped (`sheared_entry_offsets`). A pair is valid when σ ≥ 0 (3DGS's rule; in this form only a NaN
+(−S, 1) when swapped (`entry_geometry`). A pair is valid when σ ≥ 0 (3DGS's rule; in this form only a NaN
 fails it), α ≥ 1/255 and the pixel is inside the image; valid pairs are exactly those with log(1 − α) < 0.
 
 "Extended features" are the per-Gaussian features with two more channels, depth z and 1, so one
@@ -43,22 +43,32 @@ LOG_T_MIN = math.log(1e-4)
 """3DGS stops a pixel before the Gaussian that would bring its transmittance below 1e-4."""
 
 
-def sheared_entry_offsets(
-    dx0: Tensor, dy: Tensor, swapped: Tensor, shear: Tensor,
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Per entry (Q,): t0 and w0, t and w at the block's first pixel, and their slopes p and r along it, from
-    dx0 and dy, that pixel centre's offsets from the mean; `swapped` is bool. Formed once per entry rather than at
-    each of its pixels inside the kernels below, which made them 1.3–1.5× slower in a scratch timing.
+def entry_geometry(
+    block: Tensor, gaussian: Tensor, means2d: Tensor, conic_planes: Tensor, swapped: Tensor, opacities: Tensor,
+    blocks_per_row: int, block_width: int, width: int,
+) -> tuple[Tensor, ...]:
+    """Per entry (Q,) of Gaussian `gaussian` on block `block`: t0 and w0, t and w at the block's first pixel, their
+    slopes p and r along it, the sheared conic (3, Q), the opacity, and the in-image pixels of the block (width − x0).
+    One pass with the Gaussians' values gathered inside it: as separate eager gathers and integer divisions, the same
+    took 1.6× the time on the 100k benchmark case's first chunk (17.7 against 10.9 ms, a scratch timing).
 
     Offsets are clamped to ±sqrt(max)/4 (4.6e18 px in float32), so that A·t² and Q·w² stay finite where A or Q
     underflow to 0. A clamp changes no α unless the footprint's std along an axis is about 1e18 px or more; the
     gradients of such a footprint's entries (their S, Q and mean) do change, as the backward takes the clamped
     offsets and ignores the clamp.
     """
-    limit = torch.finfo(dx0.dtype).max ** 0.5 / 4
-    w0 = torch.where(swapped, dx0, dy)
-    t0 = (torch.where(swapped, dy, dx0) - shear * w0).clamp(-limit, limit)
-    return t0, w0.clamp(-limit, limit), torch.where(swapped, -shear, 1.0), swapped.to(dx0.dtype)
+    dtype = means2d.dtype
+    x0 = (block % blocks_per_row) * block_width
+    row = torch.div(block, blocks_per_row, rounding_mode="floor")
+    mean = means2d.index_select(0, gaussian)  # index_select and gather: eager, x[idx] is much slower on CPU
+    conic = torch.gather(conic_planes, 1, gaussian.expand(3, -1))
+    dx0, dy = x0.to(dtype) + 0.5 - mean[:, 0], row.to(dtype) + 0.5 - mean[:, 1]
+    flipped, shear = swapped.index_select(0, gaussian), conic[1]
+    limit = torch.finfo(dtype).max ** 0.5 / 4
+    w0 = torch.where(flipped, dx0, dy)
+    t0 = (torch.where(flipped, dy, dx0) - shear * w0).clamp(-limit, limit)
+    return (t0, w0.clamp(-limit, limit), torch.where(flipped, -shear, 1.0), flipped.to(dtype), conic,
+            opacities.index_select(0, gaussian), width - x0)
 
 
 def _sheared_offsets(t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, block_width: int) -> tuple[Tensor, Tensor]:
@@ -71,7 +81,11 @@ def alpha_and_log_one_minus(
     t0: Tensor, w0: Tensor, p: Tensor, r: Tensor, sheared_conic: Tensor, opacity: Tensor, in_image_cols: Tensor,
     block_width: int,
 ) -> tuple[Tensor, Tensor]:
-    """α before clamping, and log(1 − α) (float64 for the running sums) where the pair is valid, else 0."""
+    """α before clamping, and log(1 − α) (float64 for the running sums) where the pair is valid, else 0.
+
+    `log(1 − α)` rather than `log1p(−α)`: the kernel took half the time (8.9 against 16.0 ms on the 20k benchmark case's
+    first chunk, a scratch timing), and for α ≥ 1/255 forming 1 − α rounds by at most half a unit of 1, about 6e-8 in
+    float32, the rounding of 3DGS's own T·(1 − α); in float64, about 1e-16."""
     A, _, Q = sheared_conic.unbind(0)
     t, w = _sheared_offsets(t0, w0, p, r, block_width)
     sigma = 0.5 * (A * t * t + Q * w * w)
@@ -79,7 +93,7 @@ def alpha_and_log_one_minus(
     alpha = alpha_raw.clamp(max=ALPHA_MAX)
     cols = torch.arange(block_width, device=t0.device)[:, None]
     valid = (sigma >= 0) & (alpha >= ALPHA_MIN) & (cols < in_image_cols)
-    return alpha_raw, torch.where(valid, torch.log1p(-alpha), 0.0).to(torch.float64)
+    return alpha_raw, torch.where(valid, torch.log(1.0 - alpha), 0.0).to(torch.float64)
 
 
 def blend(
@@ -227,7 +241,7 @@ def row_block_spans(
 
 _EAGER: dict[str, Callable] = {
     fn.__name__: fn
-    for fn in (sheared_entry_offsets, alpha_and_log_one_minus, blend, upstream_per_weight, entry_gradients,
+    for fn in (entry_geometry, alpha_and_log_one_minus, blend, upstream_per_weight, entry_gradients,
                row_block_spans)
 }
 _compiled: dict[Callable, Callable] = {}

@@ -52,7 +52,7 @@ MAX_FOOTPRINT_EXPONENT = 250
 """A footprint matrix T larger than 2²⁵⁰ px (1.8e75) is multiplied by the power of two that brings it there, so that
 det(T Tᵀ) ~ |T|⁴ stays within float64: at 1e77 px (a mean 1e-20 in front of a camera of focal length 1e30 px) it
 was inf, and every gradient NaN. Its α changes only where its mean is also ~1e75 px or more away (float32 clamps
-offsets at 4.6e18 px anyway, see kernels.sheared_entry_offsets)."""
+offsets at 4.6e18 px anyway, see kernels.entry_geometry)."""
 
 LOW_PASS = 0.3
 """The 3DGS screen-space blur added to cov2d (about one pixel), in px²."""

@@ -386,7 +386,7 @@ def test_per_pixel_kernels_compile_with_inductors_tiling_heuristic_off(monkeypat
     heuristic_off = {"cpp.enable_tiling_heuristics": False}
     assert {name for name, options in options_of.items() if options == heuristic_off} == {
         "upstream_per_weight", "entry_gradients"}
-    assert {"sheared_entry_offsets", "alpha_and_log_one_minus", "blend"} <= {
+    assert {"entry_geometry", "alpha_and_log_one_minus", "blend"} <= {
         name for name, options in options_of.items() if options is None}
 
 
