@@ -9,7 +9,8 @@ Compositor layout (row_block_spans instead takes 1-D per-row-record inputs): an 
 Gaussian on one block of B pixels of a row; element [x, q] is that Gaussian at column x of the
 block. Columns come first so that the running sums down each
 pixel's list (along q) are contiguous: torch's CPU cumsum is much slower across a strided dim.
-Per-entry inputs are (Q,), or for the conic (3, Q), rows A, S, Q, so that every load along q is contiguous.
+Per-entry inputs are (Q,), or for the conic (3, Q), rows A, S, Q, so that every load along q is contiguous;
+`entry_geometry` forms them from the Gaussians' (N, ·) values.
 With the conic in sheared form (A, S, Q) (see projection.py), σ = ½A·t² + ½Q·w², t = v − S·w, where (v, w) is
 the pixel centre's offset from the mean, (dx, dy) or, for a `swapped` Gaussian, (dy, dx). Along a block only dx
 changes, by x: per entry t = t0 + p·x and w = w0 + r·x, with t0 and w0 at its first pixel and (p, r) = (1, 0), or
@@ -49,8 +50,9 @@ def entry_geometry(
 ) -> tuple[Tensor, ...]:
     """Per entry (Q,) of Gaussian `gaussian` on block `block`: t0 and w0, t and w at the block's first pixel, their
     slopes p and r along it, the sheared conic (3, Q), the opacity, and the in-image pixels of the block (width − x0).
-    One pass with the Gaussians' values gathered inside it: as separate eager gathers and integer divisions, the same
-    took 1.6× the time on the 100k benchmark case's first chunk (17.7 against 10.9 ms, a scratch timing).
+    One pass with the Gaussians' values gathered inside it: with separate eager gathers and integer divisions around
+    an offsets kernel, forming the entries' views took 29–32 against 22–25 ms per render of the 20k benchmark case,
+    and 96–100 against 70–83 ms on the 100k case (compiled, two processes each, a scratch timing).
 
     Offsets are clamped to ±sqrt(max)/4 (4.6e18 px in float32), so that A·t² and Q·w² stay finite where A or Q
     underflow to 0. A clamp changes no α unless the footprint's std along an axis is about 1e18 px or more; the
@@ -83,9 +85,9 @@ def alpha_and_log_one_minus(
 ) -> tuple[Tensor, Tensor]:
     """α before clamping, and log(1 − α) (float64 for the running sums) where the pair is valid, else 0.
 
-    `log(1 − α)` rather than `log1p(−α)`: the kernel took half the time (8.9 against 16.0 ms on the 20k benchmark case's
-    first chunk, a scratch timing), and for α ≥ 1/255 forming 1 − α rounds by at most half a unit of 1, about 6e-8 in
-    float32, the rounding of 3DGS's own T·(1 − α); in float64, about 1e-16."""
+    `log(1 − α)` rather than `log1p(−α)`: the kernel took half the time (26–28 against 52–53 ms per render of the 20k
+    benchmark case, compiled, two processes each, a scratch timing), and for α ≥ 1/255 forming 1 − α rounds by at most
+    half a unit of 1, about 6e-8 in float32, the rounding of 3DGS's own T·(1 − α); in float64, about 1e-16."""
     A, _, Q = sheared_conic.unbind(0)
     t, w = _sheared_offsets(t0, w0, p, r, block_width)
     sigma = 0.5 * (A * t * t + Q * w * w)
@@ -257,7 +259,8 @@ Same arithmetic in the same order, so bit-identical results (docs/results.md, "R
 
 RECOMPILE_LIMIT = 16
 """Graphs dynamo may compile for one kernel and one set of input dtypes (its default is 8 per function, shared by all
-dtypes). A kernel specialises on what dynamic shapes cannot cover: a size of 0 or 1, and the channel count of
+dtypes). A kernel specialises on what dynamic shapes cannot cover: a size of 0 or 1 (of the entries Q, and for
+`entry_geometry` of the Gaussians N too), and the channel count of
 `upstream_per_weight` and `entry_gradients`, whose loop over the C+2 channels is unrolled. A process that renders
 five channel widths in float32 and float64 (training, then the baselines' extra features, or the tests) needed 10
 graphs of each, and past the eighth dynamo ran the kernel eager, saying so only in its log: that float64 render took
