@@ -143,27 +143,21 @@ def segments(block: Tensor) -> Segments:
     return Segments(which, block.index_select(0, block_first), block_first, block_last)
 
 
-def chunks(entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int) -> Iterator[slice | Tensor]:
-    """Yield the entry positions to composite, round by round, in pieces of about max_elements (Q·B).
+def chunks(
+    entries: BlockEntries, log_t: Tensor, in_image: Tensor, max_elements: int,
+) -> Iterator[tuple[Tensor, Tensor]]:
+    """Yield the (block, Gaussian) ids of the entries to composite, round by round in block order, in pieces of about
+    max_elements (Q·B).
 
     From the second round on, blocks whose in-image pixels all have log T < ln 1e-4 are skipped;
     `log_t` must be up to date with every chunk yielded before (the caller composites in between).
     """
     step = max(1, max_elements // entries.block_width)
-    for r, (start, end) in enumerate(zip(entries.round_bounds[:-1], entries.round_bounds[1:], strict=True)):
-        positions: slice | Tensor = slice(start, end)
-        if r > 0:
-            alive = ((log_t >= LOG_T_MIN) & in_image).any(0)
-            keep = alive.index_select(0, entries.block[start:end])
-            positions = torch.nonzero(keep).squeeze(1) + start
-            if positions.numel() == end - start:
-                positions = slice(start, end)
-        count = end - start if isinstance(positions, slice) else positions.numel()
-        for offset in range(0, count, step):
-            if isinstance(positions, slice):
-                yield slice(start + offset, min(start + offset + step, end))
-            else:
-                yield positions[offset : offset + step]
+    for r in range(len(entries.round_bounds) - 1):
+        alive = None if r == 0 else ((log_t >= LOG_T_MIN) & in_image).any(0)
+        block, gaussian = entries.round_entries(r, alive)
+        for offset in range(0, block.numel(), step):
+            yield block[offset : offset + step], gaussian[offset : offset + step]
 
 
 def columns(values: Tensor, index: Tensor) -> Tensor:
@@ -172,14 +166,7 @@ def columns(values: Tensor, index: Tensor) -> Tensor:
     return torch.gather(values, 1, index.expand(values.shape[0], -1))
 
 
-def take(values: Tensor, positions: slice | Tensor) -> Tensor:
-    """values[positions]: a view for a slice, index_select (much faster than x[idx] on CPU) for a tensor."""
-    return values[positions] if isinstance(positions, slice) else values.index_select(0, positions)
-
-
-def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int) -> EntryView:
-    gaussian = take(entries.gaussian, positions)
-    block = take(entries.block, positions)
+def view_entries(entries: BlockEntries, block: Tensor, gaussian: Tensor, g: GaussianParams, width: int) -> EntryView:
     t0, w0, p, r, sheared_conic, opacity, in_image_cols = kernel("entry_geometry")(
         block, gaussian, g.means2d, g.conic_planes, g.swapped, g.opacities,
         entries.blocks_per_row, entries.block_width, width,
@@ -188,7 +175,7 @@ def view_entries(entries: BlockEntries, positions: slice | Tensor, g: GaussianPa
 
 
 def forward_chunk(
-    entries: BlockEntries, positions: slice | Tensor, g: GaussianParams, width: int, acc: PixelAccumulators,
+    entries: BlockEntries, chunk: tuple[Tensor, Tensor], g: GaussianParams, width: int, acc: PixelAccumulators,
     log_t: Tensor, counted: Tensor | None, keep_state: bool,
 ) -> ChunkState | None:
     """Composite some entries into the accumulators and advance each pixel's carried log T (B, num_blocks).
@@ -201,7 +188,7 @@ def forward_chunk(
     `counted` (B, num_blocks, 0 or 1) limits the contributions to some pixels; the image is unaffected.
     Returns what the backward needs, or None without `keep_state`.
     """
-    v = view_entries(entries, positions, g, width)
+    v = view_entries(entries, *chunk, g, width)
     alpha_raw, log_one_minus = kernel("alpha_and_log_one_minus")(
         v.t0, v.w0, v.p, v.r, v.sheared_conic, v.opacity, v.in_image_cols, entries.block_width
     )

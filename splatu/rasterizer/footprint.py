@@ -2,16 +2,15 @@
 
 A Gaussian can only pass the α ≥ 1/255 test where σ ≤ ln(255·o), an ellipse. We cut that ellipse
 into exact per-row x-intervals, then into blocks of `block_width` pixels of one row. The entries
-(block, Gaussian) are ordered by depth round (an equal slab of the depth order), then block, then
-depth. Entries are far fewer than pixel–Gaussian pairs (about one per row per `block_width`
-pixels), and they are sorted one round at a time, by block alone (see block_entries). Rounds let
-the compositor skip the deeper part of a block's list once all of its pixels have terminated,
-which in a deep scene is most of it.
+(block, Gaussian) are listed by depth round (an equal slab of the depth order), and the compositor
+takes each round ordered by block, then depth (BlockEntries.round_entries). Entries are far fewer
+than pixel–Gaussian pairs (about one per row per `block_width` pixels). Rounds let the compositor
+skip the deeper part of a block's list once all of its pixels have terminated, which in a deep scene
+is most of it; those entries are then never sorted.
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import torch
@@ -39,14 +38,35 @@ the poster stand-in (~300k entries) is one round, so rounds neither help nor cos
 
 @dataclass
 class BlockEntries:
-    """(block, Gaussian) entries sorted by (depth round, block, depth, index); one block = `block_width` pixels."""
+    """(block, Gaussian) entries in depth rounds, each round in depth order; `round_entries` sorts one by block.
 
-    gaussian: Tensor  # (Q,) int64 Gaussian index into the full (N,) arrays
-    block: Tensor  # (Q,) int64 block id = row * blocks_per_row + column block
+    A round is sorted only when the compositor reaches it, and only on the blocks it still has to composite: in a
+    deep scene most of the later rounds' entries lie on blocks whose pixels have all terminated, and they are never
+    sorted or gathered (on the 100k benchmark case, 3.8M of the 6.3M entries)."""
+
+    key: Tensor  # (Q,) block id = row * blocks_per_row + column block: int16 below 32,768 blocks, else int32
+    gaussian: Tensor  # (Q,) int32 Gaussian index into the full (N,) arrays
     round_bounds: list[int]  # entries [round_bounds[r], round_bounds[r + 1]) form depth round r
     block_width: int
     blocks_per_row: int
     num_blocks: int
+
+    def round_entries(self, r: int, keep_block: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Round r's entries on the blocks `keep_block` marks (bool per block; None: every block), sorted by block and
+        front to back within one (a stable sort of depth-ordered entries): block ids and Gaussians, int64 (the
+        compositor's index ops ran slower with int32 indices)."""
+        begin, end = self.round_bounds[r], self.round_bounds[r + 1]
+        key, gaussian = self.key[begin:end], self.gaussian[begin:end]
+        if keep_block is not None:
+            kept = torch.nonzero(keep_block.index_select(0, key.int())).squeeze(1)
+            if kept.numel() < key.numel():
+                key, gaussian = key.index_select(0, kept), gaussian.index_select(0, kept)
+        # torch's CPU sort of a 1-D integer tensor of ≥ 32,768 elements is a parallel radix sort, one pass per key
+        # byte, and one round's keys fit in cache. int16 keys (any image of < 32,768 blocks) halve the passes: a
+        # stable sort of 395k keys took 2.65 ms as int16 against 5.03 ms as int32 (scratch timings, torch 2.13 CPU,
+        # 2 threads; docs/results.md).
+        block, order = torch.sort(key, stable=True)
+        return block.long(), gaussian.index_select(0, order).long()
 
 
 def block_entries(
@@ -78,14 +98,10 @@ def block_entries(
             y, rec_g, mx, my, 2.0 * s * cyy, det_g / cyy.square(), cxy / cyy, width, block_width
         )
 
-        # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable
-        # sort of each round by block alone leaves every block's list front to back. torch's CPU sort
-        # of a 1-D integer tensor of ≥ 32,768 elements is a parallel radix sort, one pass per key
-        # byte, and one round's keys fit in cache. The change from one int64 sort of all 6.3M entries of
-        # the 100k benchmark case to a sort per round (which also fused the row spans) took its footprint
-        # pass alone to 0.18–0.24× the time. int16 keys (any image of < 32,768 blocks) halve the passes
-        # again: a stable sort of 395k keys took 2.65 ms as int16 against 5.03 ms as int32 (scratch
-        # timings, torch 2.13 CPU, 2 threads; docs/results.md).
+        # Entries come out in depth order, so a depth round is a contiguous run of them, and a stable sort of
+        # each round by block alone (BlockEntries.round_entries) leaves every block's list front to back. The
+        # change from one int64 sort of all 6.3M entries of the 100k benchmark case to a sort per round (which
+        # also fused the row spans) took its footprint pass alone to 0.18–0.24× the time (docs/results.md).
         ent_rec, unsorted_block = _expand((y * blocks_per_row + j_lo).int(), blocks_per)
         rounds = max(1, min(MAX_ROUNDS, ent_rec.numel() // ROUND_MIN_ENTRIES))
         depth_round = torch.div(torch.arange(ids.numel(), device=ids.device) * rounds, max(1, ids.numel()),
@@ -93,16 +109,10 @@ def block_entries(
         per_round = torch.zeros(rounds, dtype=torch.long, device=ids.device)
         per_round.index_add_(0, depth_round.index_select(0, rec_g), blocks_per)
         round_bounds = [0, *torch.cumsum(per_round, 0).tolist()]
-        unsorted_gaussian = ids.int().index_select(0, rec_g).index_select(0, ent_rec)
+        gaussian = ids.int().index_select(0, rec_g).index_select(0, ent_rec)
         key = unsorted_block.short() if num_blocks <= torch.iinfo(torch.int16).max else unsorted_block
-        block = torch.empty(round_bounds[-1], dtype=torch.long, device=ids.device)
-        gaussian = torch.empty_like(block)
-        for begin, end in itertools.pairwise(round_bounds):
-            sorted_block, order = torch.sort(key[begin:end], stable=True)
-            block[begin:end] = sorted_block
-            gaussian[begin:end] = unsorted_gaussian[begin:end].index_select(0, order)
     return BlockEntries(
-        gaussian=gaussian, block=block, round_bounds=round_bounds,
+        key=key, gaussian=gaussian, round_bounds=round_bounds,
         block_width=block_width, blocks_per_row=blocks_per_row, num_blocks=num_blocks,
     )
 

@@ -39,8 +39,8 @@ def _run_forward(
     height = entries.num_blocks // entries.blocks_per_row
     in_image = to_blocks(torch.ones(height, width, dtype=torch.bool, device=device), entries)
     states = []
-    for positions in chunks(entries, log_t, in_image, max_elements):
-        state = forward_chunk(entries, positions, g, width, acc, log_t, counted, keep_state)
+    for chunk in chunks(entries, log_t, in_image, max_elements):
+        state = forward_chunk(entries, chunk, g, width, acc, log_t, counted, keep_state)
         if state is not None:
             states.append(state)
     acc.contrib_sum = acc.contrib_sum.to(dtype)

@@ -11,6 +11,7 @@ listed entry has a pixel within the footprint's rounding slack of passing, and t
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import pytest
 import torch
@@ -27,13 +28,33 @@ WIDTH, HEIGHT = 37, 23  # not a multiple of the block width
 BLOCKS_PER_ROW = -(-WIDTH // BLOCK_WIDTH)
 
 
-def listed(seed: int, n: int = 80, width: int = WIDTH, height: int = HEIGHT):
+@dataclass
+class SortedEntries:
+    """Every round of a BlockEntries as the compositor takes it when no block is skipped, one after another."""
+
+    block: torch.Tensor
+    gaussian: torch.Tensor
+    round_bounds: list[int]
+    num_blocks: int
+
+
+def sorted_entries(entries: footprint.BlockEntries) -> SortedEntries:
+    blocks, gaussians = zip(*(entries.round_entries(r) for r in range(len(entries.round_bounds) - 1)), strict=True)
+    return SortedEntries(torch.cat(blocks), torch.cat(gaussians), entries.round_bounds, entries.num_blocks)
+
+
+def unsorted(seed: int, n: int = 80, width: int = WIDTH, height: int = HEIGHT):
     scene = random_scene(seed, n, width, height, opacity_range=(0.002, 0.99))
     proj = project_gaussians(scene.means, scene.quats, scene.scales, scene.world_to_camera, scene.K, width, height,
                              scene.near, scene.far, False)
     entries = block_entries(proj.means2d, proj.cov2d, proj.det, scene.opacities, proj.depths, proj.visible,
                             width, height, BLOCK_WIDTH)
     return scene, proj, entries
+
+
+def listed(seed: int, n: int = 80, width: int = WIDTH, height: int = HEIGHT):
+    scene, proj, entries = unsorted(seed, n, width, height)
+    return scene, proj, sorted_entries(entries)
 
 
 def sigma_at(proj, x: torch.Tensor, y: torch.Tensor, gaussian: torch.Tensor) -> torch.Tensor:
@@ -116,6 +137,26 @@ def test_order_holds_on_lists_long_enough_for_the_radix_sort(rounds, width, heig
     assert_round_block_depth_order(proj, entries, rounds)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_a_round_taken_on_some_blocks_is_that_round_on_those_blocks(seed, monkeypatch):
+    """The compositor sorts a later round only on the blocks still alive: that must be the whole round's list with
+    the other blocks' entries left out, in the same order (so that skipping changes no render)."""
+    monkeypatch.setattr(footprint, "MAX_ROUNDS", 3)
+    monkeypatch.setattr(footprint, "ROUND_MIN_ENTRIES", 1)
+    _, _, entries = unsorted(seed, n=200)
+    keep = torch.rand(entries.num_blocks, generator=torch.Generator().manual_seed(seed)) < 0.5
+    for r in range(len(entries.round_bounds) - 1):
+        block, gaussian = entries.round_entries(r)
+        kept_block, kept_gaussian = entries.round_entries(r, keep)
+        on_kept = keep[block]
+        assert 0 < int(on_kept.sum()) < block.numel(), "the test should keep some of the round's entries, not all"
+        assert torch.equal(kept_block, block[on_kept]) and torch.equal(kept_gaussian, gaussian[on_kept])
+        assert kept_block.dtype == kept_gaussian.dtype == torch.long
+    everything = torch.ones(entries.num_blocks, dtype=torch.bool)
+    assert all(torch.equal(a, b) for a, b in zip(entries.round_entries(0, everything), entries.round_entries(0),
+                                                 strict=True))
+
+
 def test_more_entries_than_int32_indices_hold_is_one_clear_error(monkeypatch):
     """Past MAX_ENTRIES the int32 owners would wrap; the limit is lowered here so the test allocates nothing large."""
     assert torch.iinfo(torch.int32).max == footprint.MAX_ENTRIES
@@ -130,7 +171,9 @@ def test_no_candidates_give_an_empty_list():
     scene, proj, _ = listed(0, n=5)
     entries = block_entries(proj.means2d, proj.cov2d, proj.det, torch.zeros_like(scene.opacities), proj.depths,
                             proj.visible, WIDTH, HEIGHT, BLOCK_WIDTH)
-    assert entries.block.numel() == entries.gaussian.numel() == 0
+    assert entries.key.numel() == entries.gaussian.numel() == 0
+    block, gaussian = entries.round_entries(0)
+    assert block.numel() == gaussian.numel() == 0
     assert entries.round_bounds == [0, 0]
 
 

@@ -416,12 +416,12 @@ def one_gaussian_rounds(monkeypatch):
 
     def recording_block_entries(*args):
         entries = block_entries(*args)
-        listed.append(entries.block.numel())
+        listed.append(entries.key.numel())
         return entries
 
-    def recording_forward_chunk(entries, positions, *args):
-        composited.append(torch.arange(entries.block.numel())[positions].numel())
-        return forward_chunk(entries, positions, *args)
+    def recording_forward_chunk(entries, chunk, *args):
+        composited.append(chunk[0].numel())
+        return forward_chunk(entries, chunk, *args)
 
     monkeypatch.setattr(raster_module, "block_entries", recording_block_entries)
     monkeypatch.setattr(function_module, "forward_chunk", recording_forward_chunk)
