@@ -17,8 +17,10 @@ the thresholds).
 `reference_candidate_pairs` counts the pixel–Gaussian pairs the baseline evaluates (every pixel of every
 tile × every Gaussian binned to it), and `reference_ns_per_candidate_pair` its forward + backward time per
 candidate: the unit in which the issue priced eager prototypes (0.5–1 µs per candidate pair).
-`ms_footprint` is the part of our forward spent listing each block's Gaussians (footprint.py); the
-rest of it is the projection and the compositing.
+`ms_footprint` is the part of our forward spent listing each depth round's entries (footprint.py's
+block_entries); the rest of it is the projection and the compositing, which since 0afbe8c includes sorting
+each round by block as it is reached (before, the footprint sorted every round, and its times are not
+comparable across that commit).
 Both run with glibc malloc's thresholds fixed as every splatu command fixes them
 (splatu.allocator), unless --malloc-defaults.
 """
