@@ -98,8 +98,9 @@ def latest_new_run(output_dir: Path, scene: str, method: str) -> Iterator[tuple[
 def training_lock(run_dir: Path) -> Iterator[None]:
     """One training per run folder at a time: a second `--resume` of a run still training (a requeued batch job,
     a second terminal) would interleave its checkpoints and log with the first's. The kernel drops the lock when
-    its process ends, however it ends, so a killed run never leaves a stale one. Where the file system has no
-    locks, training goes on without the guard."""
+    its process ends, however it ends, so a killed run never leaves a stale one. The file itself stays in the folder:
+    deleting it on exit would let a process already waiting on it lock the deleted file while a third locks a new
+    one. Where the file system has no locks, training goes on without the guard."""
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         lock = open(run_dir / LOCK_FILE, "a")  # noqa: SIM115 (closed by the `with` below, after the training)
