@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
+import torch
 import tyro
 from rich.console import Console
 from rich.table import Table
@@ -25,6 +26,7 @@ from splatu.atomic import atomic_write_text, file_identity, what_a_stop_left
 from splatu.checkpoint import run_folder
 from splatu.errors import FREE_AND_RERUN, SplatuError, creatable_dir, no_empty_folders_left
 from splatu.interrupts import finish_first, saying_what_is_left
+from splatu.losses import psnr
 from splatu.maps import MapEntry, entry_names, read_entry
 from splatu.uncertainty_options import DEFAULTS, OPTION_NAMES, UncertaintyOptions
 
@@ -62,11 +64,25 @@ RANDOM_CURVE = "random baseline"
 """The plot's name for the baseline's curve: `--method random` labels the method's own curve "random"."""
 
 
+def render_psnr(entry: MapEntry) -> dict[str, float | None]:
+    """PSNR of the render against the ground truth as scored (a maps directory's 16-bit PNGs), on the scored pixels and
+    on the observed ones (None where there are none). Each method's AUSE ranks its own render's error, so an
+    ensemble's mean render, which is better than one model's, is ranked on smaller errors: the report gives each
+    render's PSNR beside its AUSE."""
+    rgb, gt = torch.from_numpy(entry.rgb), torch.from_numpy(entry.gt)
+    scored = torch.ones(rgb.shape[:2], dtype=torch.bool) if entry.mask is None else torch.from_numpy(
+        np.asarray(entry.mask, dtype=bool))
+    observed = None if entry.unobserved is None else scored & ~torch.from_numpy(np.asarray(entry.unobserved, bool))
+    return {"psnr": psnr(rgb, gt, scored) if scored.any() else None,
+            "psnr_observed": psnr(rgb, gt, observed) if observed is not None and observed.any() else None}
+
+
 def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, Any], dict[str, A.Curves]]:
-    """Per-image scores and the mean over images, plus the mean curves for the plot."""
+    """Per-image scores and the mean over images (PSNR too: the mean of each image's own), plus the mean curves for
+    the plot."""
     metrics: tuple[A.Metric, ...] = tuple(dict.fromkeys(("mae", "rmse", metric)))
     scored = {e.name: A.score_image(e.rgb, e.gt, e.uncertainty, e.mask, e.unobserved, metrics) for e in entries}
-    per_image = {name: scores for name, (scores, _) in scored.items()}
+    per_image = {name: scores | render_psnr(e) for e, (name, (scores, _)) in zip(entries, scored.items(), strict=True)}
     ours = [A.start_normalised(curves[metric].ours) for _, curves in scored.values()]
     # every seed the table's random baseline averages, so the plotted curve is the reported one
     random = [A.start_normalised(c) for _, curves in scored.values() for c in curves[metric].random]
@@ -175,6 +191,10 @@ def print_report(report: dict[str, Any], metric: A.Metric, per_image: bool = Fal
     _print_wide(table)
     if mean["auroc_unobserved"] is not None:
         Console().print(f"AUROC of U for the unobserved pixels: {_fmt(mean['auroc_unobserved'])}", soft_wrap=True)
+    if mean.get("psnr") is not None:  # reports written before it have no PSNR
+        observed = "" if mean["psnr_observed"] is None else f", {mean['psnr_observed']:.2f} dB on the observed ones"
+        Console().print(f"PSNR of the render scored: {mean['psnr']:.2f} dB on the scored pixels{observed} (the mean of "
+                        "each image's own)", soft_wrap=True)
 
 
 def load_only_options_set(options: UncertaintyOptions) -> list[str]:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import re
 
+import numpy as np
 import pytest
 
-from splatu.eval_ause import print_report
+from splatu.eval_ause import print_report, render_psnr, score_entries
+from splatu.maps import MapEntry
 
 SCORES = ("ause", "random_ause", "ause_start_norm", "random_ause_start_norm", "ausc", "random_ausc", "oracle_ausc")
 
@@ -68,3 +71,46 @@ def test_per_image_rows_keep_every_name_and_score_whole_when_piped(capsys):
                          f"{scores['ause_mae_start_norm']:.4f}",
                          "n/a" if scores["auroc_unobserved"] is None else f"{scores['auroc_unobserved']:.4f}"]
     assert {"MAE", "RMSE"} <= set(rows)  # the means follow
+
+
+def _entry(name: str, left_error: float, right_error: float, mask=None, unobserved=None) -> MapEntry:
+    """A 4×6 view whose render is off by `left_error` on its left half and `right_error` on its right half."""
+    gt = np.full((4, 6, 3), 0.5)
+    rgb = gt.copy()
+    rgb[:, :3] += left_error
+    rgb[:, 3:] += right_error
+    return MapEntry(name, rgb, gt, np.linspace(0, 1, 24).reshape(4, 6), mask, unobserved)
+
+
+def _db(mse: float) -> float:
+    return -10 * math.log10(mse)
+
+
+def test_the_render_psnr_is_taken_on_the_scored_and_on_the_observed_pixels():
+    """Each method's AUSE ranks its own render's error (an ensemble's mean render is better than one model's), so the
+    report gives the PSNR of the render it scored, as the trainer gives psnr and psnr_observed."""
+    left_unseen = np.zeros((4, 6), bool)
+    left_unseen[:, :3] = True
+    scores = render_psnr(_entry("v", 0.1, 0.02, unobserved=left_unseen))
+    assert scores["psnr"] == pytest.approx(_db((0.01 + 0.0004) / 2))
+    assert scores["psnr_observed"] == pytest.approx(_db(0.0004))
+    right_only = ~left_unseen
+    masked = render_psnr(_entry("v", 0.1, 0.02, mask=right_only, unobserved=right_only))
+    assert masked["psnr"] == pytest.approx(_db(0.0004))
+    assert masked["psnr_observed"] is None  # every scored pixel is unobserved
+    assert render_psnr(_entry("v", 0.1, 0.02))["psnr_observed"] is None  # no unobserved map: no observed figure
+
+
+def test_the_report_gives_the_mean_of_each_image_s_psnr(capsys):
+    """The mean of each image's own PSNR, as nerfstudio and 3DGS report it, not the PSNR of the pooled pixels."""
+    report, _ = score_entries([_entry("a", 0.1, 0.1), _entry("b", 0.01, 0.01)], "mae")
+    assert report["per_image"]["a"]["psnr"] == pytest.approx(20.0)
+    assert report["mean"]["psnr"] == pytest.approx(30.0)  # pooled: 10·log10(2 / 0.0101) = 22.97
+    assert report["mean"]["psnr_observed"] is None
+    report |= {"method": "ours"}
+    print_report(report, "mae")
+    out = capsys.readouterr().out
+    assert "PSNR of the render scored: 30.00 dB on the scored pixels (the mean of each image's own)" in out
+    report["mean"]["psnr"] = None  # a report written before PSNR was scored prints none
+    print_report(report, "mae")
+    assert "PSNR" not in capsys.readouterr().out
