@@ -65,11 +65,11 @@ RANDOM_CURVE = "random baseline"
 
 
 def render_psnr(entry: MapEntry) -> dict[str, float | None]:
-    """PSNR of the render against the ground truth as scored (a maps directory's 16-bit PNGs), on the scored pixels and
-    on the observed ones (None where there are none). Each method's AUSE ranks its own render's error, so an
+    """PSNR of the render, clipped to [0, 1] as a stored map is, against the ground truth, on the scored pixels and on
+    the observed ones (None where there are none). Each method's AUSE ranks its own render's error, so an
     ensemble's mean render, which is better than one model's, is ranked on smaller errors: the report gives each
     render's PSNR beside its AUSE."""
-    rgb, gt = torch.from_numpy(entry.rgb), torch.from_numpy(entry.gt)
+    rgb, gt = torch.from_numpy(entry.rgb).clamp(0.0, 1.0), torch.from_numpy(entry.gt)
     scored = torch.ones(rgb.shape[:2], dtype=torch.bool) if entry.mask is None else torch.from_numpy(
         np.asarray(entry.mask, dtype=bool))
     observed = None if entry.unobserved is None else scored & ~torch.from_numpy(np.asarray(entry.unobserved, bool))
@@ -82,7 +82,7 @@ def score_entries(entries: list[MapEntry], metric: A.Metric) -> tuple[dict[str, 
     the plot."""
     metrics: tuple[A.Metric, ...] = tuple(dict.fromkeys(("mae", "rmse", metric)))
     scored = {e.name: A.score_image(e.rgb, e.gt, e.uncertainty, e.mask, e.unobserved, metrics) for e in entries}
-    per_image = {name: scores | render_psnr(e) for e, (name, (scores, _)) in zip(entries, scored.items(), strict=True)}
+    per_image = {e.name: scored[e.name][0] | render_psnr(e) for e in entries}
     ours = [A.start_normalised(curves[metric].ours) for _, curves in scored.values()]
     # every seed the table's random baseline averages, so the plotted curve is the reported one
     random = [A.start_normalised(c) for _, curves in scored.values() for c in curves[metric].random]

@@ -99,6 +99,8 @@ def test_the_render_psnr_is_taken_on_the_scored_and_on_the_observed_pixels():
     assert masked["psnr"] == pytest.approx(_db(0.0004))
     assert masked["psnr_observed"] is None  # every scored pixel is unobserved
     assert render_psnr(_entry("v", 0.1, 0.02))["psnr_observed"] is None  # no unobserved map: no observed figure
+    # a render past white is scored as its stored map holds it, clipped: 0.5 + 0.6 reads 1.0, off by 0.5
+    assert render_psnr(_entry("v", 0.6, 0.6))["psnr"] == pytest.approx(_db(0.25))
 
 
 def test_the_report_gives_the_mean_of_each_image_s_psnr(capsys):
